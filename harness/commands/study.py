@@ -16,7 +16,7 @@ from harness import studies
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "study",
-        help="reproduce a paper's study on its reference model; prints our table beside the paper's",
+        help="reproduce a paper's study on its reference model, beside the paper's table",
     )
     study_sub = parser.add_subparsers(dest="study", metavar="STUDY")
     for info in sorted(pkgutil.iter_modules(studies.__path__), key=lambda m: m.name):

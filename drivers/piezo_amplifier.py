@@ -1,0 +1,27 @@
+"""Piezo amplifier driver: actuator voltage per channel out, patch sensor voltages in."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from drivers.base import DeviceDriver
+
+
+@dataclass
+class PiezoAmplifierDriver(DeviceDriver):
+    max_voltage_v: float = 200.0
+    name = "piezo_amplifier"
+    telemetry_frame = "PIEZO_TLM"
+    command_frame = "PIEZO_CMD"
+
+    def clamp(self, volts: float) -> float:
+        if volts != volts:
+            return 0.0
+        lim = self.max_voltage_v
+        return -lim if volts < -lim else lim if volts > lim else volts
+
+    def encode(self, ch1_v: float, ch2_v: float, counter: int) -> bytes:
+        return self.protocol[self.command_frame].encode(
+            {"voltage_ch1": self.clamp(ch1_v), "voltage_ch2": self.clamp(ch2_v),
+             "counter": counter & 0xFF}
+        )

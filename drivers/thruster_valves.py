@@ -1,0 +1,27 @@
+"""Cold-gas thruster valve pair driver (opposed valves making a torque couple)."""
+
+from __future__ import annotations
+
+from drivers.base import DeviceDriver
+
+
+class ThrusterValvesDriver(DeviceDriver):
+    name = "thruster_valves"
+    telemetry_frame = "VALVE_TLM"
+    command_frame = "VALVE_CMD"
+
+    def encode(self, direction: int, counter: int) -> bytes:
+        """direction +1 opens the positive-torque valve, -1 the negative, 0 closes both.
+        Both valves are never opened together."""
+        d = 0 if direction != direction else (1 if direction > 0 else -1 if direction < 0 else 0)
+        return self.protocol[self.command_frame].encode(
+            {"valve_pos": int(d > 0), "valve_neg": int(d < 0), "counter": counter & 0xFF}
+        )
+
+    @property
+    def firings(self) -> int:
+        return int(self.values.get("firings", 0))
+
+    @property
+    def on_time_s(self) -> float:
+        return self.values.get("on_time", 0.0)

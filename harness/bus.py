@@ -1,0 +1,84 @@
+"""Opening the CAN bus named by ``--bus INTERFACE:CHANNEL`` or a run file.
+
+Accepted: ``virtual:NAME`` (python-can's in-process bus; the default, what CI uses),
+``socketcan:vcan0`` / ``socketcan:can0`` (Linux lab machines), and
+``socketcand:HOST:PORT`` (a virtual rig in its own process serving socketcand on loopback).
+python-can's ``udp_multicast`` interface is refused: it sends on the real network.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import can
+
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
+
+
+class BusSpecError(ValueError):
+    pass
+
+
+@dataclass(frozen=True)
+class BusSpec:
+    interface: str
+    channel: str
+    host: str = ""
+    port: int = 0
+
+    def __str__(self) -> str:
+        if self.interface == "socketcand":
+            return f"socketcand:{self.host}:{self.port}"
+        return f"{self.interface}:{self.channel}"
+
+    @property
+    def in_process(self) -> bool:
+        return self.interface == "virtual"
+
+
+def parse_bus(text: str) -> BusSpec:
+    interface, sep, rest = text.partition(":")
+    interface = interface.strip().lower()
+    if not sep or not rest:
+        raise BusSpecError(
+            f"--bus {text!r}: expected INTERFACE:CHANNEL, e.g. virtual:sgsrt, socketcan:vcan0 "
+            "or socketcand:127.0.0.1:29536"
+        )
+    if interface == "udp_multicast":
+        raise BusSpecError(
+            "--bus udp_multicast: refused; it sends on the machine's real network interface. "
+            "Use virtual:NAME in one process, socketcand:127.0.0.1:PORT between processes, "
+            "or socketcan:vcan0 on Linux."
+        )
+    if interface == "virtual":
+        return BusSpec("virtual", rest)
+    if interface == "socketcan":
+        return BusSpec("socketcan", rest)
+    if interface == "socketcand":
+        host, _, port = rest.rpartition(":")
+        if host not in LOOPBACK_HOSTS or not port.isdigit():
+            raise BusSpecError(
+                f"--bus {text!r}: expected socketcand:127.0.0.1:PORT (loopback only)"
+            )
+        return BusSpec("socketcand", "can0", host=host, port=int(port))
+    raise BusSpecError(
+        f"--bus {text!r}: unknown interface {interface!r} (use virtual, socketcan or socketcand)"
+    )
+
+
+def open_bus(spec: BusSpec, receive_own_messages: bool = False) -> can.BusABC:
+    try:
+        if spec.interface == "virtual":
+            return can.Bus(interface="virtual", channel=spec.channel,
+                           receive_own_messages=receive_own_messages)
+        if spec.interface == "socketcan":
+            return can.Bus(interface="socketcan", channel=spec.channel,
+                           receive_own_messages=receive_own_messages)
+        return can.Bus(interface="socketcand", channel=spec.channel, host=spec.host,
+                       port=spec.port)
+    except (OSError, can.CanError, AttributeError) as exc:
+        hint = ""
+        if spec.interface == "socketcan":
+            hint = (" (SocketCAN needs Linux with AF_CAN; create a virtual channel with "
+                    "'sudo ip link add dev vcan0 type vcan && sudo ip link set up vcan0')")
+        raise BusSpecError(f"cannot open bus {spec}: {exc}{hint}") from exc

@@ -1,0 +1,89 @@
+"""Controller types a run file can name, each with its schema and builder.
+
+A builder gets the validated controller section, the rig and the loop period, and returns an
+object with ``reset()`` and ``step(state) -> RigCommand``. Later issues add types here.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any, Protocol
+
+from harness.controllers.pd_wheel import PDWheelController
+from harness.controllers.slew_profile import CycloidalSlew
+from harness.state import RigCommand, RigState
+from rig_models.rig_file import RigConfig
+from rig_models.schema import Field
+
+
+class Controller(Protocol):
+    def reset(self) -> None: ...
+
+    def step(self, state: RigState) -> RigCommand: ...
+
+
+class HoldController:
+    """Commands nothing (all actuators at rest): free decay, sensor checks."""
+
+    def reset(self) -> None:
+        pass
+
+    def step(self, state: RigState) -> RigCommand:
+        return RigCommand()
+
+
+PD_WHEEL_SCHEMA = {
+    "type": Field("str", required=True),
+    "angle_deg": Field("number", "deg", required=True),
+    "start_s": Field("number", "s", default=1.0, minimum=0.0),
+    "slew_duration_s": Field("number", "s", default=0.0, minimum=0.0),
+    "torque_fraction": Field("number", default=0.8, exclusive_minimum=0.0, maximum=1.0),
+    "bandwidth_rad_s": Field("number", "rad/s", default=0.4, exclusive_minimum=0.0),
+    "damping_ratio": Field("number", default=0.9, exclusive_minimum=0.0),
+    "feedforward": Field("bool", default=True),
+}
+
+
+def build_pd_wheel(c: dict[str, Any], rig: RigConfig, dt_s: float) -> PDWheelController:
+    inertia = rig.plant.inertia_kg_m2
+    t_max = rig.section("reaction_wheel")["max_torque_n_m"]
+    angle = math.radians(c["angle_deg"])
+    if c["slew_duration_s"] > 0:
+        profile = CycloidalSlew(angle, c["slew_duration_s"], c["start_s"])
+    else:
+        profile = CycloidalSlew.shortest(angle, c["torque_fraction"] * t_max / inertia,
+                                         c["start_s"])
+    return PDWheelController.from_bandwidth(profile, inertia, c["bandwidth_rad_s"],
+                                            c["damping_ratio"], t_max, c["feedforward"])
+
+
+CONTROLLERS: dict[str, tuple[dict[str, Any], Callable[[dict[str, Any], RigConfig, float], Any]]] = {
+    "pd_wheel": (PD_WHEEL_SCHEMA, build_pd_wheel),
+    "hold": ({"type": Field("str", required=True)}, lambda c, rig, dt: HoldController()),
+}
+
+
+class WheelPulse:
+    """A rectangular wheel torque pulse, then nothing: excites the beam for a free decay."""
+
+    def __init__(self, torque_n_m: float, start_s: float, width_s: float) -> None:
+        self.torque_n_m, self.start_s, self.width_s = torque_n_m, start_s, width_s
+
+    def reset(self) -> None:
+        pass
+
+    def step(self, state: RigState) -> RigCommand:
+        on = self.start_s <= state.time_s < self.start_s + self.width_s
+        return RigCommand(wheel_torque_n_m=self.torque_n_m if on else 0.0)
+
+
+CONTROLLERS["wheel_pulse"] = (
+    {
+        "type": Field("str", required=True),
+        "torque_n_m": Field("number", "N m", default=0.065),
+        "start_s": Field("number", "s", default=0.5, minimum=0.0),
+        "width_s": Field("number", "s", default=1.0, exclusive_minimum=0.0),
+    },
+    lambda c, rig, dt: WheelPulse(c["torque_n_m"], c["start_s"], c["width_s"]),
+)

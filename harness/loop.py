@@ -1,0 +1,159 @@
+"""The fixed-rate loop: one tick = SYNC out, telemetry in, controller, commands out, record.
+
+Data flows one way per tick: sensors -> state -> controller -> command -> actuators -> log.
+On every exit path (end of run, exception in a controller, Ctrl-C, SIGTERM turned into
+KeyboardInterrupt by the caller) the actuators are commanded safe and the heartbeat is
+disarmed; the caller then closes the recording and the CAN log.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from harness.clock import LockstepClock, RealTimeClock
+from harness.recording import Recorder
+from harness.rig_interface import RigInterface
+from harness.state import RigCommand
+
+# what the loop records every tick (entity path = channel; the unit is in the name)
+CHANNELS = [
+    "/attitude/angle_deg",
+    "/attitude/reference_deg",
+    "/attitude/error_deg",
+    "/attitude/rate_deg_s",
+    "/wheel/torque_cmd_n_m",
+    "/wheel/torque_n_m",
+    "/wheel/speed_rad_s",
+    "/tip/accel_m_s2",
+    "/thrusters/valve_cmd",
+    "/thrusters/valve_state",
+    "/thrusters/firings",
+    "/thrusters/on_time_s",
+    "/piezo/cmd_ch1_v",
+    "/piezo/cmd_ch2_v",
+    "/piezo/sensor_ch1_v",
+    "/piezo/sensor_ch2_v",
+    "/rotor/angle_rad",
+    "/rotor/speed_rad_s",
+    "/timing/lateness_ms",
+    "/timing/work_ms",
+    "/timing/frames_rx",
+]
+
+
+@dataclass
+class LoopStats:
+    ticks: int = 0
+    overruns: int = 0
+    lateness_s: list[float] = field(default_factory=list)
+    work_s: list[float] = field(default_factory=list)
+    missing_frames: int = 0
+    wall_s: float = 0.0
+    stopped_by: str = "completed"
+    error: str = ""
+
+    def percentiles_ms(self, values: list[float]) -> dict[str, float]:
+        if not values:
+            return {"p50": 0.0, "p99": 0.0, "max": 0.0}
+        a = np.asarray(values) * 1e3
+        return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
+                "max": float(a.max())}
+
+
+def run_loop(
+    interface: RigInterface,
+    controller: object,
+    clock: LockstepClock | RealTimeClock,
+    recorder: Recorder,
+    n_ticks: int,
+    dt_s: float,
+    heartbeat_every: int,
+    receive_timeout_s: float,
+    pump: Callable[[], object] | None = None,
+    reference: Callable[[float], tuple[float, float, float]] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> LoopStats:
+    """Run ``n_ticks`` ticks. ``pump`` lets an in-process virtual rig answer (lockstep)."""
+    stats = LoopStats()
+    step = controller.step  # type: ignore[attr-defined]
+    perf = time.perf_counter
+    realtime = clock.realtime
+    timeout = receive_timeout_s if (realtime or pump is None) else 0.0
+    cmd = RigCommand()
+    sent = RigCommand()
+    progress_every = max(1, n_ticks // 20)
+    wall0 = perf()
+    clock.start()
+    tick = 0
+    try:
+        for tick in range(n_ticks):
+            lateness = clock.wait(tick)
+            t_start = perf()
+            if tick % heartbeat_every == 0:
+                interface.send_heartbeat(armed=True)
+            interface.send_sync(tick)
+            if pump is not None:
+                pump()
+            got = interface.receive(tick, timeout)
+            missing = interface.expected_frames(tick) - got
+            if missing > 0:
+                stats.missing_frames += missing
+            t_s = tick * dt_s
+            state = interface.snapshot(tick, t_s)
+            cmd = step(state)
+            sent = interface.command(cmd)
+            work = perf() - t_start
+            if realtime and clock.time_left(tick) < 0:
+                stats.overruns += 1
+            stats.lateness_s.append(lateness)
+            stats.work_s.append(work)
+            ref = reference(t_s)[0] if reference is not None else math.nan
+            row = recorder.row(t_s)
+            row[:] = (
+                math.degrees(state.hub_angle_rad), math.degrees(ref),
+                math.degrees(ref - state.hub_angle_rad), math.degrees(state.hub_rate_rad_s),
+                sent.wheel_torque_n_m, state.wheel_torque_n_m, state.wheel_speed_rad_s,
+                state.tip_accel_m_s2, sent.valve_direction, state.valve_state,
+                state.valve_firings, state.valve_on_time_s, sent.piezo_v[0], sent.piezo_v[1],
+                state.piezo_sensor_v[0], state.piezo_sensor_v[1], state.rotor_angle_rad,
+                state.rotor_speed_rad_s, lateness * 1e3, work * 1e3, got,
+            )
+            recorder.commit()
+            # block logging happens outside the tick's critical path
+            if realtime:
+                if clock.time_left(tick) > 0.5 * dt_s:
+                    recorder.drain(1)
+            else:
+                recorder.drain()
+            if progress is not None and tick % progress_every == 0:
+                progress(tick, n_ticks)
+            stats.ticks = tick + 1
+    except KeyboardInterrupt:
+        stats.stopped_by = "interrupted"
+        print("\nharness: interrupted; leaving the rig safe", file=sys.stderr)
+    except Exception as exc:  # a controller or driver failed: leave the rig safe first
+        stats.stopped_by = "error"
+        stats.error = f"{type(exc).__name__}: {exc} (tick {tick})"
+        raise
+    finally:
+        stats.wall_s = perf() - wall0
+        leave_safe(interface, pump)
+    return stats
+
+
+def leave_safe(interface: RigInterface, pump: Callable[[], object] | None) -> None:
+    """Wheel torque zero, valves closed, piezo 0 V, rotor stopped; heartbeat disarmed."""
+    try:
+        interface.command_safe()
+        interface.send_heartbeat(armed=False)
+        if pump is not None:
+            pump()
+    except Exception as exc:  # the bus itself failed: report, the device watchdog takes over
+        print(f"harness: could not command the safe state ({exc}); the rig's watchdog "
+              "will make the devices safe", file=sys.stderr)

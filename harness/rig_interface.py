@@ -1,0 +1,185 @@
+"""All device drivers on one bus: SYNC/heartbeat out, telemetry in, commands out.
+
+Every frame sent or received goes to the run's CAN log. Unknown ids and malformed frames
+are counted, never raised.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import can
+
+from drivers.accelerometer import AccelerometerDriver
+from drivers.base import DeviceDriver
+from drivers.dbc import Protocol
+from drivers.disturbance_rotor import DisturbanceRotorDriver
+from drivers.hub_sensor import HubSensorDriver
+from drivers.piezo_amplifier import PiezoAmplifierDriver
+from drivers.reaction_wheel import ReactionWheelDriver
+from drivers.thruster_valves import ThrusterValvesDriver
+from harness.can_log import CanLog
+from harness.state import SAFE_COMMAND, RigCommand, RigState
+from rig_models.rig_file import RigConfig
+
+
+@dataclass
+class BusCounters:
+    sent: int = 0
+    received: int = 0
+    unknown: int = 0
+    error_frames: int = 0
+    send_errors: int = 0
+
+
+class RigInterface:
+    def __init__(
+        self,
+        bus: can.BusABC,
+        protocol: Protocol,
+        rig: RigConfig,
+        can_log: CanLog | None,
+        actuators: tuple[str, ...] = ("reaction_wheel",),
+        dry_run: bool = False,
+    ) -> None:
+        self.bus = bus
+        self.protocol = protocol
+        self.can_log = can_log
+        self.actuators = actuators
+        self.dry_run = dry_run
+        self.counters = BusCounters()
+        self.hub = HubSensorDriver(protocol)
+        self.accel = AccelerometerDriver(protocol)
+        self.wheel = ReactionWheelDriver(
+            protocol, max_torque_n_m=rig.section("reaction_wheel")["max_torque_n_m"])
+        self.valves = ThrusterValvesDriver(protocol)
+        self.piezo = PiezoAmplifierDriver(
+            protocol, max_voltage_v=rig.section("piezo_amplifier")["max_voltage_v"])
+        self.rotor = DisturbanceRotorDriver(
+            protocol, max_speed_rad_s=rig.section("disturbance_rotor")["max_speed_rad_s"])
+        div = rig.data["bus"]["sync_divider"]
+        self.drivers: dict[str, DeviceDriver] = {
+            "hub_sensor": self.hub, "accelerometer": self.accel, "reaction_wheel": self.wheel,
+            "thruster_valves": self.valves, "piezo_amplifier": self.piezo,
+            "disturbance_rotor": self.rotor,
+        }
+        for name, drv in self.drivers.items():
+            drv.stale_after_ticks = 2 * div[name] + 1
+        self.divider = div
+        self._by_id: dict[int, DeviceDriver] = {
+            protocol[d.telemetry_frame].frame_id: d for d in self.drivers.values()
+        }
+        self._ids = {name: protocol[name].frame_id for name in
+                     ("SYNC", "HEARTBEAT", "WHEEL_CMD", "VALVE_CMD", "PIEZO_CMD", "ROTOR_CMD")}
+        self._counter = 0
+        self._hb_counter = 0
+        self.state = RigState()
+
+    # ------------------------------------------------------------------ sending
+    def _send(self, name: str, data: bytes) -> None:
+        msg = can.Message(arbitration_id=self._ids[name], data=data, is_extended_id=False,
+                          timestamp=time.time())
+        try:
+            self.bus.send(msg)
+        except can.CanError:
+            self.counters.send_errors += 1
+            return
+        self.counters.sent += 1
+        if self.can_log is not None:
+            self.can_log.log(msg)
+
+    def send_sync(self, tick: int) -> None:
+        self._send("SYNC", self.protocol["SYNC"].encode({"tick": tick & 0xFFFFFFFF}))
+
+    def send_heartbeat(self, armed: bool) -> None:
+        self._hb_counter = (self._hb_counter + 1) & 0xFF
+        armed = armed and not self.dry_run
+        self._send("HEARTBEAT", self.protocol["HEARTBEAT"].encode(
+            {"counter": self._hb_counter, "armed": int(armed)}))
+
+    def command(self, cmd: RigCommand) -> RigCommand:
+        """Send the command frames of the run's actuators; return what was really sent
+        (after clamping to the device limits)."""
+        if self.dry_run:
+            return SAFE_COMMAND
+        self._counter = (self._counter + 1) & 0xFF
+        c = self._counter
+        sent = RigCommand()
+        if "reaction_wheel" in self.actuators:
+            sent.wheel_torque_n_m = self.wheel.clamp(cmd.wheel_torque_n_m)
+            self._send("WHEEL_CMD", self.wheel.encode(cmd.wheel_torque_n_m, True, c))
+        if "thruster_valves" in self.actuators:
+            sent.valve_direction = cmd.valve_direction
+            self._send("VALVE_CMD", self.valves.encode(cmd.valve_direction, c))
+        if "piezo_amplifier" in self.actuators:
+            sent.piezo_v = (self.piezo.clamp(cmd.piezo_v[0]), self.piezo.clamp(cmd.piezo_v[1]))
+            self._send("PIEZO_CMD", self.piezo.encode(cmd.piezo_v[0], cmd.piezo_v[1], c))
+        if "disturbance_rotor" in self.actuators:
+            sent.rotor_speed_rad_s, sent.rotor_enable = cmd.rotor_speed_rad_s, cmd.rotor_enable
+            self._send("ROTOR_CMD", self.rotor.encode(cmd.rotor_speed_rad_s, cmd.rotor_enable, c))
+        return sent
+
+    def command_safe(self) -> None:
+        """Wheel torque zero (disabled), valves closed, piezo 0 V, rotor stopped: sent to
+        every actuator, whatever the run used."""
+        if self.dry_run:
+            return
+        c = self._counter = (self._counter + 1) & 0xFF
+        self._send("WHEEL_CMD", self.wheel.encode(0.0, False, c))
+        self._send("VALVE_CMD", self.valves.encode(0, c))
+        self._send("PIEZO_CMD", self.piezo.encode(0.0, 0.0, c))
+        self._send("ROTOR_CMD", self.rotor.encode(0.0, False, c))
+
+    # ------------------------------------------------------------------ receiving
+    def expected_frames(self, tick: int) -> int:
+        return sum(1 for name, d in self.divider.items() if tick % d == 0)
+
+    def receive(self, tick: int, timeout_s: float) -> int:
+        """Read telemetry until every device due at ``tick`` has answered or the timeout
+        passes (0: only what is already waiting). Returns the number of frames read."""
+        expected = self.expected_frames(tick)
+        got = 0
+        deadline = time.monotonic() + timeout_s
+        recv = self.bus.recv
+        while True:
+            remaining = deadline - time.monotonic()
+            msg = recv(remaining if remaining > 0 and got < expected else 0.0)
+            if msg is None:
+                if got >= expected or remaining <= 0:
+                    return got
+                continue
+            self.counters.received += 1
+            if self.can_log is not None:
+                self.can_log.log(msg)
+            if msg.is_error_frame:
+                self.counters.error_frames += 1
+                continue
+            drv = self._by_id.get(msg.arbitration_id)
+            if drv is None:
+                self.counters.unknown += 1
+                continue
+            if drv.handle(msg.data, tick):
+                got += 1
+
+    def snapshot(self, tick: int, time_s: float) -> RigState:
+        s = self.state
+        s.tick, s.time_s = tick, time_s
+        h, a, w, v, p, r = self.hub, self.accel, self.wheel, self.valves, self.piezo, self.rotor
+        hv, av, wv, vv, pv, rv = h.values, a.values, w.values, v.values, p.values, r.values
+        s.hub_angle_rad = hv.get("angle", 0.0)
+        s.hub_rate_rad_s = hv.get("rate", 0.0)
+        s.tip_accel_m_s2 = av.get("accel", 0.0)
+        s.accel_saturated = bool(av.get("saturated", 0))
+        s.wheel_speed_rad_s = wv.get("speed", 0.0)
+        s.wheel_torque_n_m = wv.get("torque", 0.0)
+        s.wheel_enabled = bool(wv.get("enabled", 0))
+        s.wheel_fault = bool(wv.get("fault", 0))
+        s.valve_state = int(vv.get("valve_pos_open", 0)) - int(vv.get("valve_neg_open", 0))
+        s.valve_firings = int(vv.get("firings", 0))
+        s.valve_on_time_s = vv.get("on_time", 0.0)
+        s.piezo_sensor_v = (pv.get("sensor_ch1", 0.0), pv.get("sensor_ch2", 0.0))
+        s.rotor_angle_rad = rv.get("angle", 0.0)
+        s.rotor_speed_rad_s = rv.get("speed", 0.0)
+        s.stale = tuple(n for n, d in self.drivers.items() if d.is_stale(tick))
+        return s

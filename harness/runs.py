@@ -1,0 +1,149 @@
+"""Run files: YAML descriptions of one test on the rig.
+
+Built-in runs live in `harness/runs/`; `harness cases` lists them. Every run file is checked
+against RUN_SCHEMA (and its controller section against the controller type's schema) before
+anything is sent on the bus.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from harness.controllers.registry import CONTROLLERS
+from rig_models.rig_file import RigConfig, load_rig, rig_from_dict
+from rig_models.schema import ConfigError, Field, validate
+
+RUNS_DIR = Path(__file__).parent / "runs"
+ACTUATORS = ("reaction_wheel", "thruster_valves", "piezo_amplifier", "disturbance_rotor")
+
+RUN_SCHEMA: dict[str, Any] = {
+    "name": Field("str", required=True),
+    "description": Field("str", default=""),
+    "rig": Field("str", default="sgsrt"),
+    "rig_overrides": Field("any", default=None),
+    "bus": Field("str", default="virtual:sgsrt"),
+    "clock": Field("str", default="lockstep", choices=("lockstep", "realtime")),
+    "rate_hz": Field("number", "Hz", default=500.0, exclusive_minimum=0.0, maximum=2000.0),
+    "duration_s": Field("number", "s", required=True, exclusive_minimum=0.0),
+    "heartbeat_hz": Field("number", "Hz", default=20.0, exclusive_minimum=0.0),
+    "max_bus_load_percent": Field("number", "%", default=70.0, exclusive_minimum=0.0,
+                                  maximum=100.0),
+    "actuators": Field("any", default=["reaction_wheel"]),
+    "controller": Field("any", required=True),
+    "settle_band_deg": Field("number", "deg", default=0.1, exclusive_minimum=0.0),
+    "residual_window_s": Field("number", "s", default=10.0, exclusive_minimum=0.0),
+    "receive_timeout_ms": Field("number", "ms", default=50.0, exclusive_minimum=0.0),
+    "realtime": {
+        "sched_fifo": Field("bool", default=False),
+        "priority": Field("int", default=50, minimum=1, maximum=99),
+        "cpu": Field("int", default=-1, minimum=-1),
+        "lock_memory": Field("bool", default=False),
+        "gc_freeze": Field("bool", default=True),
+    },
+}
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    source: str
+    data: dict[str, Any]
+    rig: RigConfig
+
+    @property
+    def name(self) -> str:
+        return self.data["name"]
+
+    @property
+    def dt_s(self) -> float:
+        return 1.0 / self.data["rate_hz"]
+
+    @property
+    def n_ticks(self) -> int:
+        return int(round(self.data["duration_s"] * self.data["rate_hz"])) + 1
+
+    @property
+    def controller(self) -> dict[str, Any]:
+        return self.data["controller"]
+
+    @property
+    def actuators(self) -> tuple[str, ...]:
+        return tuple(self.data["actuators"])
+
+    def resolved(self) -> dict[str, Any]:
+        """Everything the run used, rig included (written beside the recording)."""
+        return {"run": self.data, "rig": self.rig.data, "run_source": self.source,
+                "rig_source": self.rig.source}
+
+
+def _deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _deep_merge(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def list_runs() -> list[tuple[str, str]]:
+    out = []
+    for path in sorted(RUNS_DIR.glob("*.yaml")):
+        raw = yaml.safe_load(path.read_text()) or {}
+        out.append((path.stem, str(raw.get("description", ""))))
+    return out
+
+
+def run_path(name_or_path: str) -> Path:
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        return p
+    return RUNS_DIR / f"{name_or_path}.yaml"
+
+
+def load_run(name_or_path: str, overrides: dict[str, Any] | None = None) -> RunConfig:
+    path = run_path(name_or_path)
+    if not path.exists():
+        names = ", ".join(n for n, _ in list_runs())
+        raise ConfigError(f"run {name_or_path}: not found (built-in runs: {names})")
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"run file {path}: not valid YAML: {exc}") from exc
+    if overrides:
+        raw = _deep_merge(raw or {}, overrides)
+    return run_from_dict(raw, source=f"run file {path.name}")
+
+
+def run_from_dict(raw: Any, source: str = "run") -> RunConfig:
+    data = validate(raw, RUN_SCHEMA, source)
+    actuators = data["actuators"]
+    if not isinstance(actuators, list) or not all(a in ACTUATORS for a in actuators):
+        raise ConfigError(
+            f"{source}: actuators: expected a list from {list(ACTUATORS)}, got {actuators!r}")
+    ctrl = data["controller"]
+    if not isinstance(ctrl, dict) or ctrl.get("type") not in CONTROLLERS:
+        raise ConfigError(
+            f"{source}: controller.type: expected one of {sorted(CONTROLLERS)}, "
+            f"got {ctrl.get('type') if isinstance(ctrl, dict) else ctrl!r}")
+    schema, _ = CONTROLLERS[ctrl["type"]]
+    data["controller"] = validate(ctrl, schema, source, "controller")
+    rig = load_rig(data["rig"])
+    if data["rig_overrides"]:
+        if not isinstance(data["rig_overrides"], dict):
+            raise ConfigError(f"{source}: rig_overrides: expected a mapping")
+        rig = rig_from_dict(_deep_merge(rig.data, data["rig_overrides"]),
+                            source=f"{rig.source} + rig_overrides of {source}")
+    return RunConfig(source=source, data=data, rig=rig)
+
+
+def build_controller(run: RunConfig) -> Any:
+    _, builder = CONTROLLERS[run.controller["type"]]
+    try:
+        return builder(run.controller, run.rig, run.dt_s)
+    except ValueError as exc:
+        raise ConfigError(f"{run.source}: controller: {exc}") from exc

@@ -1,0 +1,246 @@
+"""One run from start to finish: checks, bus, virtual rig, loop, recording, summary.
+
+Every run writes ``<out>/<UTC time>-<run name>/`` with ``run.rrd``, ``can.blf`` (raw CAN),
+``config.yaml`` (the resolved run and rig) and ``summary.json``. The recording and the CAN
+log are closed on every exit path.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import math
+import sys
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from drivers.dbc import load_protocol
+from harness.bus import open_bus, parse_bus
+from harness.busload import compute_bus_load
+from harness.can_log import CanLog
+from harness.clock import LockstepClock, RealTimeClock, RealTimeSetup
+from harness.loop import CHANNELS, LoopStats, run_loop
+from harness.recording import Recorder
+from harness.rig_interface import RigInterface
+from harness.runs import RunConfig, build_controller
+from rig_models.schema import ConfigError
+from rig_models.virtual_rig import VirtualRig
+
+COMMAND_FRAMES = {
+    "reaction_wheel": "WHEEL_CMD",
+    "thruster_valves": "VALVE_CMD",
+    "piezo_amplifier": "PIEZO_CMD",
+    "disturbance_rotor": "ROTOR_CMD",
+}
+
+
+class RunRefused(RuntimeError):
+    """The run was refused before anything was sent (bus load, limits)."""
+
+
+@dataclass
+class RunResult:
+    run_dir: Path
+    summary: dict[str, Any]
+    stats: LoopStats
+    recorder: Recorder
+    virtual_rig: VirtualRig | None
+
+
+def bus_load_of(run: RunConfig):  # noqa: ANN201 - BusLoad
+    return compute_bus_load(
+        load_protocol(), run.data["rate_hz"], run.rig.data["bus"]["sync_divider"],
+        [COMMAND_FRAMES[a] for a in run.actuators], run.data["heartbeat_hz"],
+        run.rig.data["bus"]["bitrate_bit_s"])
+
+
+def make_run_dir(out: Path, name: str) -> Path:
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%S.%fZ")
+    run_dir = out / f"{stamp}-{name}"
+    run_dir.mkdir(parents=True, exist_ok=False)
+    return run_dir
+
+
+def _progress(tick: int, n: int) -> None:
+    end = "" if sys.stderr.isatty() else "\n"
+    if end or tick % max(1, n // 4) < max(1, n // 20):
+        print(f"\rharness: tick {tick}/{n} ({100 * tick / n:.0f} %)", end=end, file=sys.stderr,
+              flush=True)
+
+
+def execute_run(
+    run: RunConfig,
+    out_dir: Path = Path("logs"),
+    bus: str | None = None,
+    clock: str | None = None,
+    live_view_url: str | None = None,
+    show_progress: bool = True,
+    dry_run: bool = False,
+) -> RunResult:
+    spec = parse_bus(bus or run.data["bus"])
+    clock_name = clock or run.data["clock"]
+    load = bus_load_of(run)
+    if load.percent > run.data["max_bus_load_percent"]:
+        worst = max(load.rows, key=lambda r: r[2])
+        raise RunRefused(
+            f"{run.source}: bus load {load.percent:.1f} % exceeds max_bus_load_percent "
+            f"{run.data['max_bus_load_percent']:g} % at {run.data['rate_hz']:g} Hz "
+            f"({load.frames_per_s:.0f} frames/s; largest: {worst[0]} {worst[2] / 1e3:.0f} kbit/s)"
+            "; lower rate_hz or raise the devices' sync_divider")
+    controller = build_controller(run)
+    dt_s = run.dt_s
+    protocol = load_protocol()
+    run_dir = make_run_dir(out_dir, run.name)
+    (run_dir / "config.yaml").write_text(yaml.safe_dump(run.resolved(), sort_keys=False))
+    harness_bus = open_bus(spec)
+    rig_bus = None
+    rig: VirtualRig | None = None
+    rig_thread: threading.Thread | None = None
+    stop_rig = threading.Event()
+    can_log = CanLog(run_dir / "can.blf")
+    recorder = Recorder(run_dir / "run.rrd", CHANNELS, run.n_ticks, f"{run_dir.name}",
+                        live_view_url=live_view_url)
+    pump = None
+    stats = LoopStats()
+    try:
+        if spec.in_process:
+            rig_bus = open_bus(spec)
+            rig = VirtualRig(run.rig, rig_bus, dt_s)
+            if clock_name == "lockstep":
+                pump = rig.service
+            else:
+                rig_thread = threading.Thread(target=rig.run_forever,
+                                              args=(stop_rig.is_set, 0.01), daemon=True)
+                rig_thread.start()
+        if clock_name == "realtime":
+            rt = run.data["realtime"]
+            setup = RealTimeSetup().apply(rt["sched_fifo"], rt["priority"], rt["cpu"],
+                                          rt["lock_memory"], rt["gc_freeze"])
+            loop_clock: LockstepClock | RealTimeClock = RealTimeClock(dt_s)
+        else:
+            setup = RealTimeSetup()
+            loop_clock = LockstepClock(dt_s)
+        interface = RigInterface(harness_bus, protocol, run.rig, can_log, run.actuators,
+                                 dry_run=dry_run)
+        heartbeat_every = max(1, round(run.data["rate_hz"] / run.data["heartbeat_hz"]))
+        reference = getattr(controller, "reference", None)
+        recorder.log_static_text("/run/config", "```yaml\n" + yaml.safe_dump(
+            run.resolved(), sort_keys=False) + "```")
+        try:
+            stats = run_loop(
+                interface, controller, loop_clock, recorder, run.n_ticks, dt_s,
+                heartbeat_every, run.data["receive_timeout_ms"] / 1e3, pump=pump,
+                reference=reference, progress=_progress if show_progress else None)
+        finally:
+            if show_progress:
+                print("", file=sys.stderr)
+            summary = summarise(run, recorder, stats, load.percent, interface, clock_name,
+                                str(spec), setup, rig)
+            summary["dry_run"] = dry_run
+            (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    finally:
+        stop_rig.set()
+        if rig_thread is not None:
+            rig_thread.join(timeout=2.0)
+        recorder.close()
+        can_log.close()
+        harness_bus.shutdown()
+        if rig_bus is not None:
+            rig_bus.shutdown()
+    return RunResult(run_dir, summary, stats, recorder, rig)
+
+
+def _settle_time(t: np.ndarray, err_deg: np.ndarray, band_deg: float) -> float | None:
+    outside = np.nonzero(np.abs(err_deg) > band_deg)[0]
+    if len(outside) == 0:
+        return float(t[0]) if len(t) else None
+    last = outside[-1]
+    return None if last + 1 >= len(t) else float(t[last + 1])
+
+
+def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent: float,
+              interface: RigInterface, clock_name: str, bus: str, setup: RealTimeSetup,
+              rig: VirtualRig | None) -> dict[str, Any]:
+    t = rec.time_s[: rec.rows]
+    angle = rec.column("/attitude/angle_deg")
+    ref = rec.column("/attitude/reference_deg")
+    accel = rec.column("/tip/accel_m_s2")
+    torque_cmd = rec.column("/wheel/torque_cmd_n_m")
+    torque_tlm = rec.column("/wheel/torque_n_m")
+    ctrl = run.controller
+    target_deg = ctrl.get("angle_deg")
+    has_ref = len(ref) > 0 and not np.all(np.isnan(ref))
+    err = (ref - angle) if has_ref else np.zeros_like(angle)
+    window = t >= (t[-1] - run.data["residual_window_s"]) if len(t) else t.astype(bool)
+    t_max = run.rig.section("reaction_wheel")["max_torque_n_m"]
+    sim_time = stats.ticks * run.dt_s
+    slew_end = None
+    if has_ref and target_deg is not None:
+        reach = np.nonzero(np.abs(ref - target_deg) < 1e-9)[0]
+        slew_end = float(t[reach[0]]) if len(reach) else None
+    # settle: from then on the hub stays within the band around the slew's target
+    settle = (_settle_time(t, target_deg - angle, run.data["settle_band_deg"])
+              if target_deg is not None and len(t) else None)
+    lat = stats.percentiles_ms(stats.lateness_s)
+    work = stats.percentiles_ms(stats.work_s)
+    malformed = sum(d.counters.malformed for d in interface.drivers.values())
+    def f(x: float | None) -> float | None:
+        return None if x is None or (isinstance(x, float) and math.isnan(x)) else float(x)
+    return {
+        "run": run.name,
+        "clock": clock_name,
+        "bus": bus,
+        "rate_hz": run.data["rate_hz"],
+        "ticks": stats.ticks,
+        "stopped_by": stats.stopped_by,
+        "error": stats.error,
+        "target_angle_deg": target_deg,
+        "final_angle_deg": f(angle[-1]) if len(angle) else None,
+        "final_angle_error_deg": f(err[-1]) if len(err) and has_ref else None,
+        "slew_profile_end_s": slew_end,
+        "settle_time_s": settle,
+        "settle_band_deg": run.data["settle_band_deg"],
+        "peak_tip_accel_m_s2": f(np.max(np.abs(accel))) if len(accel) else None,
+        "residual_tip_accel_m_s2": f(np.max(np.abs(accel[window]))) if len(accel) else None,
+        "residual_tip_accel_rms_m_s2": f(np.sqrt(np.mean(accel[window] ** 2)))
+        if len(accel) else None,
+        "residual_window_s": run.data["residual_window_s"],
+        "max_wheel_torque_cmd_n_m": f(np.max(np.abs(torque_cmd))) if len(t) else 0.0,
+        "max_wheel_torque_measured_n_m": f(np.max(np.abs(torque_tlm))) if len(t) else 0.0,
+        "wheel_torque_limit_n_m": t_max,
+        "wheel_torque_within_limit": bool(len(t) == 0 or (
+            np.max(np.abs(torque_cmd)) <= t_max + 1e-9
+            and np.max(np.abs(torque_tlm)) <= t_max + 1e-5)),
+        "overruns": stats.overruns,
+        "lateness_ms": lat,
+        "work_ms": work,
+        "bus_load_percent": round(bus_load_percent, 2),
+        "frames": {
+            "sent": interface.counters.sent,
+            "received": interface.counters.received,
+            "unknown": interface.counters.unknown,
+            "malformed": malformed,
+            "missing": stats.missing_frames,
+            "error_frames": interface.counters.error_frames,
+        },
+        "wall_time_s": round(stats.wall_s, 3),
+        "simulated_time_s": round(sim_time, 6),
+        "real_time_factor": round(sim_time / stats.wall_s, 2) if stats.wall_s > 0 else None,
+        "realtime_measures": {"applied": setup.applied, "refused": setup.refused},
+        "virtual_rig": None if rig is None else {
+            "watchdog_trips": rig.counters.watchdog_trips,
+            "steps": rig.counters.steps,
+            "malformed": rig.counters.malformed,
+            "unknown": rig.counters.unknown,
+        },
+    }
+
+
+def require_config(ok: bool, message: str) -> None:
+    if not ok:
+        raise ConfigError(message)

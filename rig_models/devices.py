@@ -1,0 +1,241 @@
+"""Emulation of the rig's devices: what each one does to the physics and how it measures.
+
+Each emulator advances by one fixed step ``dt_s`` and knows nothing about CAN.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def quantise(value: float, lsb: float) -> float:
+    return round(value / lsb) * lsb if lsb > 0 else value
+
+
+class NoiseSource:
+    """Gaussian samples drawn in blocks (one generator per rig: deterministic runs)."""
+
+    def __init__(self, seed: int, block: int = 4096) -> None:
+        self._rng = np.random.default_rng(seed)
+        self._block = block
+        self._buf = self._rng.standard_normal(block)
+        self._i = 0
+
+    def normal(self) -> float:
+        if self._i >= self._block:
+            self._buf = self._rng.standard_normal(self._block)
+            self._i = 0
+        v = self._buf[self._i]
+        self._i += 1
+        return float(v)
+
+
+@dataclass
+class ReactionWheel:
+    """Torque-mode wheel: first-order torque lag, torque limit, speed limit.
+
+    ``torque_n_m`` is the torque the wheel applies on the hub; the rotor speed (relative to
+    the hub) changes by -torque / rotor inertia.
+    """
+
+    max_torque_n_m: float
+    max_speed_rad_s: float
+    rotor_inertia_kg_m2: float
+    torque_lag_s: float
+    dt_s: float
+    torque_n_m: float = 0.0
+    speed_rad_s: float = 0.0
+    enabled: bool = False
+    fault: bool = False
+    speed_limited: bool = False
+    torque_limited: bool = False
+    command_n_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        self._alpha = (
+            1.0 - math.exp(-self.dt_s / self.torque_lag_s) if self.torque_lag_s > 0 else 1.0
+        )
+
+    def command(self, torque_n_m: float, enable: bool) -> None:
+        self.enabled = enable and not self.fault
+        lim = self.max_torque_n_m
+        self.torque_limited = abs(torque_n_m) > lim
+        self.command_n_m = max(-lim, min(lim, torque_n_m)) if self.enabled else 0.0
+
+    def make_safe(self) -> None:
+        self.command(0.0, False)
+
+    def step(self) -> float:
+        """Advance one step; return the torque on the hub held over the step."""
+        target = self.command_n_m
+        # speed limit: refuse torque that would spin the rotor further past its limit
+        self.speed_limited = False
+        if self.speed_rad_s >= self.max_speed_rad_s and target < 0:
+            target, self.speed_limited = 0.0, True
+        elif self.speed_rad_s <= -self.max_speed_rad_s and target > 0:
+            target, self.speed_limited = 0.0, True
+        applied = self.torque_n_m
+        self.torque_n_m += self._alpha * (target - self.torque_n_m)
+        self.speed_rad_s -= applied * self.dt_s / self.rotor_inertia_kg_m2
+        return applied
+
+
+@dataclass
+class ThrusterValves:
+    """Two opposed cold-gas valves making a torque couple of +-``couple_n_m``.
+
+    A command takes effect after the opening/closing delay (rounded to whole steps); once
+    open, a valve stays open for at least ``min_on_time_s``. Counts firings and on-time.
+    """
+
+    couple_n_m: float
+    open_delay_s: float
+    close_delay_s: float
+    min_on_time_s: float
+    dt_s: float
+    state: int = 0  # +1 positive valve open, -1 negative, 0 closed
+    firings: int = 0
+    on_time_s: float = 0.0
+    fault: bool = False
+    _pending: list[tuple[int, int]] = field(default_factory=list)  # (due step, state)
+    _step: int = 0
+    _opened_at: int = 0
+    commanded: int = 0
+
+    def command(self, direction: int) -> None:
+        direction = 1 if direction > 0 else -1 if direction < 0 else 0
+        if direction == self.commanded:
+            return
+        self.commanded = direction
+        delay = self.open_delay_s if direction != 0 else self.close_delay_s
+        self._pending.append((self._step + round(delay / self.dt_s), direction))
+
+    def make_safe(self) -> None:
+        self._pending.clear()
+        self.commanded = 0
+        self.state = 0
+
+    def step(self) -> float:
+        min_on = round(self.min_on_time_s / self.dt_s)
+        while self._pending and self._pending[0][0] <= self._step:
+            _, new = self._pending[0]
+            if self.state != 0 and new != self.state and self._step - self._opened_at < min_on:
+                break  # hold the valve open for its minimum on-time
+            self._pending.pop(0)
+            if new != self.state:
+                if new != 0:
+                    self.firings += 1
+                    self._opened_at = self._step
+                self.state = new
+        torque = self.state * self.couple_n_m
+        if self.state != 0:
+            self.on_time_s += self.dt_s
+        self._step += 1
+        return torque
+
+
+@dataclass
+class Accelerometer:
+    """Range clipping, first-order bandwidth, white noise and quantisation."""
+
+    range_m_s2: float
+    bandwidth_hz: float
+    noise_rms_m_s2: float
+    lsb_m_s2: float
+    dt_s: float
+    noise: NoiseSource
+    filtered: float = 0.0
+    counter: int = 0
+    saturated: bool = False
+
+    def __post_init__(self) -> None:
+        self._alpha = 1.0 - math.exp(-2.0 * math.pi * self.bandwidth_hz * self.dt_s)
+
+    def sample(self, true_accel_m_s2: float) -> float:
+        self.filtered += self._alpha * (true_accel_m_s2 - self.filtered)
+        v = self.filtered + self.noise_rms_m_s2 * self.noise.normal()
+        self.saturated = abs(v) >= self.range_m_s2
+        v = max(-self.range_m_s2, min(self.range_m_s2, v))
+        self.counter = (self.counter + 1) & 0xFFFF
+        return quantise(v, self.lsb_m_s2)
+
+
+@dataclass
+class HubSensor:
+    angle_noise_rms_rad: float
+    rate_noise_rms_rad_s: float
+    angle_lsb_rad: float
+    rate_lsb_rad_s: float
+    noise: NoiseSource
+
+    def sample(self, angle_rad: float, rate_rad_s: float) -> tuple[float, float]:
+        a = angle_rad + self.angle_noise_rms_rad * self.noise.normal()
+        r = rate_rad_s + self.rate_noise_rms_rad_s * self.noise.normal()
+        return quantise(a, self.angle_lsb_rad), quantise(r, self.rate_lsb_rad_s)
+
+
+@dataclass
+class DisturbanceRotor:
+    """Eccentric mass m at radius sigma on a dish at distance ``dish_radius_m`` from the axis,
+    spun about an axis parallel to the rig's at a commanded speed (first-order speed lag).
+
+    Torque on the hub from the mass's reaction: with the mass at angle phi on the dish, its
+    position relative to the axis is p = P + sigma (cos phi, sin phi) (P on the dish axis).
+    The torque the mass exerts on the hub about the axis is -m (p x a)_z with the centripetal
+    and tangential accelerations of the spinning mass (hub motion neglected, as in the paper:
+    W_m Omega_m^2 = P_m sigma_m m_m Omega_m^2 sin(phi)).
+    """
+
+    mass_kg: float
+    eccentricity_m: float
+    dish_radius_m: float
+    max_speed_rad_s: float
+    speed_lag_s: float
+    dt_s: float
+    angle_rad: float = 0.0
+    speed_rad_s: float = 0.0
+    command_rad_s: float = 0.0
+    enabled: bool = False
+
+    def command(self, speed_rad_s: float, enable: bool) -> None:
+        self.enabled = enable
+        lim = self.max_speed_rad_s
+        self.command_rad_s = max(-lim, min(lim, speed_rad_s)) if enable else 0.0
+
+    def make_safe(self) -> None:
+        self.command(0.0, False)
+
+    def torque_n_m(self) -> float:
+        w = self.speed_rad_s
+        # p x a for circular motion at constant speed about the dish centre (P, 0):
+        # a = -w^2 sigma (cos, sin); p x a = -P w^2 sigma sin(phi)
+        return self.mass_kg * self.dish_radius_m * self.eccentricity_m * w * w * math.sin(
+            self.angle_rad
+        )
+
+    def step(self) -> float:
+        torque = self.torque_n_m()
+        alpha = 1.0 - math.exp(-self.dt_s / self.speed_lag_s) if self.speed_lag_s > 0 else 1.0
+        self.speed_rad_s += alpha * (self.command_rad_s - self.speed_rad_s)
+        self.angle_rad = (self.angle_rad + self.speed_rad_s * self.dt_s) % (2.0 * math.pi)
+        return torque
+
+
+@dataclass
+class PiezoAmplifier:
+    """Amplifier voltage limit per channel; the patches' electromechanics are not modelled
+    yet (issue 4): sensor voltages read 0 V and the actuator moment is 0."""
+
+    max_voltage_v: float
+    voltages_v: tuple[float, float] = (0.0, 0.0)
+    overcurrent: bool = False
+
+    def command(self, ch1_v: float, ch2_v: float) -> None:
+        lim = self.max_voltage_v
+        self.voltages_v = (max(-lim, min(lim, ch1_v)), max(-lim, min(lim, ch2_v)))
+
+    def make_safe(self) -> None:
+        self.voltages_v = (0.0, 0.0)

@@ -1,0 +1,335 @@
+"""Wang, Wu & Zou (2022) reference spacecraft: rigid body + rotating flexible solar wing.
+
+Paper: "Flexible spacecraft attitude maneuver planning based on variable amplitudes input
+shaping method", J. National Univ. Defense Technology 44(1), 2022 (seed 004), section 4.1.
+
+Equations of motion (paper eq 1, body frame, SI units)::
+
+    J(t) w' + C(t) eta'' + w x (J(t) w + C(t) eta') = tau
+    C(t)^T w' + eta'' + 2 zeta Lambda eta' + Lambda^2 eta = 0
+
+with the attitude quaternion q (scalar first, body -> inertial) following q' = q (x) [0, w] / 2.
+The paper prints ``C(t) eta`` inside the gyroscopic bracket; that term has units of inertia,
+not angular momentum, so we use the angular momentum J w + C eta' (a typesetting slip, we
+believe). Like eq 1 we leave out the J' w and C' eta' terms of the turning wing (the drive
+that turns the wing closes that balance).
+
+Data from the paper:
+
+* body inertia diag[2666.7, 2666.7, 1666.7] kg m^2;
+* one wing's inertia about its floating frame diag[53.6, 1607.9, 1661.6] kg m^2; the wing
+  turns about x_s (parallel to body x) at 3 deg/s from gamma = 0;
+* coupling C(gamma), eq 30 (3 x 6, kg^0.5 m), and the six constrained modes of Table 1.
+
+Modelling choices (not in the paper):
+
+* J(gamma) = J_body + n_wings R_x(gamma) J_wing R_x(gamma)^T with n_wings = 2 ("a pair of
+  wings", section 4.1; with one wing J - C C^T is not positive definite, so the mass matrix
+  would be indefinite). No hinge-offset (parallel-axis) terms: the paper gives neither wing
+  mass nor hinge position.
+* Modal frequencies from Table 1's period column (3.16, 1.14, 0.56, 0.55, 0.22, 0.19 s); its Hz
+  column is the same data rounded (within 1 %, except mode 1: 1/3.16 s = 0.316 Hz, printed
+  0.32). The variable-amplitude shaper needs periods on a time grid (eq 24), so the periods
+  are the primary data.
+* Tip (out-of-plane) deflection: the paper gives no mode shapes. We take the out-of-plane
+  bending modes (#1, #4, #5: bending about y_s) as modes of a uniform cantilever wing of
+  length ``wing_length_m`` (assumed 8.5 m) whose mass follows from J_yy = m L^2 / 3; a
+  mass-normalised cantilever mode has tip value 2/sqrt(m). The in-plane mode (#2) and the
+  torsion modes (#3, #6) do not move the tip centre-line out of plane.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.integrate import solve_ivp
+
+FloatArray = NDArray[np.float64]
+
+__all__ = [
+    "STATE_SIZE",
+    "SimulationResult",
+    "Wang2022Spacecraft",
+    "euler_321_to_quaternion",
+    "quaternion_angle_error",
+    "quaternion_multiply",
+    "simulate",
+]
+
+N_MODES = 6
+STATE_SIZE = 4 + 3 + 2 * N_MODES  # q, omega, eta, eta_dot
+
+# eq 30, one row per mode: the row is [c_x, c_y, c_z] of C(gamma)^T.
+# Rows are  const + cos(gamma) * COS + sin(gamma) * SIN.
+_COUPLING_CONST = np.array(
+    [[0, 0, 0], [0, 0, 0], [8.433, 0, 0], [0, 0, 0], [0, 0, 0], [-3.4535, 0, 0]], dtype=float
+)
+_COUPLING_COS = np.array(
+    [[0, 63.5, 0], [0, 0, 67.3], [0, 0, 0], [0, 19.26, 0], [0, 8.99, 0], [0, 0, 0]], dtype=float
+)
+_COUPLING_SIN = np.array(
+    [[0, 0, 63.5], [0, -67.3, 0], [0, 0, 0], [0, 0, 19.26], [0, 0, 8.99], [0, 0, 0]], dtype=float
+)
+# Table 1
+MODE_NAMES = (
+    "1st y_s bending",
+    "1st z_s bending",
+    "1st x_s torsion",
+    "2nd y_s bending",
+    "3rd y_s bending",
+    "2nd x_s torsion",
+)
+TABLE1_PERIOD_S = (3.16, 1.14, 0.56, 0.55, 0.22, 0.19)
+TABLE1_FREQ_HZ = (0.32, 0.88, 1.79, 1.80, 4.51, 5.19)
+_OUT_OF_PLANE_MODES = (0, 3, 4)  # bending about y_s
+
+
+def _rot_x(angle: float) -> FloatArray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def uniform_cantilever_tip_gain(wing_inertia_yy: float, wing_length_m: float) -> float:
+    """Tip value of a mass-normalised uniform-cantilever mode, 2/sqrt(m), m = 3 J_yy / L^2."""
+    if wing_length_m <= 0.0:
+        raise ValueError(f"wing_length_m: expected > 0 m, got {wing_length_m}")
+    mass = 3.0 * wing_inertia_yy / wing_length_m**2
+    return 2.0 / math.sqrt(mass)
+
+
+@dataclass(frozen=True)
+class Wang2022Spacecraft:
+    """Parameters of the paper's spacecraft; ``perturbed`` makes a plant that differs."""
+
+    body_inertia: FloatArray = field(default_factory=lambda: np.diag([2666.7, 2666.7, 1666.7]))
+    wing_inertia: FloatArray = field(default_factory=lambda: np.diag([53.6, 1607.9, 1661.6]))
+    n_wings: int = 2
+    wing_rate_rad_s: float = math.radians(3.0)
+    wing_angle0_rad: float = 0.0
+    modal_omega: FloatArray = field(
+        default_factory=lambda: 2.0 * math.pi / np.array(TABLE1_PERIOD_S)
+    )
+    modal_damping: FloatArray = field(default_factory=lambda: np.zeros(N_MODES))
+    wing_length_m: float = 8.5
+
+    def __post_init__(self) -> None:
+        for name in ("body_inertia", "wing_inertia"):
+            value = np.asarray(getattr(self, name), dtype=float)
+            if value.shape != (3, 3):
+                raise ValueError(f"{name}: expected a 3x3 matrix (kg m^2), got {value.shape}")
+            object.__setattr__(self, name, value)
+        omega = np.asarray(self.modal_omega, dtype=float).reshape(-1)
+        zeta = np.broadcast_to(np.asarray(self.modal_damping, dtype=float), (N_MODES,)).copy()
+        if omega.shape != (N_MODES,) or np.any(omega <= 0.0):
+            raise ValueError(f"modal_omega: expected {N_MODES} frequencies > 0 rad/s")
+        if np.any(zeta < 0.0) or np.any(zeta >= 1.0):
+            raise ValueError("modal_damping: expected damping ratios in [0, 1)")
+        if self.n_wings < 1:
+            raise ValueError(f"n_wings: expected >= 1, got {self.n_wings}")
+        object.__setattr__(self, "modal_omega", omega)
+        object.__setattr__(self, "modal_damping", zeta)
+        # the mass matrix [[J, C], [C^T, I]] must be positive definite at every wing angle
+        for gamma in np.linspace(0.0, math.pi, 37):
+            schur = self.inertia(gamma) - self.coupling(gamma) @ self.coupling(gamma).T
+            if np.min(np.linalg.eigvalsh(schur)) <= 0.0:
+                raise ValueError(
+                    "n_wings/inertia: J - C C^T is not positive definite "
+                    f"at gamma = {math.degrees(gamma):.0f} deg (mass matrix indefinite)"
+                )
+
+    # -- geometry -------------------------------------------------------------------------
+    def wing_angle(self, t: ArrayLike) -> FloatArray:
+        """gamma(t), rad."""
+        return self.wing_angle0_rad + self.wing_rate_rad_s * np.asarray(t, dtype=float)
+
+    @staticmethod
+    def coupling(gamma: float) -> FloatArray:
+        """C(gamma), 3 x 6 (kg^0.5 m), paper eq 30."""
+        rows = _COUPLING_CONST + math.cos(gamma) * _COUPLING_COS + math.sin(gamma) * _COUPLING_SIN
+        return rows.T
+
+    @staticmethod
+    def coupling_rows(gamma: ArrayLike) -> FloatArray:
+        """C(gamma)^T for an array of angles: shape (..., 6, 3)."""
+        g = np.asarray(gamma, dtype=float)[..., None, None]
+        return _COUPLING_CONST + np.cos(g) * _COUPLING_COS + np.sin(g) * _COUPLING_SIN
+
+    def inertia(self, gamma: float) -> FloatArray:
+        """J(gamma) = J_body + n_wings R_x J_wing R_x^T (kg m^2)."""
+        r = _rot_x(gamma)
+        return self.body_inertia + self.n_wings * (r @ self.wing_inertia @ r.T)
+
+    @property
+    def tip_gain(self) -> FloatArray:
+        """Out-of-plane tip deflection per unit modal coordinate (m per kg^0.5 m)."""
+        gain = np.zeros(N_MODES)
+        gain[list(_OUT_OF_PLANE_MODES)] = uniform_cantilever_tip_gain(
+            float(self.wing_inertia[1, 1]), self.wing_length_m
+        )
+        return gain
+
+    def perturbed(
+        self, frequency_scale: float = 1.0, damping_ratio: float | None = None
+    ) -> Wang2022Spacecraft:
+        """A plant whose modal frequencies are scaled and/or whose modal damping differs."""
+        if not (math.isfinite(frequency_scale) and frequency_scale > 0.0):
+            raise ValueError(f"frequency_scale: expected > 0, got {frequency_scale}")
+        damping = self.modal_damping if damping_ratio is None else np.full(N_MODES, damping_ratio)
+        return replace(self, modal_omega=self.modal_omega * frequency_scale, modal_damping=damping)
+
+    # -- dynamics -------------------------------------------------------------------------
+    def rhs(self, t: float, x: FloatArray, tau: FloatArray) -> FloatArray:
+        """State derivative; x = [q (4, scalar first), omega (3), eta (6), eta_dot (6)]."""
+        q, w = x[0:4], x[4:7]
+        eta, deta = x[7:13], x[13:19]
+        gamma = self.wing_angle0_rad + self.wing_rate_rad_s * t
+        j = self.inertia(gamma)
+        c = self.coupling(gamma)
+        lam = self.modal_omega
+        modal_rhs = -2.0 * self.modal_damping * lam * deta - lam * lam * eta
+        h = j @ w + c @ deta
+        body_rhs = tau - np.cross(w, h)
+        dw = np.linalg.solve(j - c @ c.T, body_rhs - c @ modal_rhs)
+        ddeta = modal_rhs - c.T @ dw
+        dq = 0.5 * quaternion_multiply(q, np.array([0.0, w[0], w[1], w[2]]))
+        return np.concatenate([dq, dw, deta, ddeta])
+
+    def energy(self, t: float, x: FloatArray) -> float:
+        """Kinetic + modal strain energy (J)."""
+        w, eta, deta = x[4:7], x[7:13], x[13:19]
+        gamma = float(self.wing_angle(t))
+        j, c = self.inertia(gamma), self.coupling(gamma)
+        kinetic = 0.5 * w @ j @ w + w @ c @ deta + 0.5 * deta @ deta
+        return float(kinetic + 0.5 * np.sum((self.modal_omega * eta) ** 2))
+
+    def inertial_angular_momentum(self, t: float, x: FloatArray) -> FloatArray:
+        """Angular momentum J w + C eta' expressed in the inertial frame (N m s)."""
+        gamma = float(self.wing_angle(t))
+        h_body = self.inertia(gamma) @ x[4:7] + self.coupling(gamma) @ x[13:19]
+        return quaternion_rotate(x[0:4], h_body)
+
+
+# ------------------------------------------------------------------------------ quaternions
+
+
+def quaternion_multiply(p: FloatArray, q: FloatArray) -> FloatArray:
+    """Hamilton product p (x) q, scalar first; broadcasts over leading axes."""
+    p0, p1, p2, p3 = np.moveaxis(np.asarray(p, dtype=float), -1, 0)
+    q0, q1, q2, q3 = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
+    return np.stack(
+        [
+            p0 * q0 - p1 * q1 - p2 * q2 - p3 * q3,
+            p0 * q1 + p1 * q0 + p2 * q3 - p3 * q2,
+            p0 * q2 - p1 * q3 + p2 * q0 + p3 * q1,
+            p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0,
+        ],
+        axis=-1,
+    )
+
+
+def quaternion_rotate(q: FloatArray, v: FloatArray) -> FloatArray:
+    """Rotate a body vector to the inertial frame with q (body -> inertial)."""
+    qv = np.concatenate([[0.0], v])
+    conj = q * np.array([1.0, -1.0, -1.0, -1.0])
+    return quaternion_multiply(quaternion_multiply(q, qv), conj)[1:]
+
+
+def euler_321_to_quaternion(angles_rad: Sequence[float]) -> FloatArray:
+    """Quaternion (scalar first, body -> inertial) of Euler angles [roll x, pitch y, yaw z].
+
+    Rotation sequence 3-2-1 (yaw about z, then pitch about y, then roll about x), the usual
+    aerospace convention; the paper does not state its sequence.
+    """
+    roll, pitch, yaw = (float(a) for a in angles_rad)
+    qx = np.array([math.cos(roll / 2), math.sin(roll / 2), 0.0, 0.0])
+    qy = np.array([math.cos(pitch / 2), 0.0, math.sin(pitch / 2), 0.0])
+    qz = np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+    return quaternion_multiply(quaternion_multiply(qz, qy), qx)
+
+
+def quaternion_angle_error(q: ArrayLike, q_target: ArrayLike) -> FloatArray:
+    """Rotation angle (rad) between attitude(s) q and q_target."""
+    q_arr = np.asarray(q, dtype=float)
+    q_arr = q_arr / np.linalg.norm(q_arr, axis=-1, keepdims=True)
+    dot = np.abs(np.sum(q_arr * np.asarray(q_target, dtype=float), axis=-1))
+    return 2.0 * np.arccos(np.clip(dot, -1.0, 1.0))
+
+
+# ------------------------------------------------------------------------------ simulation
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """Sampled histories of a simulation (SI units, body frame)."""
+
+    t: FloatArray
+    q: FloatArray  # (N, 4), normalised
+    omega: FloatArray  # (N, 3) rad/s
+    eta: FloatArray  # (N, 6)
+    eta_dot: FloatArray  # (N, 6)
+    torque: FloatArray  # (N, 3) N m
+
+    @property
+    def state(self) -> FloatArray:
+        return np.hstack([self.q, self.omega, self.eta, self.eta_dot])
+
+
+def simulate(
+    model: Wang2022Spacecraft,
+    torque: Callable[[float], FloatArray],
+    t_end: float,
+    *,
+    x0: ArrayLike | None = None,
+    breakpoints: ArrayLike = (),
+    t_eval: ArrayLike | None = None,
+    rtol: float = 1e-9,
+    atol: float = 1e-11,
+    method: str = "DOP853",
+) -> SimulationResult:
+    """Integrate the nonlinear attitude + modal dynamics under body torque ``torque(t)``.
+
+    ``breakpoints`` are times where the torque may jump (e.g. a zero-order-hold grid); the
+    integration restarts there so no step straddles a discontinuity. ``x0`` defaults to rest
+    at the identity attitude. Results are sampled at ``t_eval`` (default: 1001 points).
+    """
+    t_end = float(t_end)
+    if not (math.isfinite(t_end) and t_end > 0.0):
+        raise ValueError(f"t_end: expected > 0 s, got {t_end}")
+    if x0 is None:
+        state = np.zeros(STATE_SIZE)
+        state[0] = 1.0
+    else:
+        state = np.asarray(x0, dtype=float).copy()
+        if state.shape != (STATE_SIZE,):
+            raise ValueError(f"x0: expected {STATE_SIZE} states, got {state.shape}")
+    samples = np.linspace(0.0, t_end, 1001) if t_eval is None else np.asarray(t_eval, float)
+    if samples.ndim != 1 or np.any(np.diff(samples) < 0) or samples[0] < 0 or samples[-1] > t_end:
+        raise ValueError("t_eval: expected sorted times within [0, t_end]")
+    bps = np.asarray(breakpoints, dtype=float).reshape(-1)
+    edges = np.unique(np.concatenate([[0.0, t_end], bps[(bps > 0.0) & (bps < t_end)]]))
+
+    def fun(t: float, x: FloatArray) -> FloatArray:
+        return model.rhs(t, x, np.asarray(torque(t), dtype=float))
+
+    out = np.empty((samples.size, STATE_SIZE))
+    filled = np.zeros(samples.size, dtype=bool)
+    for t0, t1 in zip(edges[:-1], edges[1:], strict=True):
+        sol = solve_ivp(
+            fun, (t0, t1), state, method=method, rtol=rtol, atol=atol, dense_output=True,
+            first_step=min(t1 - t0, 0.05),
+        )
+        if not sol.success:
+            raise RuntimeError(f"simulate: integration failed on [{t0}, {t1}]: {sol.message}")
+        mask = (samples >= t0) & (samples <= t1) & ~filled
+        if np.any(mask):
+            out[mask] = sol.sol(samples[mask]).T
+            filled |= mask
+        state = sol.y[:, -1].copy()
+        state[0:4] /= np.linalg.norm(state[0:4])
+    q = out[:, 0:4] / np.linalg.norm(out[:, 0:4], axis=1, keepdims=True)
+    tau = np.array([np.asarray(torque(float(t)), dtype=float) for t in samples])
+    return SimulationResult(samples, q, out[:, 4:7], out[:, 7:13], out[:, 13:19], tau)

@@ -1,0 +1,166 @@
+"""The rig file: a YAML description of the rig's physics and device limits.
+
+`load_rig("sgsrt")` loads a built-in rig from `rig_models/rigs/`; any other argument is a path.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from rig_models.beam import BeamModes, BeamSpec, beam_modes
+from rig_models.flexible_hub import HubBeamModel, build_hub_beam
+from rig_models.schema import ConfigError, Field, validate
+
+G0_M_S2 = 9.80665
+RIGS_DIR = Path(__file__).parent / "rigs"
+
+POSITIVE = {"exclusive_minimum": 0.0}
+RIG_SCHEMA: dict[str, Any] = {
+    "name": Field("str", required=True),
+    "hub": {
+        "inertia_kg_m2": Field("number", "kg m^2", required=True, **POSITIVE),
+        "radius_m": Field("number", "m", required=True, minimum=0.0),
+    },
+    "beam": {
+        "length_m": Field("number", "m", required=True, **POSITIVE),
+        "width_m": Field("number", "m", required=True, **POSITIVE),
+        "thickness_m": Field("number", "m", required=True, **POSITIVE),
+        "youngs_modulus_pa": Field("number", "Pa", required=True, **POSITIVE),
+        "density_kg_m3": Field("number", "kg/m^3", required=True, **POSITIVE),
+        "tip_mass_kg": Field("number", "kg", default=0.0, minimum=0.0),
+        "n_elements": Field("int", default=40, minimum=2, maximum=400),
+        "n_modes": Field("int", default=3, minimum=1, maximum=20),
+        "damping_ratio": Field("number", default=0.05, minimum=0.0, maximum=0.99),
+    },
+    "reaction_wheel": {
+        "max_torque_n_m": Field("number", "N m", required=True, **POSITIVE),
+        "max_speed_rad_s": Field("number", "rad/s", required=True, **POSITIVE),
+        "rotor_inertia_kg_m2": Field("number", "kg m^2", required=True, **POSITIVE),
+        "torque_lag_s": Field("number", "s", default=0.01, minimum=0.0),
+    },
+    "accelerometer": {
+        "range_g": Field("number", "g", default=2.0, **POSITIVE),
+        "bandwidth_hz": Field("number", "Hz", default=400.0, **POSITIVE),
+        "noise_rms_m_s2": Field("number", "m/s^2", default=0.0, minimum=0.0),
+        "lsb_m_s2": Field("number", "m/s^2", default=0.001, minimum=0.0),
+    },
+    "hub_sensor": {
+        "angle_noise_rms_rad": Field("number", "rad", default=0.0, minimum=0.0),
+        "rate_noise_rms_rad_s": Field("number", "rad/s", default=0.0, minimum=0.0),
+        "angle_lsb_rad": Field("number", "rad", default=1e-7, minimum=0.0),
+        "rate_lsb_rad_s": Field("number", "rad/s", default=1e-7, minimum=0.0),
+    },
+    "thruster_valves": {
+        "couple_n_m": Field("number", "N m", default=0.1, **POSITIVE),
+        "open_delay_s": Field("number", "s", default=0.004, minimum=0.0),
+        "close_delay_s": Field("number", "s", default=0.004, minimum=0.0),
+        "min_on_time_s": Field("number", "s", default=0.010, minimum=0.0),
+    },
+    "piezo_amplifier": {
+        "max_voltage_v": Field("number", "V", default=200.0, **POSITIVE, maximum=327.0),
+    },
+    "disturbance_rotor": {
+        "mass_kg": Field("number", "kg", default=0.0, minimum=0.0),
+        "eccentricity_m": Field("number", "m", default=0.0, minimum=0.0),
+        "dish_radius_m": Field("number", "m", default=0.6, minimum=0.0),
+        "max_speed_rad_s": Field("number", "rad/s", default=30.0, **POSITIVE, maximum=32.0),
+        "speed_lag_s": Field("number", "s", default=0.2, minimum=0.0),
+    },
+    "noise_seed": Field("int", default=1, minimum=0),
+    "bus": {
+        "bitrate_bit_s": Field("int", "bit/s", default=1_000_000, minimum=10_000,
+                               maximum=1_000_000),
+        # each device answers every n-th SYNC (CANopen transmission type n)
+        "sync_divider": {
+            name: Field("int", default=default, minimum=1, maximum=240)
+            for name, default in (
+                ("hub_sensor", 1), ("accelerometer", 1), ("reaction_wheel", 1),
+                ("thruster_valves", 5), ("piezo_amplifier", 1), ("disturbance_rotor", 5),
+            )
+        },
+    },
+    "watchdog": {
+        "heartbeat_timeout_s": Field("number", "s", default=0.25, **POSITIVE),
+    },
+}
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """A validated rig file."""
+
+    source: str
+    data: dict[str, Any]
+
+    def section(self, name: str) -> dict[str, Any]:
+        return self.data[name]
+
+    @property
+    def name(self) -> str:
+        return self.data["name"]
+
+    @cached_property
+    def beam_spec(self) -> BeamSpec:
+        b = self.data["beam"]
+        return BeamSpec(
+            length_m=b["length_m"],
+            width_m=b["width_m"],
+            thickness_m=b["thickness_m"],
+            youngs_modulus_pa=b["youngs_modulus_pa"],
+            density_kg_m3=b["density_kg_m3"],
+            hub_radius_m=self.data["hub"]["radius_m"],
+            tip_mass_kg=b["tip_mass_kg"],
+            n_elements=b["n_elements"],
+        )
+
+    @cached_property
+    def beam_modes(self) -> BeamModes:
+        n_modes = self.data["beam"]["n_modes"]
+        if n_modes > self.data["beam"]["n_elements"]:
+            raise ConfigError(f"{self.source}: beam.n_modes: must not exceed beam.n_elements")
+        return beam_modes(self.beam_spec, n_modes)
+
+    @cached_property
+    def plant(self) -> HubBeamModel:
+        try:
+            return build_hub_beam(
+                inertia_kg_m2=self.data["hub"]["inertia_kg_m2"],
+                modes=self.beam_modes,
+                damping_ratio=self.data["beam"]["damping_ratio"],
+                tip_radius_m=self.data["hub"]["radius_m"] + self.data["beam"]["length_m"],
+            )
+        except ValueError as exc:
+            raise ConfigError(f"{self.source}: {exc}") from exc
+
+    @property
+    def accel_range_m_s2(self) -> float:
+        return self.data["accelerometer"]["range_g"] * G0_M_S2
+
+
+def rig_path(name_or_path: str | Path) -> Path:
+    candidate = Path(name_or_path)
+    if candidate.suffix in (".yaml", ".yml") or candidate.exists():
+        return candidate
+    return RIGS_DIR / f"{name_or_path}.yaml"
+
+
+def load_rig(name_or_path: str | Path = "sgsrt") -> RigConfig:
+    """Load and validate a rig file (built-in name or path)."""
+    path = rig_path(name_or_path)
+    if not path.exists():
+        builtin = ", ".join(sorted(p.stem for p in RIGS_DIR.glob("*.yaml")))
+        raise ConfigError(f"rig file {name_or_path}: not found (built-in rigs: {builtin})")
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"rig file {path}: not valid YAML: {exc}") from exc
+    return rig_from_dict(raw, source=f"rig file {path.name}")
+
+
+def rig_from_dict(raw: Any, source: str = "rig") -> RigConfig:
+    return RigConfig(source=source, data=validate(raw, RIG_SCHEMA, source))

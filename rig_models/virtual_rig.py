@@ -1,0 +1,275 @@
+"""The virtual SGSRT: a CAN node that answers exactly like the rig's devices.
+
+Protocol (see drivers/sgsrt.dbc): on SYNC(tick) the rig first advances the physics to that
+tick (one step of dt per tick, commands held over the step), then every device samples and
+sends its telemetry frame (each on every n-th SYNC, as configured). Commands received
+between two SYNCs take effect over the next step. Actuators stay at rest until the harness
+heartbeat says ``armed``; with no heartbeat for ``watchdog.heartbeat_timeout_s`` every
+device goes safe by itself (wheel torque 0, valves closed, piezo 0 V, rotor stopped).
+
+Two ways to run it:
+- in-process, lockstep: the harness calls ``service()`` right after it sends SYNC, so the
+  rig answers before the harness reads (deterministic, as fast as the machine allows);
+- its own process (``run_forever``): blocking reads on a SocketCAN channel or a socketcand
+  server bus; the watchdog also runs on the wall clock there.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import can
+import numpy as np
+
+from drivers.dbc import FrameError, load_protocol
+from rig_models.devices import (
+    Accelerometer,
+    DisturbanceRotor,
+    HubSensor,
+    NoiseSource,
+    PiezoAmplifier,
+    ReactionWheel,
+    ThrusterValves,
+)
+from rig_models.rig_file import RigConfig
+
+
+@dataclass
+class RigCounters:
+    frames_in: int = 0
+    frames_out: int = 0
+    malformed: int = 0
+    unknown: int = 0
+    watchdog_trips: int = 0
+    steps: int = 0
+
+
+@dataclass
+class TruthSample:
+    """The physics' true values at the last SYNC (for tests and model comparison only)."""
+
+    time_s: float = 0.0
+    angle_rad: float = 0.0
+    rate_rad_s: float = 0.0
+    tip_accel_m_s2: float = 0.0
+    modal: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+class VirtualRig:
+    def __init__(self, rig: RigConfig, bus: can.BusABC, dt_s: float) -> None:
+        self.rig = rig
+        self.bus = bus
+        self.dt_s = dt_s
+        self.protocol = load_protocol()
+        self.plant = rig.plant.discretise(dt_s)
+        self.n_modes = rig.plant.n_modes
+        self.x = np.zeros(rig.plant.n_states)
+        self.u = np.zeros(self.plant.bd.shape[1])
+        noise = NoiseSource(rig.data["noise_seed"])
+        rw, acc, hs = (rig.section(k) for k in ("reaction_wheel", "accelerometer", "hub_sensor"))
+        self.wheel = ReactionWheel(
+            max_torque_n_m=rw["max_torque_n_m"], max_speed_rad_s=rw["max_speed_rad_s"],
+            rotor_inertia_kg_m2=rw["rotor_inertia_kg_m2"], torque_lag_s=rw["torque_lag_s"],
+            dt_s=dt_s,
+        )
+        tv = rig.section("thruster_valves")
+        self.valves = ThrusterValves(
+            couple_n_m=tv["couple_n_m"], open_delay_s=tv["open_delay_s"],
+            close_delay_s=tv["close_delay_s"], min_on_time_s=tv["min_on_time_s"], dt_s=dt_s,
+        )
+        self.piezo = PiezoAmplifier(max_voltage_v=rig.section("piezo_amplifier")["max_voltage_v"])
+        dr = rig.section("disturbance_rotor")
+        self.rotor = DisturbanceRotor(
+            mass_kg=dr["mass_kg"], eccentricity_m=dr["eccentricity_m"],
+            dish_radius_m=dr["dish_radius_m"], max_speed_rad_s=dr["max_speed_rad_s"],
+            speed_lag_s=dr["speed_lag_s"], dt_s=dt_s,
+        )
+        self.accel = Accelerometer(
+            range_m_s2=rig.accel_range_m_s2, bandwidth_hz=acc["bandwidth_hz"],
+            noise_rms_m_s2=acc["noise_rms_m_s2"], lsb_m_s2=acc["lsb_m_s2"], dt_s=dt_s,
+            noise=noise,
+        )
+        self.hub_sensor = HubSensor(
+            angle_noise_rms_rad=hs["angle_noise_rms_rad"],
+            rate_noise_rms_rad_s=hs["rate_noise_rms_rad_s"],
+            angle_lsb_rad=hs["angle_lsb_rad"], rate_lsb_rad_s=hs["rate_lsb_rad_s"], noise=noise,
+        )
+        self.divider = rig.data["bus"]["sync_divider"]
+        self.watchdog_timeout_s = rig.data["watchdog"]["heartbeat_timeout_s"]
+        self.counters = RigCounters()
+        self.truth = TruthSample(modal=np.zeros(self.n_modes))
+        self.tick = -1
+        self.time_s = 0.0
+        self.armed = False
+        self.safe = True
+        self.last_heartbeat_s = 0.0  # rig time
+        self.last_heartbeat_wall = time.monotonic()
+        self.wheel_counter = 0
+        self._hooks: list[Callable[[VirtualRig], None]] = []
+        p = self.protocol
+        self._handlers: dict[int, Callable[[bytes], None]] = {
+            p["SYNC"].frame_id: self._on_sync,
+            p["HEARTBEAT"].frame_id: self._on_heartbeat,
+            p["WHEEL_CMD"].frame_id: self._on_wheel_cmd,
+            p["VALVE_CMD"].frame_id: self._on_valve_cmd,
+            p["PIEZO_CMD"].frame_id: self._on_piezo_cmd,
+            p["ROTOR_CMD"].frame_id: self._on_rotor_cmd,
+        }
+        self._codec_by_id = p.by_id
+        self._tlm = {name: p[name] for name in
+                     ("HUB_TLM", "ACCEL_TLM", "WHEEL_TLM", "VALVE_TLM", "PIEZO_TLM", "ROTOR_TLM")}
+
+    # ------------------------------------------------------------------ bus side
+    def service(self) -> int:
+        """Handle every frame waiting on the bus; return how many were handled."""
+        n = 0
+        recv = self.bus.recv
+        while True:
+            msg = recv(0.0)
+            if msg is None:
+                return n
+            self.handle(msg)
+            n += 1
+
+    def handle(self, msg: can.Message) -> None:
+        self.counters.frames_in += 1
+        if msg.is_error_frame or msg.is_remote_frame:
+            return
+        handler = self._handlers.get(msg.arbitration_id)
+        if handler is None:
+            self.counters.unknown += 1
+            return
+        try:
+            handler(bytes(msg.data))
+        except FrameError:
+            self.counters.malformed += 1
+
+    def run_forever(self, stop: Callable[[], bool], poll_s: float = 0.05) -> None:
+        """Own-process mode: block on the bus; watchdog on the wall clock as well."""
+        while not stop():
+            msg = self.bus.recv(poll_s)
+            if msg is not None:
+                self.handle(msg)
+            if (not self.safe and
+                    time.monotonic() - self.last_heartbeat_wall > self.watchdog_timeout_s):
+                self.make_safe(watchdog=True)
+
+    def _send(self, name: str, values: dict[str, float]) -> None:
+        codec = self._tlm[name]
+        self.bus.send(can.Message(arbitration_id=codec.frame_id, data=codec.encode(values),
+                                  is_extended_id=False))
+        self.counters.frames_out += 1
+
+    # ------------------------------------------------------------------ commands
+    def _decode(self, name: str, data: bytes) -> dict[str, float]:
+        return self.protocol[name].decode(data)
+
+    def _on_heartbeat(self, data: bytes) -> None:
+        v = self._decode("HEARTBEAT", data)
+        self.last_heartbeat_s = self.time_s
+        self.last_heartbeat_wall = time.monotonic()
+        self.armed = bool(v["armed"])
+        self.safe = False
+        if not self.armed:
+            self.make_safe()
+            self.safe = False
+
+    def _on_wheel_cmd(self, data: bytes) -> None:
+        v = self._decode("WHEEL_CMD", data)
+        if self.armed:
+            self.wheel.command(v["torque_cmd"], bool(v["enable"]))
+
+    def _on_valve_cmd(self, data: bytes) -> None:
+        v = self._decode("VALVE_CMD", data)
+        if self.armed:
+            pos, neg = int(v["valve_pos"]), int(v["valve_neg"])
+            self.valves.command(0 if pos and neg else pos - neg)
+
+    def _on_piezo_cmd(self, data: bytes) -> None:
+        v = self._decode("PIEZO_CMD", data)
+        if self.armed:
+            self.piezo.command(v["voltage_ch1"], v["voltage_ch2"])
+
+    def _on_rotor_cmd(self, data: bytes) -> None:
+        v = self._decode("ROTOR_CMD", data)
+        if self.armed:
+            self.rotor.command(v["speed_cmd"], bool(v["enable"]))
+
+    def make_safe(self, watchdog: bool = False) -> None:
+        self.wheel.make_safe()
+        self.valves.make_safe()
+        self.piezo.make_safe()
+        self.rotor.make_safe()
+        self.armed = False
+        self.safe = True
+        if watchdog:
+            self.counters.watchdog_trips += 1
+
+    # ------------------------------------------------------------------ physics
+    def add_step_hook(self, hook: Callable[[VirtualRig], None]) -> None:
+        """Call ``hook(rig)`` after every physics step (tests, fault injection)."""
+        self._hooks.append(hook)
+
+    def step(self) -> None:
+        """Advance the physics by one step with the actuators' current commands."""
+        hub_torque = self.wheel.step() + self.valves.step() + self.rotor.step()
+        self.u[0] = hub_torque
+        self.x = self.plant.ad @ self.x + self.plant.bd @ self.u
+        self.time_s += self.dt_s
+        self.counters.steps += 1
+        if (not self.safe
+                and self.time_s - self.last_heartbeat_s > self.watchdog_timeout_s + 1e-12):
+            self.make_safe(watchdog=True)
+        for hook in self._hooks:
+            hook(self)
+
+    def _on_sync(self, data: bytes) -> None:
+        tick = int(self._decode("SYNC", data)["tick"])
+        if self.tick >= 0:
+            steps = tick - self.tick
+            if steps <= 0 or steps > 10_000:
+                steps = 1  # counter wrap or restart: advance one step
+            for _ in range(steps):
+                self.step()
+        self.tick = tick
+        self._sample_and_send(tick)
+
+    def _sample_and_send(self, tick: int) -> None:
+        y = self.plant.c @ self.x + self.plant.d @ self.u
+        n = self.n_modes
+        truth = self.truth
+        truth.time_s, truth.angle_rad, truth.rate_rad_s = self.time_s, y[0], y[1]
+        truth.tip_accel_m_s2 = y[2]
+        truth.modal = self.x[1 : 1 + n]
+        div = self.divider
+        if tick % div["hub_sensor"] == 0:
+            angle, rate = self.hub_sensor.sample(y[0], y[1])
+            self._send("HUB_TLM", {"angle": angle, "rate": rate})
+        if tick % div["accelerometer"] == 0:
+            a = self.accel.sample(y[2])
+            self._send("ACCEL_TLM", {"accel": a, "sample_counter": self.accel.counter,
+                                     "saturated": int(self.accel.saturated)})
+        w = self.wheel
+        if tick % div["reaction_wheel"] == 0:
+            self.wheel_counter = (self.wheel_counter + 1) & 0xFF
+            self._send("WHEEL_TLM", {
+                "speed": w.speed_rad_s, "torque": w.torque_n_m, "enabled": int(w.enabled),
+                "fault": int(w.fault), "speed_limited": int(w.speed_limited),
+                "torque_limited": int(w.torque_limited), "counter": self.wheel_counter})
+        if tick % div["thruster_valves"] == 0:
+            v = self.valves
+            self._send("VALVE_TLM", {
+                "valve_pos_open": int(v.state > 0), "valve_neg_open": int(v.state < 0),
+                "fault": int(v.fault), "firings": v.firings & 0xFFFF, "on_time": v.on_time_s,
+                "counter": tick & 0xFF})
+        if tick % div["piezo_amplifier"] == 0:
+            self._send("PIEZO_TLM", {"sensor_ch1": 0.0, "sensor_ch2": 0.0,
+                                     "overcurrent": int(self.piezo.overcurrent),
+                                     "counter": tick & 0xFF})
+        if tick % div["disturbance_rotor"] == 0:
+            r = self.rotor
+            self._send("ROTOR_TLM", {"angle": r.angle_rad % (2 * math.pi), "speed": r.speed_rad_s,
+                                     "enabled": int(r.enabled), "counter": tick & 0xFF})
