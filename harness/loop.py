@@ -100,6 +100,8 @@ def run_loop(
             interface.send_sync(tick)
             if pump is not None:
                 pump()
+            if realtime:  # never wait for telemetry past most of this tick's period
+                timeout = min(receive_timeout_s, max(0.0, clock.time_left(tick) - 0.3 * dt_s))
             got = interface.receive(tick, timeout)
             missing = interface.expected_frames(tick) - got
             if missing > 0:

@@ -1,0 +1,147 @@
+"""Loop and plant benchmarks, measured in one run; prints a table.
+
+1. Lockstep real-time factor of `slew-rw` through the full CAN path at 500 Hz (codecs,
+   python-can virtual bus, drivers, virtual rig, BLF log, Rerun recording).
+2. Real-time mode at 500 Hz for 30 s with the virtual rig in its own process (socketcand on
+   127.0.0.1): lateness p50/p99/max and overruns.
+3. The plant step (exact ZOH, one matrix-vector product) against scipy.signal.lsim and
+   solve_ivp on the same model, the same piecewise-constant input and comparable accuracy.
+
+    .venv/bin/python benchmarks/bench_loop.py [--realtime-s 30] [--repeats 3] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.signal as sig
+from scipy.integrate import solve_ivp
+
+from harness.runs import load_run
+from harness.session import execute_run
+from rig_models.rig_file import load_rig
+
+
+def bench_lockstep(repeats: int, out: Path) -> dict[str, float]:
+    factors = []
+    for _ in range(repeats):
+        res = execute_run(load_run("slew-rw"), out_dir=out, show_progress=False)
+        factors.append(res.summary["real_time_factor"])
+    return {"median": float(np.median(factors)), "min": float(np.min(factors)),
+            "max": float(np.max(factors))}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def bench_realtime(seconds: float, out: Path) -> dict[str, object]:
+    port = _free_port()
+    rig = subprocess.Popen(
+        [sys.executable, "-m", "harness", "virtual-rig", "--serve-socketcand", str(port),
+         "--duration-s", str(seconds + 30)], stderr=subprocess.PIPE, text=True)
+    try:
+        line = rig.stderr.readline()  # "... on socketcand:127.0.0.1:PORT ..."
+        if "socketcand" not in line:
+            raise RuntimeError(f"virtual rig did not start: {line}")
+        run = load_run("slew-rw", {"duration_s": seconds})
+        res = execute_run(run, out_dir=out, bus=f"socketcand:127.0.0.1:{port}",
+                          clock="realtime", show_progress=False)
+    finally:
+        rig.terminate()
+        rig.wait(timeout=10)
+    s = res.summary
+    return {"lateness_ms": s["lateness_ms"], "work_ms": s["work_ms"], "overruns": s["overruns"],
+            "ticks": s["ticks"], "missing_frames": s["frames"]["missing"]}
+
+
+def bench_plant(n_steps: int = 20000) -> dict[str, float]:
+    plant = load_rig("sgsrt").plant
+    dt = 0.002
+    d = plant.discretise(dt)
+    t = np.arange(n_steps) * dt
+    u = np.zeros((n_steps, plant.b.shape[1]))
+    u[:, 0] = 0.05 * np.sign(np.sin(2 * np.pi * 0.2 * t))
+    x = np.zeros(plant.n_states)
+    t0 = time.perf_counter()
+    ad, bd = d.ad, d.bd
+    xs = np.empty((n_steps, plant.n_states))
+    for k in range(n_steps):
+        xs[k] = x
+        x = ad @ x + bd @ u[k]
+    zoh_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    _, _, x_lsim = sig.lsim((plant.a, plant.b, np.eye(plant.n_states),
+                             np.zeros((plant.n_states, plant.b.shape[1]))), u, t, interp=False)
+    lsim_s = time.perf_counter() - t0
+    # solve_ivp, one call per step (the loop's situation: the input changes every tick)
+    n_ivp = min(n_steps, 2000)
+    x = np.zeros(plant.n_states)
+    t0 = time.perf_counter()
+    for k in range(n_ivp):
+        uk = u[k]
+        x = solve_ivp(lambda _t, y, uk=uk: plant.a @ y + plant.b @ uk, (0, dt), x,
+                      method="RK45", rtol=1e-10, atol=1e-13).y[:, -1]
+    ivp_s = (time.perf_counter() - t0) * n_steps / n_ivp
+    err_ivp = float(np.max(np.abs(x - xs[n_ivp]))) if n_ivp < n_steps else float("nan")
+    err_lsim = float(np.max(np.abs(x_lsim - xs)))
+    per = 1e6 / n_steps
+    return {"zoh_us_per_step": zoh_s * per, "lsim_us_per_step": lsim_s * per,
+            "solve_ivp_us_per_step": ivp_s * per, "lsim_over_zoh": lsim_s / zoh_s,
+            "solve_ivp_over_zoh": ivp_s / zoh_s, "max_state_diff_lsim": err_lsim,
+            "max_state_diff_solve_ivp": err_ivp}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--realtime-s", type=float, default=30.0)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp)
+        print("benchmark: lockstep ...", file=sys.stderr)
+        lock = bench_lockstep(args.repeats, out)
+        print(f"benchmark: real time, {args.realtime_s:g} s ...", file=sys.stderr)
+        rt = bench_realtime(args.realtime_s, out)
+    print("benchmark: plant step ...", file=sys.stderr)
+    plant = bench_plant()
+    result = {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
+              "python": platform.python_version(), "date": time.strftime("%Y-%m-%d"),
+              "lockstep_real_time_factor": lock, "realtime_500hz": rt, "plant": plant}
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    lat = rt["lateness_ms"]
+    print(f"| measure ({result['date']}, {result['machine']}, Python {result['python']}) | value |")
+    print("|---|---|")
+    print(f"| lockstep real-time factor, slew-rw at 500 Hz, full CAN path (median of "
+          f"{args.repeats}) | {lock['median']:.1f}x (min {lock['min']:.1f}, max "
+          f"{lock['max']:.1f}) |")
+    print(f"| real time 500 Hz, {args.realtime_s:g} s, rig in own process: lateness p50 / p99 / "
+          f"max | {lat['p50']:.3f} / {lat['p99']:.3f} / {lat['max']:.3f} ms |")
+    print(f"| real time: overruns / ticks, late telemetry frames | {rt['overruns']} / "
+          f"{rt['ticks']}, {rt['missing_frames']} |")
+    print(f"| plant step, exact ZOH (matrix-vector) | {plant['zoh_us_per_step']:.2f} us |")
+    print(f"| scipy.signal.lsim, same input | {plant['lsim_us_per_step']:.2f} us/step "
+          f"({plant['lsim_over_zoh']:.2f}x ZOH; max state diff "
+          f"{plant['max_state_diff_lsim']:.1e}) |")
+    print(f"| solve_ivp RK45 per tick, rtol 1e-10 | {plant['solve_ivp_us_per_step']:.0f} us/step "
+          f"({plant['solve_ivp_over_zoh']:.0f}x ZOH; max state diff "
+          f"{plant['max_state_diff_solve_ivp']:.1e}) |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,72 @@
+"""`harness virtual-rig`: the virtual SGSRT as its own process.
+
+On a Linux lab machine it joins a SocketCAN channel (``--bus socketcan:vcan0``); on a machine
+without SocketCAN it serves the socketcand protocol on 127.0.0.1 (``--serve-socketcand
+PORT``) and the harness connects with ``--bus socketcand:127.0.0.1:PORT``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+from harness.bus import BusSpecError, open_bus, parse_bus
+from rig_models.rig_file import load_rig
+from rig_models.schema import ConfigError
+from rig_models.virtual_rig import VirtualRig
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("virtual-rig", help="run the virtual rig as its own process",
+                       description=__doc__)
+    p.add_argument("--rig", default="sgsrt", help="rig name or YAML path (default sgsrt)")
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument("--bus", help="INTERFACE:CHANNEL to join, e.g. socketcan:vcan0")
+    where.add_argument("--serve-socketcand", type=int, metavar="PORT",
+                       help="serve socketcand on 127.0.0.1:PORT (0: pick a free port)")
+    p.add_argument("--rate-hz", type=float, default=500.0,
+                   help="the harness loop rate: one physics step per SYNC (default 500)")
+    p.add_argument("--duration-s", type=float, default=0.0,
+                   help="exit after this many seconds of wall time (0: until Ctrl-C/SIGTERM)")
+    p.set_defaults(func=cmd_virtual_rig)
+
+
+def cmd_virtual_rig(args: argparse.Namespace) -> int:
+    try:
+        rig_cfg = load_rig(args.rig)
+        if args.serve_socketcand is not None:
+            from drivers.socketcand_server import SocketcandServerBus
+
+            bus = SocketcandServerBus(host="127.0.0.1", port=args.serve_socketcand)
+            where = f"socketcand:127.0.0.1:{bus.port}"
+        else:
+            spec = parse_bus(args.bus)
+            if spec.in_process:
+                raise BusSpecError("--bus virtual:... links buses of one process only; use "
+                                   "socketcan:vcan0 or --serve-socketcand PORT")
+            bus = open_bus(spec)
+            where = str(spec)
+    except (ConfigError, BusSpecError, ValueError, OSError) as exc:
+        print(f"harness virtual-rig: {exc}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    if args.duration_s > 0:
+        threading.Timer(args.duration_s, stop.set).start()
+    rig = VirtualRig(rig_cfg, bus, 1.0 / args.rate_hz)
+    print(f"harness virtual-rig: {rig_cfg.name} on {where} at {args.rate_hz:g} Hz; "
+          "Ctrl-C to stop", file=sys.stderr, flush=True)
+    try:
+        rig.run_forever(stop.is_set)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        rig.make_safe()
+        bus.shutdown()
+    c = rig.counters
+    print(f"harness virtual-rig: stopped after {c.steps} steps; frames in {c.frames_in}, out "
+          f"{c.frames_out}, malformed {c.malformed}, unknown {c.unknown}, watchdog trips "
+          f"{c.watchdog_trips}", file=sys.stderr)
+    return 0

@@ -1,0 +1,15 @@
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from harness.runs import load_run
+from harness.session import execute_run
+
+
+@pytest.fixture(scope="session")
+def slew_result(tmp_path_factory):
+    """One full slew-rw run on the in-process virtual rig, shared by several tests."""
+    out = tmp_path_factory.mktemp("logs")
+    return execute_run(load_run("slew-rw"), out_dir=Path(out), show_progress=False)

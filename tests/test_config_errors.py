@@ -1,0 +1,63 @@
+"""Bad rig/run files and bus names give errors naming the file, key path and expectation."""
+
+from __future__ import annotations
+
+import pytest
+
+from harness.bus import BusSpecError, parse_bus
+from harness.runs import load_run, run_from_dict
+from harness.session import RunRefused, execute_run
+from rig_models.rig_file import load_rig, rig_from_dict
+from rig_models.schema import ConfigError
+
+
+def test_rig_value_error_names_key_and_unit():
+    data = dict(load_rig("sgsrt").data)
+    data["hub"] = dict(data["hub"], inertia_kg_m2="heavy")
+    with pytest.raises(ConfigError, match=r"hub\.inertia_kg_m2: expected a number > 0 \(kg m\^2\)"):
+        rig_from_dict(data, "rig file x.yaml")
+
+
+def test_rig_unknown_key_is_an_error():
+    data = dict(load_rig("sgsrt").data)
+    data["beam"] = dict(data["beam"], lenght_m=2.0)
+    with pytest.raises(ConfigError, match=r"beam\.lenght_m: unknown key"):
+        rig_from_dict(data, "rig file x.yaml")
+
+
+def test_run_controller_error_names_path():
+    raw = {"name": "x", "duration_s": 1.0,
+           "controller": {"type": "pd_wheel", "angle_deg": "ten"}}
+    with pytest.raises(ConfigError, match=r"controller\.angle_deg: expected a number \(deg\)"):
+        run_from_dict(raw)
+
+
+def test_unknown_controller_type():
+    with pytest.raises(ConfigError, match="controller.type"):
+        run_from_dict({"name": "x", "duration_s": 1.0, "controller": {"type": "magic"}})
+
+
+def test_unknown_run_lists_builtins():
+    with pytest.raises(ConfigError, match="slew-rw"):
+        load_run("no-such-run")
+
+
+@pytest.mark.parametrize("text", ["udp_multicast:224.0.0.1", "nonsense", "pcan:PCAN_USBBUS1",
+                                  "socketcand:10.0.0.5:29536"])
+def test_bad_bus_specs_refused(text):
+    with pytest.raises(BusSpecError):
+        parse_bus(text)
+
+
+def test_bus_specs():
+    assert str(parse_bus("virtual:sgsrt")) == "virtual:sgsrt"
+    assert parse_bus("socketcan:vcan0").channel == "vcan0"
+    spec = parse_bus("socketcand:127.0.0.1:29536")
+    assert (spec.host, spec.port) == ("127.0.0.1", 29536)
+
+
+def test_bus_overload_refused_before_anything_is_sent(tmp_path):
+    run = load_run("slew-rw", {"rate_hz": 2000.0})
+    with pytest.raises(RunRefused, match="bus load"):
+        execute_run(run, out_dir=tmp_path, show_progress=False)
+    assert list(tmp_path.iterdir()) == []
