@@ -78,9 +78,11 @@ def run_loop(
     pump: Callable[[], object] | None = None,
     reference: Callable[[float], tuple[float, float, float]] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    stats: LoopStats | None = None,
 ) -> LoopStats:
-    """Run ``n_ticks`` ticks. ``pump`` lets an in-process virtual rig answer (lockstep)."""
-    stats = LoopStats()
+    """Run ``n_ticks`` ticks. ``pump`` lets an in-process virtual rig answer (lockstep).
+    ``stats`` (filled in place) stays with the caller even when the loop raises."""
+    stats = stats if stats is not None else LoopStats()
     step = controller.step  # type: ignore[attr-defined]
     perf = time.perf_counter
     realtime = clock.realtime

@@ -135,7 +135,8 @@ def execute_run(
             stats = run_loop(
                 interface, controller, loop_clock, recorder, run.n_ticks, dt_s,
                 heartbeat_every, run.data["receive_timeout_ms"] / 1e3, pump=pump,
-                reference=reference, progress=_progress if show_progress else None)
+                reference=reference, progress=_progress if show_progress else None,
+                stats=stats)
         finally:
             if show_progress:
                 print("", file=sys.stderr)

@@ -54,7 +54,9 @@ def cmd_virtual_rig(args: argparse.Namespace) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     if args.duration_s > 0:
-        threading.Timer(args.duration_s, stop.set).start()
+        timer = threading.Timer(args.duration_s, stop.set)
+        timer.daemon = True
+        timer.start()
     rig = VirtualRig(rig_cfg, bus, 1.0 / args.rate_hz)
     print(f"harness virtual-rig: {rig_cfg.name} on {where} at {args.rate_hz:g} Hz; "
           "Ctrl-C to stop", file=sys.stderr, flush=True)
