@@ -181,5 +181,6 @@ class RigInterface:
         s.piezo_sensor_v = (pv.get("sensor_ch1", 0.0), pv.get("sensor_ch2", 0.0))
         s.rotor_angle_rad = rv.get("angle", 0.0)
         s.rotor_speed_rad_s = rv.get("speed", 0.0)
+        s.rotor_sample_tick = r.last_tick
         s.stale = tuple(n for n, d in self.drivers.items() if d.is_stale(tick))
         return s

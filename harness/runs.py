@@ -37,6 +37,8 @@ RUN_SCHEMA: dict[str, Any] = {
     "controller": Field("any", required=True),
     "settle_band_deg": Field("number", "deg", default=0.1, exclusive_minimum=0.0),
     "residual_window_s": Field("number", "s", default=10.0, exclusive_minimum=0.0),
+    "steady_window_s": Field("number", "s", default=30.0, exclusive_minimum=0.0),
+    "variants": Field("any", default=None),
     "receive_timeout_ms": Field("number", "ms", default=50.0, exclusive_minimum=0.0),
     "realtime": {
         "sched_fifo": Field("bool", default=False),

@@ -25,6 +25,7 @@ from harness.busload import compute_bus_load
 from harness.can_log import CanLog
 from harness.clock import LockstepClock, RealTimeClock, RealTimeSetup
 from harness.loop import CHANNELS, LoopStats, run_loop
+from harness.periodic import steady_state_amplitude
 from harness.recording import Recorder
 from harness.rig_interface import RigInterface
 from harness.runs import RunConfig, build_controller
@@ -142,6 +143,7 @@ def execute_run(
                 print("", file=sys.stderr)
             summary = summarise(run, recorder, stats, load.percent, interface, clock_name,
                                 str(spec), setup, rig)
+            summary.update(periodic_summary(run, recorder, controller))
             summary["dry_run"] = dry_run
             (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     finally:
@@ -239,6 +241,33 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
             "malformed": rig.counters.malformed,
             "unknown": rig.counters.unknown,
         },
+    }
+
+
+def periodic_summary(run: RunConfig, rec: Recorder, controller: object) -> dict[str, Any]:
+    """For runs with a periodic disturbance: the steady-state tip acceleration amplitude,
+    defined as half the peak-to-peak of a least-squares fit of harmonics 1-15 of the rotor
+    frequency to the tip acceleration over the last ``steady_window_s`` (whole periods)."""
+    period = getattr(controller, "period_s", None)
+    if period is None or rec.rows < 10:
+        return {}
+    t = rec.time_s[: rec.rows]
+    omega = 2 * math.pi / period
+    window = min(run.data["steady_window_s"], 0.5 * t[-1])
+    law = controller.law  # type: ignore[attr-defined]
+    return {
+        "rotor_speed_rad_s": omega,
+        "rotor_period_s": period,
+        "beta": controller.beta,  # type: ignore[attr-defined]
+        "frequency_ratio": run.controller.get("frequency_ratio"),
+        "disturbance_amplitude_n_m": law.amplitude_n_m(omega),
+        "compensation_amplitude_n_m": controller.amplitude_n_m,  # type: ignore[attr-defined]
+        "steady_window_s": window,
+        "steady_tip_accel_amplitude_m_s2": steady_state_amplitude(
+            t, rec.column("/tip/accel_m_s2"), omega, window),
+        "steady_angle_amplitude_deg": steady_state_amplitude(
+            t, rec.column("/attitude/angle_deg") - np.polyval(np.polyfit(
+                t, rec.column("/attitude/angle_deg"), 1), t), omega, window),
     }
 
 

@@ -25,6 +25,7 @@ class RigState:
     piezo_sensor_v: tuple[float, float] = (0.0, 0.0)
     rotor_angle_rad: float = 0.0
     rotor_speed_rad_s: float = 0.0
+    rotor_sample_tick: int = 0  # tick of the last rotor telemetry (it answers every n-th SYNC)
     stale: tuple[str, ...] = field(default_factory=tuple)
 
 

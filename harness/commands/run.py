@@ -30,6 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=Path("logs"), help="parent directory of the "
                    "run directory (default: ./logs)")
     p.add_argument("--duration-s", type=float, help="override the run's duration (s)")
+    p.add_argument("--variant", action="append", metavar="NAME",
+                   help="run only this variant of a run file with variants (e.g. beta-0.8 of "
+                   "case-a); repeatable. Default: every variant in turn")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument("--dry-run", action="store_true",
@@ -42,24 +45,49 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def cmd_run(args: argparse.Namespace) -> int:
     previous = signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
+    summaries = []
     try:
         overrides = {"duration_s": args.duration_s} if args.duration_s else None
-        run = load_run(args.run, overrides)
         if args.view and "127.0.0.1" not in args.view and "localhost" not in args.view:
             raise ConfigError(f"--view {args.view}: the live view stays on 127.0.0.1")
-        result = execute_run(run, out_dir=args.out, bus=args.bus, clock=args.clock,
-                             live_view_url=args.view, show_progress=not args.quiet,
-                             dry_run=args.dry_run)
+        base = load_run(args.run, overrides)
+        variants = base.data["variants"] or {}
+        if not isinstance(variants, dict):
+            raise ConfigError(f"{base.source}: variants: expected a mapping NAME: overrides")
+        names = args.variant or list(variants) or [None]
+        for name in names:
+            if name is not None and name not in variants:
+                raise ConfigError(f"--variant {name}: {base.source} has variants "
+                                  f"{sorted(variants) or 'none'}")
+        for name in names:
+            run = base
+            if name is not None:
+                over = dict(variants[name])
+                over["name"] = f"{base.name}-{name}"
+                if args.duration_s:
+                    over["duration_s"] = args.duration_s
+                run = load_run(args.run, over)
+                print(f"harness: {run.name}", file=sys.stderr)
+            result = execute_run(run, out_dir=args.out, bus=args.bus, clock=args.clock,
+                                 live_view_url=args.view, show_progress=not args.quiet,
+                                 dry_run=args.dry_run)
+            s = result.summary
+            s["run_dir"] = str(result.run_dir)
+            summaries.append(s)
+            print(f"harness: {s['run']} {s['stopped_by']}: final angle error "
+                  f"{s['final_angle_error_deg']} deg, settle {s['settle_time_s']} s, "
+                  f"residual tip accel {s['residual_tip_accel_m_s2']} m/s^2"
+                  + (f", steady tip accel amplitude {s['steady_tip_accel_amplitude_m_s2']:.4f}"
+                     " m/s^2" if "steady_tip_accel_amplitude_m_s2" in s else "")
+                  + f", {s['real_time_factor']}x real time; recording in {result.run_dir}",
+                  file=sys.stderr)
+            if s["stopped_by"] != "completed":
+                break
     except (ConfigError, BusSpecError, RunRefused) as exc:
         print(f"harness: {exc}", file=sys.stderr)
         return 2
     finally:
         signal.signal(signal.SIGTERM, previous)
-    s = result.summary
     if args.json:
-        print(json.dumps(s, indent=2))
-    print(f"harness: {s['run']} {s['stopped_by']}: final angle error "
-          f"{s['final_angle_error_deg']} deg, settle {s['settle_time_s']} s, "
-          f"residual tip accel {s['residual_tip_accel_m_s2']} m/s^2, "
-          f"{s['real_time_factor']}x real time; recording in {result.run_dir}", file=sys.stderr)
-    return 0 if s["stopped_by"] == "completed" else 130
+        print(json.dumps(summaries[0] if len(summaries) == 1 else summaries, indent=2))
+    return 0 if all(s["stopped_by"] == "completed" for s in summaries) else 130

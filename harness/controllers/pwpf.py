@@ -36,7 +36,9 @@ class PWPFParameters:
             if not math.isfinite(value) or value <= 0:
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
         if not math.isfinite(self.u_off) or not 0 <= self.u_off < self.u_on:
-            raise ValueError(f"u_off must satisfy 0 <= u_off < u_on ({self.u_on}), got {self.u_off!r}")
+            raise ValueError(
+                f"u_off must satisfy 0 <= u_off < u_on ({self.u_on}), got {self.u_off!r}"
+            )
 
     @property
     def dead_zone(self) -> float:

@@ -87,3 +87,47 @@ CONTROLLERS["wheel_pulse"] = (
     },
     lambda c, rig, dt: WheelPulse(c["torque_n_m"], c["start_s"], c["width_s"]),
 )
+
+
+SQUARE_WAVE_SCHEMA = {
+    "type": Field("str", required=True),
+    "frequency_ratio": Field("number", default=1.0, exclusive_minimum=0.0),
+    "beta": Field("number", default=0.8, minimum=0.0),
+    "compensate": Field("bool", default=True),
+    # lambda = rotor speed / this reference natural frequency, named explicitly
+    "reference_frequency": {
+        "mode": Field("str", default="constrained", choices=("constrained", "hub_free", "given")),
+        "index": Field("int", default=1, minimum=1),
+        "omega_rad_s": Field("number", "rad/s", default=0.0, minimum=0.0),
+    },
+}
+
+
+def reference_omega(ref: dict[str, Any], rig: RigConfig) -> float:
+    """The reference natural frequency a run names (model mode or a given value)."""
+    if ref["mode"] == "given":
+        if ref["omega_rad_s"] <= 0:
+            raise ValueError("reference_frequency.omega_rad_s must be > 0 with mode: given")
+        return float(ref["omega_rad_s"])
+    freqs = (rig.beam_modes.omega_rad_s if ref["mode"] == "constrained"
+             else rig.plant.hub_free_modes()[0])
+    if ref["index"] > len(freqs):
+        raise ValueError(f"reference_frequency.index {ref['index']} > {len(freqs)} modes")
+    return float(freqs[ref["index"] - 1])
+
+
+def build_square_wave(c: dict[str, Any], rig: RigConfig, dt_s: float) -> Any:
+    from harness.controllers.square_wave import DisturbanceLaw, SquareWaveCompensator
+
+    dr = rig.section("disturbance_rotor")
+    omega_m = c["frequency_ratio"] * reference_omega(c["reference_frequency"], rig)
+    if omega_m > dr["max_speed_rad_s"]:
+        raise ValueError(f"rotor speed {omega_m:.3f} rad/s exceeds disturbance_rotor."
+                         f"max_speed_rad_s {dr['max_speed_rad_s']}")
+    law = DisturbanceLaw(dr["mass_kg"], dr["eccentricity_m"], dr["dish_radius_m"])
+    return SquareWaveCompensator(c["beta"], law, omega_m, dt_s,
+                                 rig.section("reaction_wheel")["max_torque_n_m"],
+                                 c["compensate"])
+
+
+CONTROLLERS["square_wave"] = (SQUARE_WAVE_SCHEMA, build_square_wave)

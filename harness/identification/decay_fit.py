@@ -13,13 +13,16 @@ Steps (``fit_free_decay``):
    applied with ``numpy.convolve(..., "valid")``: the first ``numtaps - 1`` outputs, which
    depend on samples before the start, are never formed (the start transient is dropped,
    ``DecimationPlan.dropped_s``), and each remaining output is an exact steady-state
-   convolution. Every ``q``-th output is kept. Passband edge ``f_max_hz``; stop band from the
-   new Nyquist frequency up, so nothing aliases into the decimated band. No zero-phase
+   convolution. Every ``q``-th output is kept, ``q`` chosen for an output rate of at least
+   16 x ``f_max_hz`` (a wide transition band keeps the filter, hence the dropped start,
+   short). Passband edge ``f_max_hz``; stop band from the new Nyquist frequency up, so
+   nothing aliases into the decimated band (60 dB). No zero-phase
    (forward-backward) filtering is used: it would need samples beyond the record edges.
    A damped exponential ``exp(s tau)`` passes an FIR exactly as ``H(s) exp(s tau)`` with
    ``H(s) = sum_n h[n] exp(-s n dt)``; the fit model includes ``H(s)``, so frequency,
    damping, amplitude and phase refer to the raw (unfiltered) signal.
-2. Start values by the matrix pencil method (Hua & Sarkar) on the decimated record. The
+2. Start values by the matrix pencil method (Hua & Sarkar) on the decimated record (its
+   first 1200 samples at most). The
    model order is the number of Hankel singular values above ``sv_threshold`` times their
    median (pure-noise Hankel matrices give a max/median ratio of about 2-2.6). Poles that are
    real, growing (zeta < -0.02), overdamped (zeta > ``zeta_max``), in the filter's stop band
@@ -48,6 +51,7 @@ from harness.identification.spectrum import (
 )
 
 N_MODE_PARAMS = 4  # (omega_rad_s, damping_ratio, amplitude, phase_rad) per mode
+RATE_FACTOR = 16.0  # decimated sample rate >= RATE_FACTOR x f_max_hz
 
 
 @dataclass(frozen=True)
@@ -115,6 +119,7 @@ class PencilResult:
     amplitudes: np.ndarray
     singular_values: np.ndarray
     order: int
+    n_samples: int  # leading samples of the record that the pencil used
 
 
 @dataclass
@@ -187,12 +192,19 @@ def damped_sinusoid_sum(
 # ----------------------------------------------------------------------------- decimation
 
 
-def design_decimation(fs_hz: float, f_max_hz: float, *, atten_db: float = 60.0) -> DecimationPlan:
-    """Causal FIR decimation keeping [0, f_max_hz]: output rate about 8 f_max_hz, stop band
-    from the output Nyquist frequency (at least 4 f_max_hz) with ``atten_db`` attenuation."""
+def design_decimation(
+    fs_hz: float, f_max_hz: float, *, rate_factor: float = RATE_FACTOR, atten_db: float = 60.0
+) -> DecimationPlan:
+    """Causal FIR decimation keeping [0, f_max_hz]: output rate at least ``rate_factor``
+    x f_max_hz, stop band from the output Nyquist frequency up with ``atten_db`` attenuation.
+
+    The filter length (hence the dropped start) falls with the transition width, so a high
+    output rate keeps the dropped start short (about 0.6 / f_max_hz seconds at 16 x)."""
     if not (np.isfinite(f_max_hz) and 0.0 < f_max_hz < fs_hz / 2.0):
         raise ValueError(f"f_max_hz must be in (0, fs/2 = {fs_hz / 2.0:g}) Hz, got {f_max_hz!r}")
-    q = max(1, int(np.floor(fs_hz / (8.0 * f_max_hz))))
+    if not rate_factor > 2.0:
+        raise ValueError(f"rate_factor must be > 2, got {rate_factor!r}")
+    q = max(1, int(np.floor(fs_hz / (rate_factor * f_max_hz))))
     if q == 1:
         return DecimationPlan(1, fs_hz, np.ones(1), f_max_hz, fs_hz / 2.0)
     f_stop = fs_hz / (2.0 * q)
@@ -230,7 +242,7 @@ def matrix_pencil(
     *,
     order: int | None = None,
     sv_threshold: float = 6.0,
-    max_samples: int = 2000,
+    max_samples: int = 1200,
 ) -> PencilResult:
     """Matrix pencil estimate of the poles of ``y`` (first ``max_samples`` samples).
 
@@ -256,7 +268,7 @@ def matrix_pencil(
     amps = lstsq(vander, y.astype(complex))[0]
     with np.errstate(divide="ignore"):
         poles = np.log(z.astype(complex)) / dt
-    return PencilResult(poles=poles, amplitudes=amps, singular_values=sv, order=order)
+    return PencilResult(poles=poles, amplitudes=amps, singular_values=sv, order=order, n_samples=n)
 
 
 def _mode_energy(c: complex, z: complex, n: int) -> float:
@@ -276,7 +288,7 @@ def _physical_modes(
     min_energy_snr: float,
 ) -> list[tuple[float, float, complex, float]]:
     """(omega, zeta, complex amplitude at y[0], energy) of the physical pencil poles."""
-    n = min(y.size, 2000)
+    n = pencil.n_samples
     recon = np.zeros(n, dtype=complex)
     z_all = np.exp(pencil.poles * dt)
     for c, z in zip(pencil.amplitudes, z_all, strict=True):
@@ -336,9 +348,11 @@ def fit_free_decay(
     """Fit a free decay ``x`` (uniformly sampled at ``fs_hz``; ``x[0]`` at ``tau0_s`` seconds
     after the start of the decay, to which amplitudes and phases refer).
 
-    ``n_modes`` None: every physical, significant mode found by the matrix pencil below the
-    filter's stop band; else exactly the ``n_modes`` strongest (completed from FFT peaks if
-    the pencil finds fewer). ``f_max_hz`` None: 1.5 x the highest significant FFT peak.
+    Every physical, significant mode that the matrix pencil finds below the filter's stop
+    band is fitted (leaving one out would bias the others). ``n_modes``: at least this many
+    modes are fitted; if the pencil finds fewer, start values are completed from FFT peaks.
+    ``f_max_hz`` None: 1.5 x the highest significant FFT peak (of the ``n_modes`` lowest,
+    if given).
     """
     x = np.asarray(x, dtype=float)
     if x.ndim != 1 or x.size < 32:
@@ -347,12 +361,14 @@ def fit_free_decay(
         raise ValueError("x must be finite (no NaN or inf)")
     if n_modes is not None and (int(n_modes) != n_modes or n_modes < 1):
         raise ValueError(f"n_modes must be a positive integer or None, got {n_modes!r}")
+    if not (np.isfinite(fs_hz) and fs_hz > 0):
+        raise ValueError(f"fs_hz must be a positive finite number, got {fs_hz!r}")
     notes: list[str] = []
     dt = 1.0 / fs_hz
     spec = spectrum if spectrum is not None else amplitude_spectrum(x, fs_hz)
     peaks = find_spectral_peaks(spec, f_max_hz=f_max_hz)
     if f_max_hz is None:
-        f_max_hz = auto_f_max_hz(peaks, fs_hz, spec.resolution_hz)
+        f_max_hz = auto_f_max_hz(peaks[:n_modes], fs_hz, spec.resolution_hz)
     plan = design_decimation(fs_hz, f_max_hz)
     y, idx = decimate_causal(x, plan)
     tau = tau0_s + idx * dt
@@ -367,12 +383,14 @@ def fit_free_decay(
     if n_modes is not None and pencil.order < 2 * n_modes + 1:
         pencil = matrix_pencil(y, dt_dec, order=2 * n_modes + 1)
     cands = _physical_modes(
-        pencil, y, dt_dec, f_stop_hz=plan.f_stop_hz, zeta_max=zeta_max,
+        pencil,
+        y,
+        dt_dec,
+        f_stop_hz=plan.f_stop_hz,
+        zeta_max=zeta_max,
         min_energy_snr=min_energy_snr,
     )
-    cands.sort(key=lambda m: m[3], reverse=True)
     if n_modes is not None:
-        cands = cands[:n_modes]
         for pk in peaks:  # complete from FFT peaks not already matched
             if len(cands) >= n_modes:
                 break
@@ -406,8 +424,16 @@ def fit_free_decay(
         return damped_sinusoid_sum(tau, p, plan)[1]
 
     sol = least_squares(
-        residual, x0_arr, jac=jacobian, bounds=(lower, upper), method="trf", x_scale="jac",
-        xtol=1e-12, ftol=1e-12, gtol=1e-10, max_nfev=500,
+        residual,
+        x0_arr,
+        jac=jacobian,
+        bounds=(lower, upper),
+        method="trf",
+        x_scale="jac",
+        xtol=1e-12,
+        ftol=1e-12,
+        gtol=1e-10,
+        max_nfev=500,
     )
     p = sol.x.copy()
     res = sol.fun
@@ -445,9 +471,10 @@ def fit_free_decay(
         if zeta <= 0.0:
             notes.append(f"mode at {omega:.4g} rad/s has non-positive damping {zeta:.3g}")
         if omega / (2.0 * np.pi) > f_max_hz:
+            gain = abs(plan.response(1j * omega)[0])
             notes.append(
-                f"mode at {omega:.4g} rad/s lies above f_max_hz = {f_max_hz:g} "
-                "(in the filter's transition band)"
+                f"mode at {omega:.4g} rad/s lies above f_max_hz = {f_max_hz:.4g} Hz, in the "
+                f"decimation filter's transition band (gain {gain:.3g}, corrected)"
             )
     raw_start = int(idx[0])
     tau_raw = tau0_s + np.arange(raw_start, x.size) * dt

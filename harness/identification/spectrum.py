@@ -72,9 +72,7 @@ def _window(name: str, n: int, fs_hz: float, exp_end_fraction: float) -> tuple[n
         return sps.get_window("hann", n, fftbins=False), 0.0
     if name == "exponential":
         if not 0.0 < exp_end_fraction < 1.0:
-            raise ValueError(
-                f"exp_end_fraction must be in (0, 1), got {exp_end_fraction!r}"
-            )
+            raise ValueError(f"exp_end_fraction must be in (0, 1), got {exp_end_fraction!r}")
         duration_s = n / fs_hz
         decay_rate = np.log(1.0 / exp_end_fraction) / duration_s
         return np.exp(-decay_rate * np.arange(n) / fs_hz), float(decay_rate)
@@ -227,7 +225,9 @@ def find_spectral_peaks(
     """Significant peaks of ``spec``, sorted by frequency.
 
     A peak counts if its amplitude exceeds ``min_snr`` times the spectrum's noise floor and
-    it stands ``min_prominence_db`` above the valleys around it. ``max_peaks`` keeps the
+    it stands ``min_prominence_db`` above the valleys around it; with the rect and hann
+    windows it must also stand 6 dB above the sidelobe envelopes of the stronger peaks
+    (so window sidelobes are not taken for modes). ``max_peaks`` keeps the
     strongest. ``f_min_hz`` defaults to three Rayleigh resolutions (clear of the DC leak).
     """
     if interpolation not in INTERPOLATIONS:

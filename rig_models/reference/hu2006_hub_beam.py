@@ -101,7 +101,9 @@ class HubBeamParameters:
             if not np.isfinite(value) or value < 0:
                 raise ValueError(f"{name} must be a non-negative finite number, got {value!r}")
         if not 0 <= self.modal_damping_ratio < 1:
-            raise ValueError(f"modal_damping_ratio must be in [0, 1), got {self.modal_damping_ratio}")
+            raise ValueError(
+                f"modal_damping_ratio must be in [0, 1), got {self.modal_damping_ratio}"
+            )
         if int(self.n_modes) != self.n_modes or self.n_modes < 1:
             raise ValueError(f"n_modes must be a positive integer, got {self.n_modes!r}")
         if self.patch_start + self.patch_length > self.beam_length:
@@ -369,7 +371,9 @@ def solve_hub_inertia_and_thickness(
     base = base or HubBeamParameters()
     target = np.asarray(targets_rad_s, dtype=float)
     if target.shape != (2,) or np.any(target <= 0) or target[1] <= target[0]:
-        raise ValueError(f"targets_rad_s must be two increasing positive values, got {targets_rad_s}")
+        raise ValueError(
+            f"targets_rad_s must be two increasing positive values, got {targets_rad_s}"
+        )
 
     def residual(p: np.ndarray) -> np.ndarray:
         trial = replace(base, hub_inertia=float(np.exp(p[0])), beam_thickness=float(np.exp(p[1])))
@@ -378,4 +382,5 @@ def solve_hub_inertia_and_thickness(
     sol = least_squares(residual, np.log([base.hub_inertia, base.beam_thickness]), xtol=1e-12)
     if np.max(np.abs(sol.fun)) > 1e-6:
         raise RuntimeError("no hub inertia / thickness reproduces the target frequencies")
-    return replace(base, hub_inertia=float(np.exp(sol.x[0])), beam_thickness=float(np.exp(sol.x[1])))
+    hub_inertia, thickness = (float(v) for v in np.exp(sol.x))
+    return replace(base, hub_inertia=hub_inertia, beam_thickness=thickness)
