@@ -1,1 +1,9 @@
-"""harness."""
+"""SGSRT HIL harness: loop, controllers, shaping, identification, recording, CLI."""
+
+import os
+
+# The harness's matrices are small (8 x 8 plant, at most a few hundred dofs in the reference
+# models): threaded BLAS only adds overhead, and with a process per core (sweep) it
+# oversubscribes the machine (measured 10x slower on 2 cores). Must precede numpy's import.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")

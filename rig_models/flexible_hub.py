@@ -56,6 +56,15 @@ class HubBeamModel:
         w2, vec = w2[order][1:], vec[:, order][:, 1:]
         return np.sqrt(np.clip(w2, 0.0, None)), vec
 
+    def hub_free_modal_damping(self) -> tuple[np.ndarray, np.ndarray]:
+        """Natural frequency (rad/s) and damping ratio of each oscillatory pole of the damped
+        hub-free system (from the eigenvalues of A), in ascending frequency."""
+        poles = np.linalg.eigvals(self.a)
+        osc = poles[poles.imag > 1e-9]
+        wn = np.abs(osc)
+        order = np.argsort(wn)
+        return wn[order], (-osc.real / np.abs(osc))[order]
+
     def discretise(self, dt_s: float) -> DiscreteHubBeam:
         return DiscreteHubBeam.from_continuous(self, dt_s)
 

@@ -131,3 +131,58 @@ def build_square_wave(c: dict[str, Any], rig: RigConfig, dt_s: float) -> Any:
 
 
 CONTROLLERS["square_wave"] = (SQUARE_WAVE_SCHEMA, build_square_wave)
+
+
+class WheelBursts:
+    """Square-wave wheel torque bursts, one after the other (each +-T at a frequency for a
+    whole number of cycles, zero mean), then nothing: resonant excitation of chosen modes
+    before a free decay. ``end_s`` is when the excitation stops."""
+
+    def __init__(self, torque_n_m: float, start_s: float,
+                 bursts: list[tuple[float, int]]) -> None:
+        self.torque_n_m = torque_n_m
+        self.segments: list[tuple[float, float, float]] = []  # (t0, t1, omega)
+        t = start_s
+        for omega, cycles in bursts:
+            if not omega > 0 or cycles < 1:
+                raise ValueError(f"bursts: omega_rad_s must be > 0 and cycles >= 1, got "
+                                 f"{omega}, {cycles}")
+            dur = cycles * 2 * math.pi / omega
+            self.segments.append((t, t + dur, omega))
+            t += dur
+        self.end_s = t
+
+    def reset(self) -> None:
+        pass
+
+    def torque(self, t_s: float) -> float:
+        for t0, t1, omega in self.segments:
+            if t0 <= t_s < t1:
+                return self.torque_n_m if math.sin(omega * (t_s - t0)) >= 0 else -self.torque_n_m
+        return 0.0
+
+    def step(self, state: RigState) -> RigCommand:
+        return RigCommand(wheel_torque_n_m=self.torque(state.time_s))
+
+
+def _bursts(c: dict[str, Any]) -> list[tuple[float, int]]:
+    raw = c["bursts"]
+    if not isinstance(raw, list) or not raw:
+        raise ValueError("bursts: expected a list of {omega_rad_s, cycles}")
+    out = []
+    for i, b in enumerate(raw):
+        if not isinstance(b, dict) or set(b) != {"omega_rad_s", "cycles"}:
+            raise ValueError(f"bursts[{i}]: expected {{omega_rad_s: rad/s, cycles: int}}")
+        out.append((float(b["omega_rad_s"]), int(b["cycles"])))
+    return out
+
+
+CONTROLLERS["wheel_bursts"] = (
+    {
+        "type": Field("str", required=True),
+        "torque_n_m": Field("number", "N m", default=0.06),
+        "start_s": Field("number", "s", default=0.5, minimum=0.0),
+        "bursts": Field("any", required=True),
+    },
+    lambda c, rig, dt: WheelBursts(c["torque_n_m"], c["start_s"], _bursts(c)),
+)

@@ -21,8 +21,9 @@ Coupled equations (the paper's eq. 1, generalised coordinates q = [r (3), theta 
     M, K = assembled plate matrices,  G = [[0, Q w~, 0], [0, I w~, 0], [0, A^T w~, D]],
     w = orbit rate vector (0, -w_o, 0), D = 0 (no structural damping).
 
-The orbit-rate term is written as eq. (1) shows it; at w_o = 7.29e-5 rad/s it changes
-nothing visible over a one-minute manoeuvre.
+The orbit-rate term is written as eq. (1) shows it. As written, G q' = M[:, theta] (w~ theta'),
+so it acts on the attitude only: at w_o = 7.29e-5 rad/s it shifts the angles by about
+0.01 deg over a one-minute manoeuvre and leaves the panel deflection unchanged.
 
 Nodes of the +Y panel are numbered 1..27 as node = 3 i + j + 1 (i = 0..8 along the span from
 the root, j = 0..2 across the width from s = -1.2 m), so node 27 is the tip corner at
@@ -169,7 +170,11 @@ def rectangular_plate(
     if nx < 1 or ny < 1:
         raise ValueError(f"nx and ny must be >= 1, got nx={nx}, ny={ny}")
     elem = AcmPlateElement(
-        length_x_m / nx, length_y_m / ny, youngs_modulus_pa, poisson_ratio, thickness_m,
+        length_x_m / nx,
+        length_y_m / ny,
+        youngs_modulus_pa,
+        poisson_ratio,
+        thickness_m,
         density_kg_m3,
     )
     n_dof = 3 * (nx + 1) * (ny + 1)
@@ -179,7 +184,11 @@ def rectangular_plate(
     for i in range(nx):
         for j in range(ny):
             idx = np.array(
-                [d for ij in ((i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)) for d in mesh.dofs(*ij)]
+                [
+                    d
+                    for ij in ((i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1))
+                    for d in mesh.dofs(*ij)
+                ]
             )
             k[np.ix_(idx, idx)] += elem.stiffness
             m[np.ix_(idx, idx)] += elem.mass
@@ -224,7 +233,10 @@ class SatelliteParameters:
 
     def __post_init__(self) -> None:
         for name in (
-            "panel_length_m", "panel_width_m", "panel_thickness_m", "density_kg_m3",
+            "panel_length_m",
+            "panel_width_m",
+            "panel_thickness_m",
+            "density_kg_m3",
             "youngs_modulus_pa",
         ):
             _check_positive(name, getattr(self, name))
