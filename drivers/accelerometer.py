@@ -8,6 +8,7 @@ from drivers.base import DeviceDriver
 class AccelerometerDriver(DeviceDriver):
     name = "accelerometer"
     telemetry_frame = "ACCEL_TLM"
+    sequence = ("sample_counter", 65536)
 
     @property
     def accel_m_s2(self) -> float:

@@ -16,6 +16,7 @@ from drivers.dbc import FrameCodec, FrameError, Protocol
 class FrameCounters:
     received: int = 0
     malformed: int = 0
+    sequence_errors: int = 0  # a frame counter that did not advance by exactly one step
     last_error: str = ""
 
 
@@ -32,6 +33,8 @@ class DeviceDriver:
     name = "device"
     telemetry_frame = ""
     command_frame = ""
+    # (signal, modulus) of a counter that advances by one per frame, if the frame has one
+    sequence: tuple[str, int] | None = None
 
     @property
     def telemetry_codec(self) -> FrameCodec:
@@ -46,6 +49,14 @@ class DeviceDriver:
             self.counters.last_error = str(exc)
             return False
         self.counters.received += 1
+        if self.sequence is not None:
+            name, modulus = self.sequence
+            new = int(self.values.get(name, 0))
+            last = getattr(self, "_last_seq", None)
+            if last is not None and (new - last) % modulus != 1:
+                self.counters.sequence_errors += 1
+                self.counters.last_error = f"{self.telemetry_frame}: {name} went {last} -> {new}"
+            self._last_seq = new
         self.last_tick = tick
         return True
 

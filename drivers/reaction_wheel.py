@@ -12,6 +12,7 @@ class ReactionWheelDriver(DeviceDriver):
     max_torque_n_m: float = 0.065
     name = "reaction_wheel"
     telemetry_frame = "WHEEL_TLM"
+    sequence = ("counter", 256)
     command_frame = "WHEEL_CMD"
 
     def clamp(self, torque_n_m: float) -> float:

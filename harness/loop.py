@@ -13,6 +13,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -57,6 +58,7 @@ class LoopStats:
     wall_s: float = 0.0
     stopped_by: str = "completed"
     error: str = ""
+    faults: list[Any] = field(default_factory=list)
 
     def percentiles_ms(self, values: list[float]) -> dict[str, float]:
         if not values:
@@ -79,6 +81,8 @@ def run_loop(
     reference: Callable[[float], tuple[float, float, float]] | None = None,
     progress: Callable[[int, int], None] | None = None,
     stats: LoopStats | None = None,
+    monitor: Any = None,
+    should_stop: Callable[[], str | None] | None = None,
 ) -> LoopStats:
     """Run ``n_ticks`` ticks. ``pump`` lets an in-process virtual rig answer (lockstep).
     ``stats`` (filled in place) stays with the caller even when the loop raises."""
@@ -95,6 +99,11 @@ def run_loop(
     tick = 0
     try:
         for tick in range(n_ticks):
+            if should_stop is not None and should_stop():
+                stats.stopped_by = "interrupted"
+                stats.error = f"stopped by {should_stop()}"
+                recorder.log_event(tick * dt_s, "/events/harness", stats.error, "WARN")
+                break
             lateness = clock.wait(tick)
             t_start = perf()
             if tick % heartbeat_every == 0:
@@ -129,6 +138,15 @@ def run_loop(
                 state.rotor_speed_rad_s, lateness * 1e3, work * 1e3, got,
             )
             recorder.commit()
+            stats.ticks = tick + 1
+            if monitor is not None:
+                event = monitor.check(tick, state, sent)
+                if event is not None:
+                    stats.stopped_by = "fault"
+                    stats.faults.append(event)
+                    recorder.log_event(t_s, f"/events/{event.device}", str(event), "ERROR")
+                    print(f"\nharness: FAULT {event}; leaving the rig safe", file=sys.stderr)
+                    break
             # block logging happens outside the tick's critical path
             if realtime:
                 if clock.time_left(tick) > 0.5 * dt_s:
@@ -137,7 +155,6 @@ def run_loop(
                 recorder.drain()
             if progress is not None and tick % progress_every == 0:
                 progress(tick, n_ticks)
-            stats.ticks = tick + 1
     except KeyboardInterrupt:
         stats.stopped_by = "interrupted"
         print("\nharness: interrupted; leaving the rig safe", file=sys.stderr)

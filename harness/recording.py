@@ -78,8 +78,9 @@ class Recorder:
         """Send up to ``max_blocks`` pending channel-blocks (all if None)."""
         n = 0
         while self._pending and (max_blocks is None or n < max_blocks):
-            c, start, stop = self._pending.pop(0)
+            c, start, stop = self._pending[0]
             self._send(c, start, stop)
+            self._pending.pop(0)  # only once sent: an interrupted send is retried on close
             n += 1
         return n
 

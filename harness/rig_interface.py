@@ -23,6 +23,8 @@ from harness.can_log import CanLog
 from harness.state import SAFE_COMMAND, RigCommand, RigState
 from rig_models.rig_file import RigConfig
 
+CAN_ERR_BUSOFF = 0x040  # SocketCAN error class (linux/can/error.h)
+
 
 @dataclass
 class BusCounters:
@@ -31,6 +33,8 @@ class BusCounters:
     unknown: int = 0
     error_frames: int = 0
     send_errors: int = 0
+    bus_off: bool = False
+    last_unknown_id: int = 0
 
 
 class RigInterface:
@@ -156,10 +160,13 @@ class RigInterface:
                 self.can_log.log(msg)
             if msg.is_error_frame:
                 self.counters.error_frames += 1
+                if msg.arbitration_id & CAN_ERR_BUSOFF:
+                    self.counters.bus_off = True
                 continue
             drv = self._by_id.get(msg.arbitration_id)
             if drv is None:
                 self.counters.unknown += 1
+                self.counters.last_unknown_id = msg.arbitration_id
                 continue
             if drv.handle(msg.data, tick):
                 got += 1

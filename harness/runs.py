@@ -15,6 +15,8 @@ from typing import Any
 import yaml
 
 from harness.controllers.registry import CONTROLLERS
+from harness.monitor import LIMITS_SCHEMA, MONITOR_SCHEMA
+from rig_models.faults import FaultSpec, make_fault
 from rig_models.rig_file import RigConfig, load_rig, rig_from_dict
 from rig_models.schema import ConfigError, Field, validate
 
@@ -40,6 +42,9 @@ RUN_SCHEMA: dict[str, Any] = {
     "steady_window_s": Field("number", "s", default=30.0, exclusive_minimum=0.0),
     "variants": Field("any", default=None),
     "receive_timeout_ms": Field("number", "ms", default=50.0, exclusive_minimum=0.0),
+    "faults": Field("any", default=None),
+    "monitor": MONITOR_SCHEMA,
+    "limits": LIMITS_SCHEMA,
     "realtime": {
         "sched_fifo": Field("bool", default=False),
         "priority": Field("int", default=50, minimum=1, maximum=99),
@@ -71,6 +76,13 @@ class RunConfig:
     @property
     def controller(self) -> dict[str, Any]:
         return self.data["controller"]
+
+    @property
+    def faults(self) -> list[FaultSpec]:
+        raw = self.data["faults"] or []
+        if not isinstance(raw, list):
+            raise ConfigError(f"{self.source}: faults: expected a list")
+        return [make_fault(f, f"{self.source}: faults[{i}]") for i, f in enumerate(raw)]
 
     @property
     def actuators(self) -> tuple[str, ...]:
@@ -132,6 +144,10 @@ def run_from_dict(raw: Any, source: str = "run") -> RunConfig:
         raise ConfigError(
             f"{source}: controller.type: expected one of {sorted(CONTROLLERS)}, "
             f"got {ctrl.get('type') if isinstance(ctrl, dict) else ctrl!r}")
+    if data["faults"] is not None and not isinstance(data["faults"], list):
+        raise ConfigError(f"{source}: faults: expected a list of {{kind, at_s, ...}}")
+    for i, f in enumerate(data["faults"] or []):
+        make_fault(f, f"{source}: faults[{i}]")
     schema, _ = CONTROLLERS[ctrl["type"]]
     data["controller"] = validate(ctrl, schema, source, "controller")
     rig = load_rig(data["rig"])

@@ -12,6 +12,7 @@ import json
 import math
 import sys
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,10 +26,12 @@ from harness.busload import compute_bus_load
 from harness.can_log import CanLog
 from harness.clock import LockstepClock, RealTimeClock, RealTimeSetup
 from harness.loop import CHANNELS, LoopStats, run_loop
+from harness.monitor import FaultMonitor
 from harness.periodic import steady_state_amplitude
 from harness.recording import Recorder
 from harness.rig_interface import RigInterface
 from harness.runs import RunConfig, build_controller
+from rig_models.faults import FaultSpec
 from rig_models.schema import ConfigError
 from rig_models.virtual_rig import VirtualRig
 
@@ -82,6 +85,8 @@ def execute_run(
     live_view_url: str | None = None,
     show_progress: bool = True,
     dry_run: bool = False,
+    faults: list[FaultSpec] | None = None,
+    should_stop: Callable[[], str | None] | None = None,
 ) -> RunResult:
     spec = parse_bus(bus or run.data["bus"])
     clock_name = clock or run.data["clock"]
@@ -111,7 +116,7 @@ def execute_run(
     try:
         if spec.in_process:
             rig_bus = open_bus(spec)
-            rig = VirtualRig(run.rig, rig_bus, dt_s)
+            rig = VirtualRig(run.rig, rig_bus, dt_s, faults=run.faults + list(faults or []))
             if clock_name == "lockstep":
                 pump = rig.service
             else:
@@ -129,6 +134,11 @@ def execute_run(
         interface = RigInterface(harness_bus, protocol, run.rig, can_log, run.actuators,
                                  dry_run=dry_run)
         heartbeat_every = max(1, round(run.data["rate_hz"] / run.data["heartbeat_hz"]))
+        monitor = FaultMonitor(
+            interface, run.data["monitor"], run.data["limits"],
+            run.rig.section("reaction_wheel")["max_speed_rad_s"], run.rig.accel_range_m_s2,
+            run.rig.section("thruster_valves")["close_delay_s"], dt_s,
+            realtime=clock_name == "realtime")
         reference = getattr(controller, "reference", None)
         recorder.log_static_text("/run/config", "```yaml\n" + yaml.safe_dump(
             run.resolved(), sort_keys=False) + "```")
@@ -137,7 +147,7 @@ def execute_run(
                 interface, controller, loop_clock, recorder, run.n_ticks, dt_s,
                 heartbeat_every, run.data["receive_timeout_ms"] / 1e3, pump=pump,
                 reference=reference, progress=_progress if show_progress else None,
-                stats=stats)
+                stats=stats, monitor=monitor, should_stop=should_stop)
         finally:
             if show_progress:
                 print("", file=sys.stderr)
@@ -145,6 +155,8 @@ def execute_run(
                                 str(spec), setup, rig)
             summary.update(periodic_summary(run, recorder, controller))
             summary["dry_run"] = dry_run
+            summary["faults"] = [f.to_dict() for f in stats.faults]
+            summary["injected_faults"] = [vars(f) for f in (rig.injector.faults if rig else [])]
             (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     finally:
         stop_rig.set()

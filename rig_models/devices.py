@@ -70,7 +70,7 @@ class ReactionWheel:
 
     def step(self) -> float:
         """Advance one step; return the torque on the hub held over the step."""
-        target = self.command_n_m
+        target = 0.0 if self.fault else self.command_n_m
         # speed limit: refuse torque that would spin the rotor further past its limit
         self.speed_limited = False
         if self.speed_rad_s >= self.max_speed_rad_s and target < 0:
@@ -104,6 +104,7 @@ class ThrusterValves:
     _step: int = 0
     _opened_at: int = 0
     commanded: int = 0
+    stuck_open: bool = False  # fault: the positive valve stays open whatever it is told
 
     def command(self, direction: int) -> None:
         direction = 1 if direction > 0 else -1 if direction < 0 else 0
@@ -116,7 +117,7 @@ class ThrusterValves:
     def make_safe(self) -> None:
         self._pending.clear()
         self.commanded = 0
-        self.state = 0
+        self.state = 1 if self.stuck_open else 0
 
     def step(self) -> float:
         min_on = round(self.min_on_time_s / self.dt_s)
@@ -130,6 +131,10 @@ class ThrusterValves:
                     self.firings += 1
                     self._opened_at = self._step
                 self.state = new
+        if self.stuck_open:
+            if self.state != 1:
+                self.firings += 1
+            self.state = 1
         torque = self.state * self.couple_n_m
         if self.state != 0:
             self.on_time_s += self.dt_s
@@ -234,6 +239,9 @@ class PiezoAmplifier:
     overcurrent: bool = False
 
     def command(self, ch1_v: float, ch2_v: float) -> None:
+        if self.overcurrent:  # tripped: output stays at 0 V until reset
+            self.voltages_v = (0.0, 0.0)
+            return
         lim = self.max_voltage_v
         self.voltages_v = (max(-lim, min(lim, ch1_v)), max(-lim, min(lim, ch2_v)))
 

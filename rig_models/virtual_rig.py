@@ -34,7 +34,12 @@ from rig_models.devices import (
     ReactionWheel,
     ThrusterValves,
 )
+from rig_models.faults import FaultInjector, FaultSpec
 from rig_models.rig_file import RigConfig
+
+UNKNOWN_ID = 0x6A5  # used by no device of the DBC
+CAN_ERR_BUSERROR = 0x080  # SocketCAN error classes (linux/can/error.h)
+CAN_ERR_BUSOFF = 0x040
 
 
 @dataclass
@@ -59,8 +64,10 @@ class TruthSample:
 
 
 class VirtualRig:
-    def __init__(self, rig: RigConfig, bus: can.BusABC, dt_s: float) -> None:
+    def __init__(self, rig: RigConfig, bus: can.BusABC, dt_s: float,
+                 faults: list[FaultSpec] | None = None) -> None:
         self.rig = rig
+        self.injector = FaultInjector(list(faults or []))
         self.bus = bus
         self.dt_s = dt_s
         self.protocol = load_protocol()
@@ -157,11 +164,43 @@ class VirtualRig:
                     time.monotonic() - self.last_heartbeat_wall > self.watchdog_timeout_s):
                 self.make_safe(watchdog=True)
 
-    def _send(self, name: str, values: dict[str, float]) -> None:
+    def _send(self, name: str, values: dict[str, float], device: str = "") -> None:
         codec = self._tlm[name]
-        self.bus.send(can.Message(arbitration_id=codec.frame_id, data=codec.encode(values),
-                                  is_extended_id=False))
-        self.counters.frames_out += 1
+        data = codec.encode(values)
+        payloads = [data] if not self.injector.faults else self.injector.telemetry(
+            self.time_s, self.tick, device, data)
+        for payload in payloads:
+            self.bus.send(can.Message(arbitration_id=codec.frame_id, data=payload,
+                                      is_extended_id=False))
+            self.counters.frames_out += 1
+
+    def _send_fault_frames(self) -> None:
+        inj, t = self.injector, self.time_s
+        if inj.active(t, "unknown_ids"):
+            self.bus.send(can.Message(arbitration_id=UNKNOWN_ID, data=bytes(8),
+                                      is_extended_id=False))
+        f = inj.active(t, "error_frames")
+        if f is not None:
+            for _ in range(int(f.value if f.value is not None else 2)):
+                self.bus.send(can.Message(arbitration_id=CAN_ERR_BUSERROR, is_error_frame=True,
+                                          data=bytes(8), is_extended_id=False))
+        f = inj.active(t, "bus_off")
+        if f is not None and not getattr(self, "_bus_off_sent", False):
+            self._bus_off_sent = True
+            self.bus.send(can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True,
+                                      data=bytes(8), is_extended_id=False))
+
+    def _apply_device_faults(self) -> None:
+        inj, t = self.injector, self.time_s
+        if inj.active(t, "wheel_fault") and not self.wheel.fault:
+            self.wheel.fault = True
+            self.wheel.make_safe()
+        if inj.active(t, "wheel_overspeed"):
+            self.wheel.speed_rad_s = 1.1 * self.wheel.max_speed_rad_s
+        self.valves.stuck_open = inj.active(t, "valve_stuck_open") is not None
+        if inj.active(t, "piezo_overcurrent") and not self.piezo.overcurrent:
+            self.piezo.overcurrent = True
+            self.piezo.make_safe()
 
     # ------------------------------------------------------------------ commands
     def _decode(self, name: str, data: bytes) -> dict[str, float]:
@@ -235,6 +274,9 @@ class VirtualRig:
             for _ in range(steps):
                 self.step()
         self.tick = tick
+        if self.injector.faults:
+            self._apply_device_faults()
+            self._send_fault_frames()
         self._sample_and_send(tick)
 
     def _sample_and_send(self, tick: int) -> None:
@@ -247,29 +289,36 @@ class VirtualRig:
         div = self.divider
         if tick % div["hub_sensor"] == 0:
             angle, rate = self.hub_sensor.sample(y[0], y[1])
-            self._send("HUB_TLM", {"angle": angle, "rate": rate})
+            self._send("HUB_TLM", {"angle": angle, "rate": rate}, "hub_sensor")
         if tick % div["accelerometer"] == 0:
-            a = self.accel.sample(y[2])
+            extra = 0.0
+            if self.injector.faults:
+                f = self.injector.active(self.time_s, "accel_saturation")
+                extra = 0.0 if f is None else (f.value if f.value is not None else 30.0)
+            a = self.accel.sample(y[2] + extra)
             self._send("ACCEL_TLM", {"accel": a, "sample_counter": self.accel.counter,
-                                     "saturated": int(self.accel.saturated)})
+                                     "saturated": int(self.accel.saturated)},
+                       "accelerometer")
         w = self.wheel
         if tick % div["reaction_wheel"] == 0:
             self.wheel_counter = (self.wheel_counter + 1) & 0xFF
             self._send("WHEEL_TLM", {
                 "speed": w.speed_rad_s, "torque": w.torque_n_m, "enabled": int(w.enabled),
                 "fault": int(w.fault), "speed_limited": int(w.speed_limited),
-                "torque_limited": int(w.torque_limited), "counter": self.wheel_counter})
+                "torque_limited": int(w.torque_limited), "counter": self.wheel_counter},
+                "reaction_wheel")
         if tick % div["thruster_valves"] == 0:
             v = self.valves
             self._send("VALVE_TLM", {
                 "valve_pos_open": int(v.state > 0), "valve_neg_open": int(v.state < 0),
                 "fault": int(v.fault), "firings": v.firings & 0xFFFF, "on_time": v.on_time_s,
-                "counter": tick & 0xFF})
+                "counter": tick & 0xFF}, "thruster_valves")
         if tick % div["piezo_amplifier"] == 0:
             self._send("PIEZO_TLM", {"sensor_ch1": 0.0, "sensor_ch2": 0.0,
                                      "overcurrent": int(self.piezo.overcurrent),
-                                     "counter": tick & 0xFF})
+                                     "counter": tick & 0xFF}, "piezo_amplifier")
         if tick % div["disturbance_rotor"] == 0:
             r = self.rotor
             self._send("ROTOR_TLM", {"angle": r.angle_rad % (2 * math.pi), "speed": r.speed_rad_s,
-                                     "enabled": int(r.enabled), "counter": tick & 0xFF})
+                                     "enabled": int(r.enabled), "counter": tick & 0xFF},
+                       "disturbance_rotor")

@@ -4,18 +4,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 from pathlib import Path
 
 from harness.bus import BusSpecError
+from harness.interrupts import StopRequest, stop_on_signals
 from harness.runs import load_run
 from harness.session import RunRefused, execute_run
+from rig_models.faults import parse_fault
 from rig_models.schema import ConfigError
-
-
-def _sigterm_to_interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,6 +32,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "case-a); repeatable. Default: every variant in turn")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument("--fault", action="append", metavar="KIND@AT_S[:DEVICE][=VALUE]",
+                   help="inject a fault in the in-process virtual rig, e.g. "
+                   "silent_sensor@5:hub_sensor (repeatable; kinds: 'harness faults')")
     p.add_argument("--dry-run", action="store_true",
                    help="read every sensor, never send a command frame (actuators stay at rest)")
     p.add_argument("--view", nargs="?", const="rerun+http://127.0.0.1:9876/proxy",
@@ -44,13 +44,18 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    previous = signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
     summaries = []
+    with stop_on_signals() as stop:
+        return _run_all(args, stop, summaries)
+
+
+def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> int:
     try:
         overrides = {"duration_s": args.duration_s} if args.duration_s else None
         if args.view and "127.0.0.1" not in args.view and "localhost" not in args.view:
             raise ConfigError(f"--view {args.view}: the live view stays on 127.0.0.1")
         base = load_run(args.run, overrides)
+        faults = [parse_fault(f) for f in args.fault or []]
         variants = base.data["variants"] or {}
         if not isinstance(variants, dict):
             raise ConfigError(f"{base.source}: variants: expected a mapping NAME: overrides")
@@ -70,7 +75,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 print(f"harness: {run.name}", file=sys.stderr)
             result = execute_run(run, out_dir=args.out, bus=args.bus, clock=args.clock,
                                  live_view_url=args.view, show_progress=not args.quiet,
-                                 dry_run=args.dry_run)
+                                 dry_run=args.dry_run, faults=faults, should_stop=stop)
             s = result.summary
             s["run_dir"] = str(result.run_dir)
             summaries.append(s)
@@ -81,13 +86,19 @@ def cmd_run(args: argparse.Namespace) -> int:
                      " m/s^2" if "steady_tip_accel_amplitude_m_s2" in s else "")
                   + f", {s['real_time_factor']}x real time; recording in {result.run_dir}",
                   file=sys.stderr)
+            for f in s.get("faults", []):
+                print(f"harness: FAULT {f['device']}: {f['kind']}: {f['message']} at "
+                      f"t = {f['time_s']:.3f} s; actuators commanded safe", file=sys.stderr)
             if s["stopped_by"] != "completed":
                 break
     except (ConfigError, BusSpecError, RunRefused) as exc:
         print(f"harness: {exc}", file=sys.stderr)
         return 2
-    finally:
-        signal.signal(signal.SIGTERM, previous)
     if args.json:
         print(json.dumps(summaries[0] if len(summaries) == 1 else summaries, indent=2))
-    return 0 if all(s["stopped_by"] == "completed" for s in summaries) else 130
+    stops = {s["stopped_by"] for s in summaries}
+    if "fault" in stops:
+        return 3
+    if "interrupted" in stops:
+        return 130
+    return 0

@@ -1,0 +1,267 @@
+"""Fault detection: every tick, the telemetry and the bus counters against what a healthy rig
+does. The first fault stops the run: the loop commands the safe state and records the event.
+
+Detection bounds (ticks from the fault's first effect on the bus to its detection), with d
+the device's SYNC divider (1 for hub sensor, accelerometer, wheel, piezo; 5 for valves and
+rotor in the default rig file):
+
+| check | fault | bound (ticks) |
+|---|---|---|
+| silent | no telemetry from a device | 2 d + 2 |
+| frames lost | `lost_frames` of the device's last 20 due frames missing | 2 lost_frames d |
+| late | accelerometer sample counter behind the SYNC count by > `late_ticks` | late_ticks + 1 |
+| stuck | accel counter frozen 3 samples; hub values equal `stuck_ticks` times | 3 d; stuck_ticks |
+| malformed | a frame of the wrong length (more than `max_malformed_frames`) | 1 |
+| implausible | a value no healthy device sends (rate > 5 rad/s, angle step > 0.05 rad, ...) | 1 |
+| unknown ids | more than `max_unknown_frames` frames with ids no device uses | that many frames |
+| error frames | more than `max_error_frames` error frames; any bus-off | that many frames; 1 |
+| flags | accelerometer saturated, wheel fault, piezo over-current | d |
+| overspeed | wheel speed beyond 1.02 x its limit | 1 |
+| valve stuck | a valve open while commanded closed past its closing delay | close delay + 2 d + 1 |
+| limits | hub angle, rate, wheel speed or tip acceleration beyond the run's `limits` | 1 |
+
+On the real-time clock, frames may arrive a few ticks late with nothing wrong (a busy
+machine): there "silent" and "late" wait at least `realtime_grace_s` (50 ms), and missing
+frames count only through the frame counters (sequence gaps), not per tick. A device never
+heard from is reported silent only after `startup_s` (0.5 s).
+
+The safe state is commanded in the tick the fault is detected, so the actuators are safe one
+tick after detection at the latest (the virtual rig applies commands at the next SYNC).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from harness.rig_interface import RigInterface
+from harness.state import RigCommand, RigState
+from rig_models.schema import Field
+
+MONITOR_SCHEMA = {
+    "enabled": Field("bool", default=True),
+    "stuck_ticks": Field("int", default=50, minimum=2),
+    "late_ticks": Field("int", default=2, minimum=1),
+    "lost_frames": Field("int", default=5, minimum=1, maximum=20),
+    "max_malformed_frames": Field("int", default=0, minimum=0),
+    "max_unknown_frames": Field("int", default=10, minimum=0),
+    "max_error_frames": Field("int", default=10, minimum=0),
+    "realtime_grace_s": Field("number", "s", default=0.05, minimum=0.0),
+    "startup_s": Field("number", "s", default=0.5, minimum=0.0),
+}
+LIMITS_SCHEMA = {
+    "max_angle_deg": Field("number", "deg", default=180.0, exclusive_minimum=0.0),
+    "max_rate_deg_s": Field("number", "deg/s", default=10.0, exclusive_minimum=0.0),
+    "max_wheel_speed_rad_s": Field("number", "rad/s", default=0.0, minimum=0.0),
+    "max_tip_accel_m_s2": Field("number", "m/s^2", default=15.0, exclusive_minimum=0.0),
+}
+
+
+@dataclass(frozen=True)
+class FaultEvent:
+    tick: int
+    time_s: float
+    device: str
+    kind: str
+    message: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def __str__(self) -> str:
+        return f"{self.device}: {self.kind}: {self.message} (t = {self.time_s:.3f} s)"
+
+
+class FaultMonitor:
+    def __init__(self, interface: RigInterface, monitor: dict[str, Any], limits: dict[str, Any],
+                 wheel_max_speed_rad_s: float, accel_range_m_s2: float, valve_close_delay_s: float,
+                 dt_s: float, realtime: bool = False) -> None:
+        self.iface = interface
+        # on the wall clock a frame can be a few ticks late without anything being wrong
+        self.realtime_grace = math.ceil(monitor["realtime_grace_s"] / dt_s) if realtime else 0
+        self.cfg = monitor
+        self.limits = dict(limits)
+        if not self.limits["max_wheel_speed_rad_s"]:
+            self.limits["max_wheel_speed_rad_s"] = wheel_max_speed_rad_s
+        self.wheel_max = wheel_max_speed_rad_s
+        self.accel_range = accel_range_m_s2
+        self.dt_s = dt_s
+        self.div = interface.divider
+        self.valve_close_ticks = math.ceil(valve_close_delay_s / dt_s)
+        self.grace = max(2 * d + 2 for d in self.div.values())
+        self.startup_ticks = math.ceil(monitor["startup_s"] / dt_s)
+        self._misses = {n: deque(maxlen=20) for n in self.div}
+        self._accel_offset: int | None = None
+        self._accel_last: tuple[int, int] | None = None  # (counter, tick of that counter)
+        self._accel_same = 0
+        self._hub_last: tuple[float, float] | None = None
+        self._hub_same = 0
+        self._hub_tick = -1
+        self._wheel_tick = -1
+        self._valve_closed_since = 0
+        self._seen_tick: dict[str, int] = {}
+
+    # ------------------------------------------------------------------
+    def check(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
+        if not self.cfg["enabled"]:
+            return None
+        for check in (self._bus, self._silent_and_lost, self._accelerometer, self._hub,
+                      self._wheel, self._valves, self._piezo, self._limits):
+            event = check(tick, state, sent)
+            if event is not None:
+                return event
+        return None
+
+    def _event(self, tick: int, device: str, kind: str, message: str) -> FaultEvent:
+        return FaultEvent(tick, tick * self.dt_s, device, kind, message)
+
+    def _bus(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
+        c = self.iface.counters
+        if c.bus_off:
+            return self._event(tick, "bus", "bus-off", "error frame with the bus-off class")
+        if c.error_frames > self.cfg["max_error_frames"]:
+            return self._event(tick, "bus", "error frames",
+                               f"{c.error_frames} error frames on the bus")
+        if c.unknown > self.cfg["max_unknown_frames"]:
+            return self._event(tick, "bus", "unknown ids",
+                               f"{c.unknown} frames with ids no device uses "
+                               f"(last 0x{c.last_unknown_id:03X})")
+        for name, drv in self.iface.drivers.items():
+            if drv.counters.malformed > self.cfg["max_malformed_frames"]:
+                return self._event(tick, name, "malformed frame", drv.counters.last_error)
+            if drv.counters.sequence_errors:
+                return self._event(tick, name, "frames lost", drv.counters.last_error)
+        return None
+
+    def _silent_and_lost(self, tick: int, state: RigState, sent: RigCommand
+                         ) -> FaultEvent | None:
+        if tick < self.grace:
+            return None
+        for name, drv in self.iface.drivers.items():
+            age = tick - drv.last_tick
+            if age > 10**8 and tick < self.startup_ticks:
+                continue  # not heard from yet: a device may take a moment to answer at first
+            if drv.is_stale(tick) and age > self.realtime_grace:
+                return self._event(tick, name, "silent",
+                                   f"no telemetry for {age if age < 10**8 else 'all'} ticks")
+            if tick % self.div[name] == 0 and not self.realtime_grace:
+                misses = self._misses[name]
+                misses.append(drv.last_tick != tick)
+                if sum(misses) >= self.cfg["lost_frames"]:
+                    return self._event(tick, name, "frames lost",
+                                       f"{sum(misses)} of its last {len(misses)} frames missing")
+        return None
+
+    def _accelerometer(self, tick: int, state: RigState, sent: RigCommand
+                       ) -> FaultEvent | None:
+        drv = self.iface.accel
+        if drv.last_tick != tick:
+            return None
+        v = drv.values
+        if v.get("saturated"):
+            return self._event(tick, "accelerometer", "saturated",
+                               f"reading {v.get('accel', 0.0):+.3f} m/s^2 at its +-"
+                               f"{self.accel_range:.2f} m/s^2 range")
+        if v.get("fault"):
+            return self._event(tick, "accelerometer", "fault flag", "device reports a fault")
+        if abs(v.get("accel", 0.0)) > self.accel_range + 0.01:
+            return self._event(tick, "accelerometer", "implausible",
+                               f"{v['accel']:+.3f} m/s^2 beyond its range")
+        counter = int(v.get("sample_counter", 0))
+        if self._accel_last is not None and counter == self._accel_last[0]:
+            self._accel_same += 1
+            if self._accel_same >= 2:
+                return self._event(tick, "accelerometer", "stuck",
+                                   f"sample counter frozen at {counter}")
+        else:
+            self._accel_same = 0
+        offset = (tick // self.div["accelerometer"] - counter) % 65536
+        late = (offset - self._accel_offset) % 65536 if self._accel_offset is not None else 0
+        if self._accel_offset is None:
+            self._accel_offset = offset
+        elif max(self.cfg["late_ticks"], self.realtime_grace) < late < 32768:
+            return self._event(tick, "accelerometer", "late",
+                               f"telemetry {(offset - self._accel_offset) % 65536} samples "
+                               "behind the SYNC count")
+        self._accel_last = (counter, tick)
+        return None
+
+    def _hub(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
+        drv = self.iface.hub
+        if drv.last_tick != tick or drv.last_tick == self._hub_tick:
+            return None
+        self._hub_tick = tick
+        angle, rate = drv.values.get("angle", 0.0), drv.values.get("rate", 0.0)
+        if abs(rate) > 5.0 or (self._hub_last is not None
+                               and abs(angle - self._hub_last[0]) > 0.05):
+            return self._event(tick, "hub_sensor", "implausible",
+                               f"angle {angle:+.4f} rad, rate {rate:+.4f} rad/s")
+        if self._hub_last == (angle, rate):
+            self._hub_same += 1
+            if self._hub_same >= self.cfg["stuck_ticks"]:
+                return self._event(tick, "hub_sensor", "stuck",
+                                   f"angle and rate identical for {self._hub_same} samples")
+        else:
+            self._hub_same = 0
+        self._hub_last = (angle, rate)
+        return None
+
+    def _wheel(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
+        drv = self.iface.wheel
+        if drv.last_tick != tick or drv.last_tick == self._wheel_tick:
+            return None
+        self._wheel_tick = tick
+        v = drv.values
+        if v.get("fault"):
+            return self._event(tick, "reaction_wheel", "fault flag", "wheel reports a fault")
+        speed = v.get("speed", 0.0)
+        if abs(speed) > 1.5 * self.wheel_max + 1.0:
+            return self._event(tick, "reaction_wheel", "implausible",
+                               f"speed {speed:+.1f} rad/s")
+        if abs(speed) > 1.02 * self.wheel_max:
+            return self._event(tick, "reaction_wheel", "overspeed",
+                               f"speed {speed:+.1f} rad/s beyond {self.wheel_max:g} rad/s")
+        return None
+
+    def _valves(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
+        if sent.valve_direction != 0:
+            self._valve_closed_since = tick + 1
+        drv = self.iface.valves
+        if drv.last_tick != tick:
+            return None
+        v = drv.values
+        if v.get("fault"):
+            return self._event(tick, "thruster_valves", "fault flag", "valves report a fault")
+        is_open = v.get("valve_pos_open", 0) or v.get("valve_neg_open", 0)
+        if is_open and tick - self._valve_closed_since > self.valve_close_ticks + 1:
+            which = "positive" if v.get("valve_pos_open") else "negative"
+            return self._event(tick, "thruster_valves", "stuck open",
+                               f"{which} valve open, commanded closed since tick "
+                               f"{self._valve_closed_since}")
+        return None
+
+    def _piezo(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
+        drv = self.iface.piezo
+        if drv.last_tick == tick and drv.values.get("overcurrent"):
+            return self._event(tick, "piezo_amplifier", "over-current",
+                               "amplifier tripped on over-current")
+        return None
+
+    def _limits(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
+        lim = self.limits
+        checks = (
+            ("hub_sensor", "angle limit", abs(math.degrees(state.hub_angle_rad)),
+             lim["max_angle_deg"], "deg"),
+            ("hub_sensor", "rate limit", abs(math.degrees(state.hub_rate_rad_s)),
+             lim["max_rate_deg_s"], "deg/s"),
+            ("reaction_wheel", "speed limit", abs(state.wheel_speed_rad_s),
+             lim["max_wheel_speed_rad_s"], "rad/s"),
+            ("accelerometer", "tip acceleration limit", abs(state.tip_accel_m_s2),
+             lim["max_tip_accel_m_s2"], "m/s^2"),
+        )
+        for device, kind, value, limit, unit in checks:
+            if value > limit:
+                return self._event(tick, device, kind, f"{value:.3f} {unit} > {limit:g} {unit}")
+        return None

@@ -1,0 +1,141 @@
+"""Fault injection in the virtual rig: what can go wrong on the bench, on demand.
+
+A fault is ``kind`` starting at ``at_s`` (rig time) for ``duration_s`` (0: to the end), on a
+``device`` where it applies. Frame faults act on the telemetry the rig sends; device faults
+change a device's state. Every kind is listed in FAULT_KINDS with what it does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from rig_models.schema import ConfigError
+
+TELEMETRY_DEVICES = ("hub_sensor", "accelerometer", "reaction_wheel", "thruster_valves",
+                     "piezo_amplifier", "disturbance_rotor")
+
+FAULT_KINDS: dict[str, str] = {
+    "drop_frames": "drops every other telemetry frame of the device",
+    "delay_frames": "holds the device's telemetry back by `value` ticks (default 3)",
+    "corrupt_payload": "inverts byte `value` (default: the last) of the device's frames",
+    "wrong_length": "sends the device's frames one byte short",
+    "unknown_ids": "adds a frame with an id no device uses, every tick",
+    "stuck_sensor": "the device repeats its last frame, byte for byte",
+    "silent_sensor": "the device stops answering",
+    "accel_saturation": "the tip sees `value` m/s^2 more (default 30), beyond the +-2 g range",
+    "wheel_fault": "the wheel raises its fault flag and stops producing torque",
+    "wheel_overspeed": "the wheel's rotor runs away to 1.1 x its speed limit",
+    "valve_stuck_open": "the positive-torque valve sticks open whatever it is commanded",
+    "piezo_overcurrent": "the piezo amplifier trips on over-current and outputs 0 V",
+    "error_frames": "puts `value` error frames (default 2) on the bus every tick",
+    "bus_off": "an error frame with the bus-off class, then no device answers",
+}
+DEVICE_FAULTS = {"drop_frames", "delay_frames", "corrupt_payload", "wrong_length",
+                 "stuck_sensor", "silent_sensor"}
+
+
+@dataclass(frozen=True)
+class FaultSpec:
+    kind: str
+    at_s: float
+    duration_s: float = 0.0
+    device: str = ""
+    value: float | None = None
+
+    def active(self, t_s: float) -> bool:
+        return t_s >= self.at_s - 1e-12 and (
+            self.duration_s <= 0 or t_s < self.at_s + self.duration_s - 1e-12)
+
+
+def parse_fault(text: str) -> FaultSpec:
+    """``KIND@AT_S[:DEVICE][=VALUE]``, e.g. ``silent_sensor@5:hub_sensor``."""
+    value = None
+    if "=" in text:
+        text, v = text.rsplit("=", 1)
+        try:
+            value = float(v)
+        except ValueError as exc:
+            raise ConfigError(f"--fault {text}={v}: value must be a number") from exc
+    kind, sep, rest = text.partition("@")
+    if not sep:
+        raise ConfigError(f"--fault {text!r}: expected KIND@AT_S[:DEVICE][=VALUE]")
+    at, _, device = rest.partition(":")
+    try:
+        at_s = float(at)
+    except ValueError as exc:
+        raise ConfigError(f"--fault {text!r}: AT_S must be a number of seconds") from exc
+    return make_fault({"kind": kind, "at_s": at_s, "device": device, "value": value},
+                      f"--fault {text}")
+
+
+def make_fault(raw: Any, where: str) -> FaultSpec:
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{where}: expected {{kind, at_s, device?, duration_s?, value?}}")
+    unknown = set(raw) - {"kind", "at_s", "duration_s", "device", "value"}
+    if unknown:
+        raise ConfigError(f"{where}.{sorted(unknown)[0]}: unknown key")
+    kind = raw.get("kind")
+    if kind not in FAULT_KINDS:
+        raise ConfigError(f"{where}.kind: expected one of {sorted(FAULT_KINDS)}, got {kind!r}")
+    at_s = raw.get("at_s")
+    if not isinstance(at_s, int | float) or at_s < 0:
+        raise ConfigError(f"{where}.at_s: expected a number >= 0 (s), got {at_s!r}")
+    device = raw.get("device") or ""
+    if kind in DEVICE_FAULTS and device not in TELEMETRY_DEVICES:
+        raise ConfigError(f"{where}.device: {kind} needs a device from {list(TELEMETRY_DEVICES)}"
+                          f", got {device!r}")
+    dur = raw.get("duration_s") or 0.0
+    value = raw.get("value")
+    return FaultSpec(kind, float(at_s), float(dur), device,
+                     None if value is None else float(value))
+
+
+@dataclass
+class FaultInjector:
+    faults: list[FaultSpec]
+    _held: dict[str, list[tuple[int, bytes]]] = field(default_factory=dict)
+    _last: dict[str, bytes] = field(default_factory=dict)
+    _dropped: dict[str, int] = field(default_factory=dict)
+
+    def active(self, t_s: float, kind: str, device: str = "") -> FaultSpec | None:
+        for f in self.faults:
+            if f.kind == kind and (not device or f.device == device) and f.active(t_s):
+                return f
+        return None
+
+    def any_active(self, t_s: float, kind: str) -> FaultSpec | None:
+        return self.active(t_s, kind)
+
+    def telemetry(self, t_s: float, tick: int, device: str, data: bytes) -> list[bytes]:
+        """The payloads the device really puts on the bus this tick (maybe none)."""
+        if self.active(t_s, "bus_off") or self.active(t_s, "silent_sensor", device):
+            return []
+        if self.active(t_s, "stuck_sensor", device):
+            data = self._last.setdefault(device, data)
+        else:
+            self._last[device] = data
+        if self.active(t_s, "drop_frames", device):
+            n = self._dropped.get(device, 0)
+            self._dropped[device] = n + 1
+            if n % 2 == 0:
+                return []
+        f = self.active(t_s, "corrupt_payload", device)
+        if f is not None:
+            i = int(f.value) if f.value is not None else len(data) - 1
+            i = max(0, min(len(data) - 1, i))
+            data = data[:i] + bytes([data[i] ^ 0xFF]) + data[i + 1:]
+        if self.active(t_s, "wrong_length", device):
+            data = data[:-1]
+        f = self.active(t_s, "delay_frames", device)
+        held = self._held.setdefault(device, [])
+        if f is not None:
+            held.append((tick + int(f.value if f.value is not None else 3), data))
+            out = [d for due, d in held if due <= tick]
+            self._held[device] = [(due, d) for due, d in held if due > tick]
+            return out
+        if held:  # flush what was held when the fault ends
+            out = [d for _, d in held] + [data]
+            held.clear()
+            return out
+        return [data]
