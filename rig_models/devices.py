@@ -231,10 +231,13 @@ class DisturbanceRotor:
 
 @dataclass
 class PiezoAmplifier:
-    """Amplifier voltage limit per channel; the patches' electromechanics are not modelled
-    yet (issue 4): sensor voltages read 0 V and the actuator moment is 0."""
+    """Two channels with a voltage limit; the current into each patch's capacitance,
+    C dV/dt, trips the amplifier (output 0 V, over-current flag) beyond ``max_current_a``."""
 
     max_voltage_v: float
+    max_current_a: float = float("inf")
+    capacitance_f: tuple[float, float] = (0.0, 0.0)
+    dt_s: float = 1.0
     voltages_v: tuple[float, float] = (0.0, 0.0)
     overcurrent: bool = False
 
@@ -243,7 +246,13 @@ class PiezoAmplifier:
             self.voltages_v = (0.0, 0.0)
             return
         lim = self.max_voltage_v
-        self.voltages_v = (max(-lim, min(lim, ch1_v)), max(-lim, min(lim, ch2_v)))
+        new = (max(-lim, min(lim, ch1_v)), max(-lim, min(lim, ch2_v)))
+        for c, v_old, v_new in zip(self.capacitance_f, self.voltages_v, new, strict=True):
+            if c * abs(v_new - v_old) / self.dt_s > self.max_current_a:
+                self.overcurrent = True
+                self.voltages_v = (0.0, 0.0)
+                return
+        self.voltages_v = new
 
     def make_safe(self) -> None:
         self.voltages_v = (0.0, 0.0)

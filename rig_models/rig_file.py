@@ -14,6 +14,7 @@ import yaml
 
 from rig_models.beam import BeamModes, BeamSpec, beam_modes
 from rig_models.flexible_hub import HubBeamModel, build_hub_beam
+from rig_models.piezo import PatchGains, PiezoPatch, patch_gains
 from rig_models.schema import ConfigError, Field, validate
 
 G0_M_S2 = 9.80665
@@ -63,7 +64,11 @@ RIG_SCHEMA: dict[str, Any] = {
     },
     "piezo_amplifier": {
         "max_voltage_v": Field("number", "V", default=200.0, **POSITIVE, maximum=327.0),
+        "max_current_a": Field("number", "A", default=0.1, **POSITIVE),
+        "sensor_noise_rms_v": Field("number", "V", default=0.001, minimum=0.0),
     },
+    # one entry per amplifier channel (1, 2): a PZT actuator pair with a sensor patch
+    "piezo_patches": Field("any", default=[]),
     "disturbance_rotor": {
         "mass_kg": Field("number", "kg", default=0.0, minimum=0.0),
         "eccentricity_m": Field("number", "m", default=0.0, minimum=0.0),
@@ -136,6 +141,34 @@ class RigConfig:
             )
         except ValueError as exc:
             raise ConfigError(f"{self.source}: {exc}") from exc
+
+    @cached_property
+    def piezo_patches(self) -> list[PiezoPatch]:
+        raw = self.data["piezo_patches"] or []
+        if not isinstance(raw, list) or len(raw) > 2:
+            raise ConfigError(f"{self.source}: piezo_patches: expected a list of at most 2 "
+                              "patches (amplifier channels 1 and 2)")
+        keys = {"start_m", "length_m", "width_m", "thickness_m", "youngs_modulus_pa",
+                "d31_m_v", "permittivity_f_m"}
+        out = []
+        for i, p in enumerate(raw):
+            where = f"{self.source}: piezo_patches[{i}]"
+            if not isinstance(p, dict) or not set(p) <= keys or not {
+                    "start_m", "length_m", "width_m", "thickness_m"} <= set(p):
+                raise ConfigError(f"{where}: expected start_m, length_m, width_m, thickness_m "
+                                  f"(m) and optionally {sorted(keys - {'start_m'})}")
+            try:
+                out.append(PiezoPatch(**{k: float(v) for k, v in p.items()}))
+            except (TypeError, ValueError) as exc:
+                raise ConfigError(f"{where}: {exc}") from exc
+        return out
+
+    @cached_property
+    def piezo_gains(self) -> list[PatchGains]:
+        try:
+            return [patch_gains(self.beam_modes, self.beam_spec, p) for p in self.piezo_patches]
+        except ValueError as exc:
+            raise ConfigError(f"{self.source}: piezo_patches: {exc}") from exc
 
     @property
     def accel_range_m_s2(self) -> float:

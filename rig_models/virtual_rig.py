@@ -76,6 +76,7 @@ class VirtualRig:
         self.x = np.zeros(rig.plant.n_states)
         self.u = np.zeros(self.plant.bd.shape[1])
         noise = NoiseSource(rig.data["noise_seed"])
+        self.noise = noise
         rw, acc, hs = (rig.section(k) for k in ("reaction_wheel", "accelerometer", "hub_sensor"))
         self.wheel = ReactionWheel(
             max_torque_n_m=rw["max_torque_n_m"], max_speed_rad_s=rw["max_speed_rad_s"],
@@ -87,7 +88,13 @@ class VirtualRig:
             couple_n_m=tv["couple_n_m"], open_delay_s=tv["open_delay_s"],
             close_delay_s=tv["close_delay_s"], min_on_time_s=tv["min_on_time_s"], dt_s=dt_s,
         )
-        self.piezo = PiezoAmplifier(max_voltage_v=rig.section("piezo_amplifier")["max_voltage_v"])
+        pa = rig.section("piezo_amplifier")
+        self.piezo_gains = rig.piezo_gains
+        caps = [g.capacitance_f for g in self.piezo_gains] + [0.0, 0.0]
+        self.piezo = PiezoAmplifier(max_voltage_v=pa["max_voltage_v"],
+                                    max_current_a=pa["max_current_a"],
+                                    capacitance_f=(caps[0], caps[1]), dt_s=dt_s)
+        self.piezo_noise_v = pa["sensor_noise_rms_v"]
         dr = rig.section("disturbance_rotor")
         self.rotor = DisturbanceRotor(
             mass_kg=dr["mass_kg"], eccentricity_m=dr["eccentricity_m"],
@@ -256,6 +263,11 @@ class VirtualRig:
         """Advance the physics by one step with the actuators' current commands."""
         hub_torque = self.wheel.step() + self.valves.step() + self.rotor.step()
         self.u[0] = hub_torque
+        if self.piezo_gains:
+            forces = np.zeros(self.n_modes)
+            for g, v in zip(self.piezo_gains, self.piezo.voltages_v, strict=False):
+                forces += g.actuator * v
+            self.u[1:] = forces
         self.x = self.plant.ad @ self.x + self.plant.bd @ self.u
         self.time_s += self.dt_s
         self.counters.steps += 1
@@ -314,7 +326,10 @@ class VirtualRig:
                 "fault": int(v.fault), "firings": v.firings & 0xFFFF, "on_time": v.on_time_s,
                 "counter": tick & 0xFF}, "thruster_valves")
         if tick % div["piezo_amplifier"] == 0:
-            self._send("PIEZO_TLM", {"sensor_ch1": 0.0, "sensor_ch2": 0.0,
+            sensed = [float(g.sensor @ self.x[1 : 1 + n])
+                      + self.piezo_noise_v * self.noise.normal() for g in self.piezo_gains]
+            sensed += [0.0, 0.0]
+            self._send("PIEZO_TLM", {"sensor_ch1": sensed[0], "sensor_ch2": sensed[1],
                                      "overcurrent": int(self.piezo.overcurrent),
                                      "counter": tick & 0xFF}, "piezo_amplifier")
         if tick % div["disturbance_rotor"] == 0:

@@ -186,3 +186,26 @@ CONTROLLERS["wheel_bursts"] = (
     },
     lambda c, rig, dt: WheelBursts(c["torque_n_m"], c["start_s"], _bursts(c)),
 )
+
+
+def _discover() -> None:
+    """Modules in harness/controllers/ may add run-file controller types by defining
+    ``CONTROLLER_TYPES = {name: (schema, builder)}`` (builder(section, rig, dt_s))."""
+    import importlib
+    import pkgutil
+
+    import harness.controllers as pkg
+
+    for info in pkgutil.iter_modules(pkg.__path__):
+        if info.name == "registry":
+            continue
+        module = importlib.import_module(f"harness.controllers.{info.name}")
+        extra = getattr(module, "CONTROLLER_TYPES", None)
+        if extra:
+            for name, entry in extra.items():
+                if name in CONTROLLERS:
+                    raise RuntimeError(f"controller type {name!r} defined twice")
+                CONTROLLERS[name] = entry
+
+
+_discover()

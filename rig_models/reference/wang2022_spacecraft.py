@@ -182,20 +182,50 @@ class Wang2022Spacecraft:
         return replace(self, modal_omega=self.modal_omega * frequency_scale, modal_damping=damping)
 
     # -- dynamics -------------------------------------------------------------------------
+    def _inertia_terms(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """J(gamma) = A0 + cos(2 gamma) A1 + sin(2 gamma) A2 (R_x J_w R_x^T is quadratic)."""
+        cached = self.__dict__.get("_j_terms")
+        if cached is None:
+            j0, j45, j90 = (self.inertia(g) for g in (0.0, math.pi / 4, math.pi / 2))
+            a0 = 0.5 * (j0 + j90)
+            cached = (a0, 0.5 * (j0 - j90), j45 - a0)
+            object.__setattr__(self, "_j_terms", cached)
+        return cached
+
+    def inertia_and_coupling(self, t: float) -> tuple[FloatArray, FloatArray]:
+        """J(gamma(t)) (3 x 3) and C(gamma(t)) (3 x 6), fast path for simulation."""
+        j, ct = self._inertia_and_coupling_rows(t)
+        return j, ct.T
+
+    def _inertia_and_coupling_rows(self, t: float) -> tuple[FloatArray, FloatArray]:
+        gamma = self.wing_angle0_rad + self.wing_rate_rad_s * t
+        cg, sg = math.cos(gamma), math.sin(gamma)
+        a0, a1, a2 = self._inertia_terms()
+        j = a0 + (cg * cg - sg * sg) * a1 + (2.0 * sg * cg) * a2
+        ct = _COUPLING_CONST + cg * _COUPLING_COS + sg * _COUPLING_SIN  # C^T, 6 x 3
+        return j, ct
+
     def rhs(self, t: float, x: FloatArray, tau: FloatArray) -> FloatArray:
         """State derivative; x = [q (4, scalar first), omega (3), eta (6), eta_dot (6)]."""
-        q, w = x[0:4], x[4:7]
-        eta, deta = x[7:13], x[13:19]
-        gamma = self.wing_angle0_rad + self.wing_rate_rad_s * t
-        j = self.inertia(gamma)
-        c = self.coupling(gamma)
+        j, ct = self._inertia_and_coupling_rows(t)
         lam = self.modal_omega
+        w = x[4:7]
+        eta, deta = x[7:13], x[13:19]
         modal_rhs = -2.0 * self.modal_damping * lam * deta - lam * lam * eta
-        h = j @ w + c @ deta
-        body_rhs = tau - np.cross(w, h)
-        dw = np.linalg.solve(j - c @ c.T, body_rhs - c @ modal_rhs)
-        ddeta = modal_rhs - c.T @ dw
-        dq = 0.5 * quaternion_multiply(q, np.array([0.0, w[0], w[1], w[2]]))
+        h = j @ w + deta @ ct
+        w0, w1, w2 = w
+        gyro = np.array([w1 * h[2] - w2 * h[1], w2 * h[0] - w0 * h[2], w0 * h[1] - w1 * h[0]])
+        dw = _solve3(j - ct.T @ ct, tau - gyro - modal_rhs @ ct)
+        ddeta = modal_rhs - ct @ dw
+        q0, q1, q2, q3 = x[0:4]
+        dq = 0.5 * np.array(
+            [
+                -q1 * w0 - q2 * w1 - q3 * w2,
+                q0 * w0 + q2 * w2 - q3 * w1,
+                q0 * w1 - q1 * w2 + q3 * w0,
+                q0 * w2 + q1 * w1 - q2 * w0,
+            ]
+        )
         return np.concatenate([dq, dw, deta, ddeta])
 
     def energy(self, t: float, x: FloatArray) -> float:
@@ -211,6 +241,21 @@ class Wang2022Spacecraft:
         gamma = float(self.wing_angle(t))
         h_body = self.inertia(gamma) @ x[4:7] + self.coupling(gamma) @ x[13:19]
         return quaternion_rotate(x[0:4], h_body)
+
+
+def _solve3(m: FloatArray, b: FloatArray) -> FloatArray:
+    """Solve a 3 x 3 symmetric positive definite system (Cramer's rule, no LAPACK overhead)."""
+    (a, bb, c), (d, e, f), (g, h, i) = m.tolist()
+    co0, co1, co2 = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * co0 + bb * co1 + c * co2
+    inv = np.array(
+        [
+            [co0, c * h - bb * i, bb * f - c * e],
+            [co1, a * i - c * g, c * d - a * f],
+            [co2, bb * g - a * h, a * e - bb * d],
+        ]
+    )
+    return inv @ b / det
 
 
 # ------------------------------------------------------------------------------ quaternions
@@ -252,11 +297,12 @@ def euler_321_to_quaternion(angles_rad: Sequence[float]) -> FloatArray:
 
 
 def quaternion_angle_error(q: ArrayLike, q_target: ArrayLike) -> FloatArray:
-    """Rotation angle (rad) between attitude(s) q and q_target."""
+    """Rotation angle (rad) between attitude(s) q and q_target (accurate for small angles)."""
     q_arr = np.asarray(q, dtype=float)
     q_arr = q_arr / np.linalg.norm(q_arr, axis=-1, keepdims=True)
-    dot = np.abs(np.sum(q_arr * np.asarray(q_target, dtype=float), axis=-1))
-    return 2.0 * np.arccos(np.clip(dot, -1.0, 1.0))
+    conj = np.asarray(q_target, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])
+    err = quaternion_multiply(conj, q_arr)
+    return 2.0 * np.arctan2(np.linalg.norm(err[..., 1:], axis=-1), np.abs(err[..., 0]))
 
 
 # ------------------------------------------------------------------------------ simulation
@@ -280,7 +326,7 @@ class SimulationResult:
 
 def simulate(
     model: Wang2022Spacecraft,
-    torque: Callable[[float], FloatArray],
+    torque: Callable[[float, FloatArray], FloatArray],
     t_end: float,
     *,
     x0: ArrayLike | None = None,
@@ -290,11 +336,15 @@ def simulate(
     atol: float = 1e-11,
     method: str = "DOP853",
 ) -> SimulationResult:
-    """Integrate the nonlinear attitude + modal dynamics under body torque ``torque(t)``.
+    """Integrate the nonlinear attitude + modal dynamics under the body torque ``torque(t, x)``.
+
+    ``torque`` gets the time and the state (for a plain torque history, ignore the state).
 
     ``breakpoints`` are times where the torque may jump (e.g. a zero-order-hold grid); the
     integration restarts there so no step straddles a discontinuity. ``x0`` defaults to rest
-    at the identity attitude. Results are sampled at ``t_eval`` (default: 1001 points).
+    at the identity attitude. Results are sampled at ``t_eval`` (default: 1001 points). At a
+    breakpoint the torque is evaluated from inside the segment being integrated (time nudged
+    by 1e-9 of the segment length), so ``torque`` may switch value exactly at breakpoints.
     """
     t_end = float(t_end)
     if not (math.isfinite(t_end) and t_end > 0.0):
@@ -312,24 +362,42 @@ def simulate(
     bps = np.asarray(breakpoints, dtype=float).reshape(-1)
     edges = np.unique(np.concatenate([[0.0, t_end], bps[(bps > 0.0) & (bps < t_end)]]))
 
+    segment = [0.0, t_end]
+
     def fun(t: float, x: FloatArray) -> FloatArray:
-        return model.rhs(t, x, np.asarray(torque(t), dtype=float))
+        # evaluate the torque from inside the current segment: at a breakpoint a piecewise
+        # torque must take the value of the side being integrated
+        lo, hi = segment
+        eps = 1e-9 * (hi - lo)
+        tau = torque(min(max(t, lo + eps), hi - eps), x)
+        return model.rhs(t, x, np.asarray(tau, dtype=float))
 
     out = np.empty((samples.size, STATE_SIZE))
     filled = np.zeros(samples.size, dtype=bool)
     for t0, t1 in zip(edges[:-1], edges[1:], strict=True):
+        segment[:] = [t0, t1]
+        mask = (samples >= t0) & (samples <= t1) & ~filled
+        n_in = int(np.count_nonzero(mask))
+        t_seg = samples[mask]
+        if n_in == 0 or t_seg[-1] < t1:
+            t_seg = np.append(t_seg, t1)  # always return the segment's end state
         sol = solve_ivp(
-            fun, (t0, t1), state, method=method, rtol=rtol, atol=atol, dense_output=True,
-            first_step=min(t1 - t0, 0.05),
+            fun, (t0, t1), state, method=method, rtol=rtol, atol=atol,
+            t_eval=t_seg, first_step=min(t1 - t0, 0.05),
         )
         if not sol.success:
             raise RuntimeError(f"simulate: integration failed on [{t0}, {t1}]: {sol.message}")
-        mask = (samples >= t0) & (samples <= t1) & ~filled
-        if np.any(mask):
-            out[mask] = sol.sol(samples[mask]).T
+        if n_in:
+            out[mask] = sol.y[:, :n_in].T
             filled |= mask
         state = sol.y[:, -1].copy()
         state[0:4] /= np.linalg.norm(state[0:4])
     q = out[:, 0:4] / np.linalg.norm(out[:, 0:4], axis=1, keepdims=True)
-    tau = np.array([np.asarray(torque(float(t)), dtype=float) for t in samples])
+    # torque at the samples, from the right side of a breakpoint (left side at t_end)
+    tau = np.array(
+        [
+            np.asarray(torque(min(float(t), t_end - 1e-9 * t_end), x), dtype=float)
+            for t, x in zip(samples, out, strict=True)
+        ]
+    )
     return SimulationResult(samples, q, out[:, 4:7], out[:, 7:13], out[:, 13:19], tau)
