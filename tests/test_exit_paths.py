@@ -68,8 +68,9 @@ def test_controller_exception_leaves_rig_safe_and_logs_complete(tmp_path, explod
 
 
 def test_realtime_clock_in_process(tmp_path):
-    res = execute_run(load_run("slew-rw", {"duration_s": 1.0}), out_dir=tmp_path,
-                      clock="realtime", show_progress=False)
+    res = execute_run(load_run("slew-rw", {"duration_s": 1.0,
+                                           "monitor": {"realtime_grace_s": 2.0}}),
+                      out_dir=tmp_path, clock="realtime", show_progress=False)
     s = res.summary
     assert s["stopped_by"] == "completed" and s["ticks"] == 501
     assert 0.9 < s["wall_time_s"] < 3.0  # paced by the wall clock, not as fast as possible
@@ -99,7 +100,7 @@ def test_rig_in_its_own_process_over_socketcand(tmp_path):
                            stderr=subprocess.PIPE, text=True)
     try:
         assert "socketcand" in rig.stderr.readline()
-        run = load_run("slew-rw", {"duration_s": 2.0})
+        run = load_run("slew-rw", {"duration_s": 2.0, "monitor": {"realtime_grace_s": 2.0}})
         res = execute_run(run, out_dir=tmp_path, bus=f"socketcand:127.0.0.1:{port}",
                           clock="realtime", show_progress=False)
     finally:
