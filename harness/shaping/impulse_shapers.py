@@ -8,13 +8,13 @@ command is convolving it with that sequence:
 
 Residual vibration follows the standard definition (Singer & Seering 1990): for a second-order
 mode (omega, zeta) excited by the sequence, the amplitude of the vibration left after the last
-impulse, divided by the amplitude a single unit impulse at t = 0 would leave at that time::
+impulse (time t_N), divided by that of one unit impulse applied at t_N::
 
     V = exp(-zeta omega t_N) * | sum_i A_i exp(zeta omega t_i) exp(j omega_d t_i) |,
 
 with omega_d = omega sqrt(1 - zeta^2). :func:`residual_vibration` returns ``100 V`` (percent);
-for a sequence whose amplitudes sum to 1 it is also the ratio of the shaped to the unshaped
-step's residual vibration.
+for a sequence whose amplitudes sum to 1 it is also the shaped step's residual vibration over
+that of an unshaped unit step applied at t_N (for zeta = 0 the timing does not matter).
 
 Pure functions and one small stateful class (:class:`ShapedCommand`, a fixed-rate shaper for a
 control loop); no I/O.
@@ -188,12 +188,16 @@ def ei(omega: float, zeta: float = 0.0, v_tol: float = 0.05) -> ImpulseSequence:
 
     x_zero = math.acos(-(1.0 - v) / (1.0 + v)) / math.pi  # zero at omega * x_zero (undamped)
     x0 = np.array([a1, a3, period / 2, period, omega * x_zero, omega * (2.0 - x_zero)])
-    sol = least_squares(equations, x0, xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    # keep the two zeros on either side of the design frequency (other roots exist, with
+    # zeros far away and no insensitivity around the design frequency)
+    lower = np.array([0.0, 0.0, 0.25 * period, 0.75 * period, 0.3 * omega, omega * 1.0001])
+    upper = np.array([1.0, 1.0, 0.75 * period, 1.5 * period, omega * 0.9999, 1.7 * omega])
+    sol = least_squares(
+        equations, x0, bounds=(lower, upper), xtol=1e-15, ftol=1e-15, gtol=1e-15
+    )
     if not sol.success or np.max(np.abs(sol.fun)) > 1e-9:
         raise RuntimeError(f"ei: EI conditions not met (residual {np.max(np.abs(sol.fun)):.2e})")
     a1_, a3_, t2, t3 = sol.x[:4]
-    if not (0.0 < t2 < t3):
-        raise RuntimeError("ei: solver returned unordered impulse times")
     return ImpulseSequence(np.array([0.0, t2, t3]), np.array([a1_, 1.0 - a1_ - a3_, a3_]))
 
 
@@ -261,13 +265,18 @@ def sensitivity_curve(
 def _sample(
     t: FloatArray, u: FloatArray, tau: FloatArray, initial: float, interpolation: str
 ) -> FloatArray:
-    """u(tau) with u = initial before t[0], held at u[-1] after t[-1]."""
+    """u(tau) with u = initial before t[0], held at u[-1] after t[-1].
+
+    A shift that lands within a billionth of a sample interval of a sample time counts as on
+    it, so delays that are whole numbers of samples are not spoiled by rounding.
+    """
+    tol = 1e-9 * (t[-1] - t[0]) / max(t.size - 1, 1) if t.size > 1 else 1e-12
     if interpolation == "linear":
         values = np.interp(tau, t, u)
     else:  # "previous": zero-order hold
-        idx = np.clip(np.searchsorted(t, tau, side="right") - 1, 0, t.size - 1)
+        idx = np.clip(np.searchsorted(t, tau + tol, side="right") - 1, 0, t.size - 1)
         values = u[idx]
-    return np.where(tau < t[0], initial, values)
+    return np.where(tau < t[0] - tol, initial, values)
 
 
 def shape_command(
