@@ -13,6 +13,7 @@ import sys
 import threading
 
 from harness.bus import BusSpecError, open_bus, parse_bus
+from rig_models.faults import parse_fault
 from rig_models.rig_file import load_rig
 from rig_models.schema import ConfigError
 from rig_models.virtual_rig import VirtualRig
@@ -30,12 +31,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the harness loop rate: one physics step per SYNC (default 500)")
     p.add_argument("--duration-s", type=float, default=0.0,
                    help="exit after this many seconds of wall time (0: until Ctrl-C/SIGTERM)")
+    p.add_argument("--fault", action="append", metavar="KIND@AT_S[:DEVICE][=VALUE]",
+                   help="inject a fault at rig time AT_S (repeatable; see 'harness faults')")
     p.set_defaults(func=cmd_virtual_rig)
 
 
 def cmd_virtual_rig(args: argparse.Namespace) -> int:
     try:
         rig_cfg = load_rig(args.rig)
+        faults = [parse_fault(f) for f in args.fault or []]
         if args.serve_socketcand is not None:
             from drivers.socketcand_server import SocketcandServerBus
 
@@ -57,7 +61,7 @@ def cmd_virtual_rig(args: argparse.Namespace) -> int:
         timer = threading.Timer(args.duration_s, stop.set)
         timer.daemon = True
         timer.start()
-    rig = VirtualRig(rig_cfg, bus, 1.0 / args.rate_hz)
+    rig = VirtualRig(rig_cfg, bus, 1.0 / args.rate_hz, faults=faults)
     print(f"harness virtual-rig: {rig_cfg.name} on {where} at {args.rate_hz:g} Hz; "
           "Ctrl-C to stop", file=sys.stderr, flush=True)
     try:
