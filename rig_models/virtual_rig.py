@@ -170,6 +170,9 @@ class VirtualRig:
             if (not self.safe and
                     time.monotonic() - self.last_heartbeat_wall > self.watchdog_timeout_s):
                 self.make_safe(watchdog=True)
+                # like a CANopen emergency message: every device reports its (now safe)
+                # state once, unprompted, so the trip is seen on the bus without a SYNC
+                self._sample_and_send(max(self.tick, 0))
 
     def _send(self, name: str, values: dict[str, float], device: str = "") -> None:
         codec = self._tlm[name]
