@@ -113,6 +113,7 @@ def execute_run(
                         live_view_url=live_view_url)
     pump = None
     stats = LoopStats()
+    setup = RealTimeSetup()
     try:
         if spec.in_process:
             rig_bus = open_bus(spec)
@@ -129,7 +130,6 @@ def execute_run(
                                           rt["lock_memory"], rt["gc_freeze"])
             loop_clock: LockstepClock | RealTimeClock = RealTimeClock(dt_s)
         else:
-            setup = RealTimeSetup()
             loop_clock = LockstepClock(dt_s)
         interface = RigInterface(harness_bus, protocol, run.rig, can_log, run.actuators,
                                  dry_run=dry_run)
@@ -159,6 +159,7 @@ def execute_run(
             summary["injected_faults"] = [vars(f) for f in (rig.injector.faults if rig else [])]
             (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     finally:
+        setup.restore()
         stop_rig.set()
         if rig_thread is not None:
             rig_thread.join(timeout=2.0)

@@ -8,6 +8,7 @@ PORT``) and the harness connects with ``--bus socketcand:127.0.0.1:PORT``.
 from __future__ import annotations
 
 import argparse
+import gc
 import signal
 import sys
 import threading
@@ -62,6 +63,8 @@ def cmd_virtual_rig(args: argparse.Namespace) -> int:
         timer.daemon = True
         timer.start()
     rig = VirtualRig(rig_cfg, bus, 1.0 / args.rate_hz, faults=faults)
+    gc.collect()
+    gc.freeze()  # keep the collector's pauses small while serving the bus
     print(f"harness virtual-rig: {rig_cfg.name} on {where} at {args.rate_hz:g} Hz; "
           "Ctrl-C to stop", file=sys.stderr, flush=True)
     try:
