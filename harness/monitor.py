@@ -17,7 +17,7 @@ rotor in the default rig file):
 | error frames | more than `max_error_frames` error frames; any bus-off | that many frames; 1 |
 | flags | accelerometer saturated, wheel fault, piezo over-current | d |
 | overspeed | wheel speed beyond 1.02 x its limit | 1 |
-| valve stuck | a valve open while commanded closed past its closing delay | close delay + 2 d + 1 |
+| valve stuck | open while commanded closed past closing delay + min on-time | that + 2 d + 1 |
 | limits | hub angle, rate, wheel speed or tip acceleration beyond the run's `limits` | 1 |
 
 On the real-time clock, frames may arrive a few ticks late with nothing wrong (a busy
@@ -77,7 +77,7 @@ class FaultEvent:
 class FaultMonitor:
     def __init__(self, interface: RigInterface, monitor: dict[str, Any], limits: dict[str, Any],
                  wheel_max_speed_rad_s: float, accel_range_m_s2: float, valve_close_delay_s: float,
-                 dt_s: float, realtime: bool = False) -> None:
+                 dt_s: float, realtime: bool = False, valve_min_on_s: float = 0.0) -> None:
         self.iface = interface
         # on the wall clock a frame can be a few ticks late without anything being wrong
         self.realtime_grace = math.ceil(monitor["realtime_grace_s"] / dt_s) if realtime else 0
@@ -89,7 +89,9 @@ class FaultMonitor:
         self.accel_range = accel_range_m_s2
         self.dt_s = dt_s
         self.div = interface.divider
-        self.valve_close_ticks = math.ceil(valve_close_delay_s / dt_s)
+        # a valve may close late by its closing delay, and a short pulse is stretched to the
+        # valve's minimum on-time
+        self.valve_close_ticks = math.ceil((valve_close_delay_s + valve_min_on_s) / dt_s)
         self.grace = max(2 * d + 2 for d in self.div.values())
         self.startup_ticks = math.ceil(monitor["startup_s"] / dt_s)
         self._misses = {n: deque(maxlen=20) for n in self.div}

@@ -138,7 +138,8 @@ def execute_run(
             interface, run.data["monitor"], run.data["limits"],
             run.rig.section("reaction_wheel")["max_speed_rad_s"], run.rig.accel_range_m_s2,
             run.rig.section("thruster_valves")["close_delay_s"], dt_s,
-            realtime=clock_name == "realtime")
+            realtime=clock_name == "realtime",
+            valve_min_on_s=run.rig.section("thruster_valves")["min_on_time_s"])
         reference = getattr(controller, "reference", None)
         recorder.log_static_text("/run/config", "```yaml\n" + yaml.safe_dump(
             run.resolved(), sort_keys=False) + "```")
@@ -154,6 +155,9 @@ def execute_run(
             summary = summarise(run, recorder, stats, load.percent, interface, clock_name,
                                 str(spec), setup, rig)
             summary.update(periodic_summary(run, recorder, controller))
+            design_report = getattr(controller, "design_report", None)
+            if callable(design_report):
+                summary["controller_design"] = design_report()
             summary["dry_run"] = dry_run
             summary["faults"] = [f.to_dict() for f in stats.faults]
             summary["injected_faults"] = [vars(f) for f in (rig.injector.faults if rig else [])]

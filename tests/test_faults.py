@@ -31,7 +31,7 @@ CASES = [
     ("accel_saturation@3", "accelerometer", "saturated", 1),
     ("wheel_fault@3", "reaction_wheel", "fault flag", 1),
     ("wheel_overspeed@3", "reaction_wheel", "overspeed", 1),
-    ("valve_stuck_open@3", "thruster_valves", "stuck open", 13),
+    ("valve_stuck_open@3", "thruster_valves", "stuck open", 18),
     ("piezo_overcurrent@3", "piezo_amplifier", "over-current", 1),
     ("error_frames@3", "bus", "error frames", 6),
     ("bus_off@3", "bus", "bus-off", 1),
