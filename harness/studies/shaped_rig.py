@@ -1,0 +1,414 @@
+"""`harness study shaped-rig`: shaped slews on the virtual SGSRT over CAN (issues 5 and 6).
+
+Every slew is a built-in run file (``harness/runs/slew-rw-*.yaml``,
+``slew-thruster-*.yaml``) executed through the harness (``execute_run``: CAN bus, drivers,
+virtual rig, recording). The shapers are designed with the modes in the run files, which
+were identified from a free decay with ``harness identify`` (``--identify`` repeats that now
+and designs with the fresh numbers instead).
+
+Residual vibration, one definition for every run: the tip acceleration over the window
+``[end + 0.1 s, end + 0.1 s + W]``, ``end`` being the end of that run's own manoeuvre (every
+actuator command zero from then on; 0.1 s lets the wheel's 10 ms torque lag and the valves'
+4 ms closing delay die out), W = the run file's ``residual_window_s`` (6 s). Each run's
+duration is set so the run ends at the window's end, so the summary's
+``residual_tip_accel_m_s2`` / ``_rms_`` are this window's. Three readings of it:
+
+* ``measured``: peak and rms of the recorded accelerometer signal. Its noise (0.005 m/s^2
+  rms, 0.02 m/s^2 peaks over 6 s) floors both, well above what a shaped slew leaves.
+* ``fitted``: a least-squares fit of the identified modes' free decay (damped sinusoids at
+  their frequency and damping, plus an offset) to the recorded signal over the window; the
+  peak of the fitted vibration. Noise averages out over the ~3000 samples (``sigma``: the
+  fit's 1-sigma uncertainty of that signal at its worst point). This is what the lab rig
+  would measure; the Done-when ratios use it.
+* ``truth``: the noise-free tip acceleration of the virtual rig's own state (its final state
+  propagated back over the window; the window is free motion), every mode included.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import scipy.linalg as sla
+
+from harness.controllers.shaped_wheel_slew import Mode, parse_modes
+from harness.runs import RunConfig, build_controller, load_run
+from harness.session import execute_run
+
+MARGIN_S = 0.1  # after the manoeuvre's end, before the residual window
+
+# Paper 002 (Parman 2022), REFERENCE.md section 002: the satellite's roll / yaw manoeuvres
+# (T = 8 N m). Comparison column only (relative duration and impulse against bang-bang).
+PAPER_PARMAN2022: dict[str, Any] = {
+    "torque_n_m": 8.0,
+    "bang_bang_duration_s": {"roll": 21.528, "yaw": 16.444},
+    "t8_s": {"LHHL": {"roll": 29.959, "yaw": 24.974}, "HLLH": {"roll": 24.973, "yaw": 24.010}},
+    "impulse_n_m_s": {"LHHL": {"roll": 97.28, "yaw": 57.52},
+                      "HLLH": {"roll": 99.36, "yaw": 58.0}},
+}
+# Paper 004 (Wang 2022), REFERENCE.md section 004: words only.
+PAPER_WANG2022 = "frequency error 5 % and 10 %: ZVD keeps residual vibration small, ZV does not"
+
+
+@dataclass(frozen=True)
+class Slew:
+    key: str  # row key in the results
+    run: str  # built-in run file
+    variant: str | None
+    label: str
+
+
+WHEEL_SLEWS = (
+    Slew("unshaped", "slew-rw-unshaped", None, "unshaped bang-bang"),
+    *(Slew(f"{s}-{v}", f"slew-rw-{s}", f"modes-{v}", f"{s.upper()}, modes {lbl}")
+      for s in ("zv", "zvd", "ei")
+      for v, lbl in (("exact", "as identified"), ("minus-10", "-10 %"), ("plus-10", "+10 %"))),
+)
+THRUSTER_SLEWS = (
+    Slew("bang-bang", "slew-thruster-bangbang", None, "bang-bang (full couple)"),
+    Slew("lhhl-paper", "slew-thruster-lhhl", "paper", "LHHL, paper's design (undamped)"),
+    Slew("hllh-paper", "slew-thruster-hllh", "paper", "HLLH, paper's design (undamped)"),
+    Slew("lhhl-damped", "slew-thruster-lhhl", "damped", "LHHL, damped design"),
+    Slew("hllh-damped", "slew-thruster-hllh", "damped", "HLLH, damped design"),
+)
+
+
+# --------------------------------------------------------------------------- residuals
+
+
+def fit_modal_residual(t: np.ndarray, accel: np.ndarray, modes: Sequence[Mode],
+                       t0_s: float) -> dict[str, float]:
+    """Least-squares fit of the modes' free decay to ``accel`` over t >= t0 (pure).
+
+    Model: c + sum_k exp(-zeta w tau) (a_k cos(w_d tau) + b_k sin(w_d tau)), tau = t - t0.
+    Returns the peak and rms of the fitted modal part, its worst 1-sigma uncertainty and the
+    rms of what the fit leaves (the noise)."""
+    t = np.asarray(t, dtype=float)
+    a = np.asarray(accel, dtype=float)
+    sel = t >= t0_s - 1e-9
+    if np.count_nonzero(sel) < 4 * len(modes) + 8:
+        raise ValueError(f"t0_s {t0_s}: too few samples after it to fit {len(modes)} modes")
+    tau, y = t[sel] - t0_s, a[sel]
+    cols = [np.ones_like(tau)]
+    for m in modes:
+        wd = m.omega_rad_s * math.sqrt(1 - m.damping_ratio**2)
+        env = np.exp(-m.damping_ratio * m.omega_rad_s * tau)
+        cols += [env * np.cos(wd * tau), env * np.sin(wd * tau)]
+    x = np.column_stack(cols)
+    coef, *_ = np.linalg.lstsq(x, y, rcond=None)
+    left = y - x @ coef
+    dof = max(1, len(y) - x.shape[1])
+    cov = float(left @ left) / dof * np.linalg.inv(x.T @ x)
+    xm = x[:, 1:]
+    modal = xm @ coef[1:]
+    var = np.einsum("ij,jk,ik->i", xm, cov[1:, 1:], xm)
+    return {"peak_m_s2": float(np.max(np.abs(modal))),
+            "rms_m_s2": float(np.sqrt(np.mean(modal**2))),
+            "sigma_m_s2": float(np.sqrt(np.max(var))),
+            "noise_rms_m_s2": float(np.sqrt(float(left @ left) / dof))}
+
+
+def true_residual(rig: Any, t0_s: float) -> dict[str, float]:
+    """Noise-free tip acceleration of a virtual rig over [t0, its last tick]: its final state
+    propagated back to t0 through the free plant, then forward tick by tick."""
+    dt = rig.dt_s
+    n = int(round((rig.time_s - t0_s) / dt))
+    if n < 1:
+        raise ValueError(f"t0_s {t0_s}: not before the rig's last tick {rig.time_s}")
+    a_cont = rig.rig.plant.a
+    x = sla.expm(-a_cont * n * dt) @ rig.x
+    c, ad = rig.plant.c[2], rig.plant.ad
+    # each hub-free mode's share at t0: envelope 2 |c v_i z_i| of its pole pair
+    poles, vec = np.linalg.eig(a_cont)
+    share = 2 * np.abs((c @ vec) * np.linalg.solve(vec, x))
+    osc = np.nonzero(poles.imag > 1e-9)[0]
+    by_mode = [float(share[i]) for i in osc[np.argsort(np.abs(poles[osc]))]]
+    out = np.empty(n + 1)
+    for k in range(n + 1):
+        out[k] = c @ x
+        x = ad @ x
+    return {"peak_m_s2": float(np.max(np.abs(out))), "rms_m_s2": float(np.sqrt(np.mean(out**2))),
+            "by_mode_at_start_m_s2": by_mode}
+
+
+# --------------------------------------------------------------------------- runs
+
+
+def slew_run(slew: Slew, modes: Sequence[Mode] | None = None,
+             window_s: float | None = None) -> tuple[RunConfig, Any]:
+    """The run of ``slew`` with its duration set to end at the residual window's end (and
+    the modes / window replaced if given). Returns the run and its controller."""
+    base = load_run(slew.run)
+    over: dict[str, Any] = {}
+    if slew.variant is not None:
+        variants = base.data["variants"] or {}
+        if slew.variant not in variants:
+            raise ValueError(f"{slew.run}: no variant {slew.variant!r}")
+        over = dict(variants[slew.variant])
+        over["name"] = f"{base.name}-{slew.variant}"
+    if modes is not None:
+        ctrl = dict(over.get("controller", {}))
+        ctrl["modes"] = [{"omega_rad_s": m.omega_rad_s, "damping_ratio": m.damping_ratio}
+                         for m in modes]
+        over["controller"] = ctrl
+    if window_s is not None:
+        over["residual_window_s"] = window_s
+    run = load_run(slew.run, over)
+    controller = build_controller(run)
+    window = run.data["residual_window_s"]
+    over["duration_s"] = round(controller.end_s + MARGIN_S + window, 6)
+    run = load_run(slew.run, over)
+    return run, build_controller(run)
+
+
+def measure(slew: Slew, out_dir: Path, modes: Sequence[Mode] | None = None,
+            window_s: float | None = None) -> dict[str, Any]:
+    """Run one slew through the harness and read its residual vibration three ways."""
+    run, controller = slew_run(slew, modes, window_s)
+    result = execute_run(run, out_dir=out_dir, show_progress=False)
+    s = result.summary
+    if s["stopped_by"] != "completed":
+        raise RuntimeError(f"{run.name}: stopped by {s['stopped_by']}: {s['error']} "
+                           f"{s['faults']}")
+    rec = result.recorder
+    t = rec.time_s[: rec.rows]
+    accel = rec.column("/tip/accel_m_s2")
+    analysis_modes = parse_modes(run.controller["modes"])
+    t0 = controller.end_s + MARGIN_S
+    window = t >= t0 - 1e-9
+    angle = rec.column("/attitude/angle_deg")
+    row: dict[str, Any] = {
+        "label": slew.label,
+        "run": run.name,
+        "run_dir": str(result.run_dir),
+        "manoeuvre_s": controller.duration_s,
+        "window_s": [t0, float(t[-1])],
+        "measured": {"peak_m_s2": float(np.max(np.abs(accel[window]))),
+                     "rms_m_s2": float(np.sqrt(np.mean(accel[window] ** 2)))},
+        "fitted": fit_modal_residual(t, accel, analysis_modes, t0),
+        "truth": true_residual(result.virtual_rig, t0),
+        "target_deg": run.controller["angle_deg"],
+        "final_angle_deg": float(np.mean(angle[window])),
+        "summary_residual_m_s2": s["residual_tip_accel_m_s2"],
+    }
+    row["final_angle_error_deg"] = row["final_angle_deg"] - row["target_deg"]
+    if "mode_scale" in run.controller:
+        row["mode_scale"] = run.controller["mode_scale"]
+        row["shaper"] = run.controller["shaper"]
+        row["peak_torque_n_m"] = s["max_wheel_torque_cmd_n_m"]
+    if hasattr(controller, "design"):
+        d = controller.design
+        couple = run.rig.section("thruster_valves")["couple_n_m"]
+        on_time = float(rec.column("/thrusters/on_time_s")[-1])
+        row.update({
+            "design": d.design,
+            "design_residual_percent": list(d.damped_residual_percent),
+            "design_undamped_residual_percent": list(d.undamped_residual_percent),
+            "design_t8_s": d.t8_s,
+            "design_search": {"starts": d.n_starts, "feasible": d.n_feasible,
+                              "agree": d.n_agree},
+            "firings": int(rec.column("/thrusters/firings")[-1]),
+            "valve_on_time_s": on_time,
+            "impulse_n_m_s": on_time * couple,
+            "schedule": controller.usage,
+        })
+    return row
+
+
+def identify_modes(out_dir: Path, n_modes: int = 2) -> tuple[tuple[Mode, ...], dict[str, Any]]:
+    """Run ``free-decay`` through the harness and fit its modes (``harness identify``)."""
+    from harness.commands.identify import default_start
+    from harness.identification import identify
+
+    run = load_run("free-decay")
+    result = execute_run(run, out_dir=out_dir, show_progress=False)
+    rec = result.recorder
+    t, a = rec.time_s[: rec.rows], rec.column("/tip/accel_m_s2")
+    ident = identify(t, a, n_modes=n_modes, start_s=default_start(run.resolved()))
+    modes = tuple(Mode(m.omega_rad_s, m.damping_ratio) for m in ident.modes)
+    info = {"run_dir": str(result.run_dir), "modes": [
+        {"omega_rad_s": m.omega_rad_s, "sigma_omega_rad_s": m.sigma_omega_rad_s,
+         "damping_ratio": m.damping_ratio, "sigma_damping": m.sigma_damping}
+        for m in ident.modes]}
+    return modes, info
+
+
+def ratios(rows: dict[str, dict[str, Any]], reference: str) -> None:
+    """Add reference / this for the fitted and true residual peaks (in place)."""
+    ref = rows[reference]
+    for row in rows.values():
+        row["ratio_fitted"] = ref["fitted"]["peak_m_s2"] / row["fitted"]["peak_m_s2"]
+        row["ratio_truth"] = ref["truth"]["peak_m_s2"] / row["truth"]["peak_m_s2"]
+
+
+def paper_relative() -> dict[str, dict[str, list[float]]]:
+    """The paper's t8 and impulse relative to its bang-bang (roll, yaw), from PAPER_PARMAN2022."""
+    p = PAPER_PARMAN2022
+    out: dict[str, dict[str, list[float]]] = {}
+    for kind in ("LHHL", "HLLH"):
+        bb = p["bang_bang_duration_s"]
+        out[kind] = {
+            "duration": [p["t8_s"][kind][ax] / bb[ax] for ax in ("roll", "yaw")],
+            "impulse": [p["impulse_n_m_s"][kind][ax] / (p["torque_n_m"] * bb[ax])
+                        for ax in ("roll", "yaw")],
+        }
+    return out
+
+
+def run_study(out_dir: Path, groups: Sequence[str] = ("wheel", "thruster"),
+              identify_first: bool = False, window_s: float | None = None,
+              progress: Callable[[str], None] = lambda msg: None) -> dict[str, Any]:
+    results: dict[str, Any] = {"residual_definition": (
+        f"tip acceleration over [end + {MARGIN_S} s, end + {MARGIN_S} s + window], end = the "
+        "run's own manoeuvre end; measured (accelerometer, noise incl.), fitted (identified "
+        "modes' free decay fitted to the measured signal), truth (noise-free rig state)"),
+        "ratios_use": "fitted"}
+    modes = None
+    if identify_first:
+        progress("shaped-rig: free decay and identification ...")
+        modes, info = identify_modes(out_dir)
+        results["identified"] = info
+    for group, slews, ref in (("wheel", WHEEL_SLEWS, "unshaped"),
+                              ("thruster", THRUSTER_SLEWS, "bang-bang")):
+        if group not in groups:
+            continue
+        rows: dict[str, dict[str, Any]] = {}
+        for slew in slews:
+            progress(f"shaped-rig: {slew.run}" + (f" ({slew.variant})" if slew.variant else ""))
+            rows[slew.key] = measure(slew, out_dir, modes, window_s)
+        ratios(rows, ref)
+        results[group] = rows
+    results["checks"] = checks(results)
+    results["paper_parman2022_relative"] = paper_relative()
+    results["paper_wang2022"] = PAPER_WANG2022
+    return results
+
+
+def checks(results: dict[str, Any]) -> dict[str, bool]:
+    """The issues' Done-when claims, on the fitted residual and on the truth."""
+    out: dict[str, bool] = {}
+    w = results.get("wheel")
+    if w:
+        for src in ("fitted", "truth"):
+            out[f"issue6: ZVD (exact modes) >= 10x below unshaped [{src}]"] = (
+                w["zvd-exact"][f"ratio_{src}"] >= 10)
+            for v in ("minus-10", "plus-10"):
+                out[f"issue6: ZVD below ZV, modes {v} [{src}]"] = (
+                    w[f"zvd-{v}"][src]["peak_m_s2"] < w[f"zv-{v}"][src]["peak_m_s2"])
+    th = results.get("thruster")
+    if th:
+        for src in ("fitted", "truth"):
+            best = max((k for k in th if k != "bang-bang"), key=lambda k: th[k][f"ratio_{src}"])
+            out[f"issue5: best two-level ({best}) >= 10x below bang-bang [{src}]"] = (
+                th[best][f"ratio_{src}"] >= 10)
+    return out
+
+
+# --------------------------------------------------------------------------- output
+
+
+def _e(x: float) -> str:
+    return f"{x:.2e}"
+
+
+def format_tables(results: dict[str, Any]) -> str:
+    lines: list[str] = []
+    if "identified" in results:
+        lines.append("Modes identified now (free decay): " + ", ".join(
+            f"{m['omega_rad_s']:.4f} rad/s zeta {m['damping_ratio']:.4f}"
+            for m in results["identified"]["modes"]))
+        lines.append("")
+    head = ("| {} | manoeuvre (s) | measured peak / rms (m/s^2) | fitted peak +- 1 sigma "
+            "(m/s^2) | truth peak (m/s^2) | ref / this: fitted | truth | final angle error "
+            "(deg) |")
+    w = results.get("wheel")
+    if w:
+        lines.append("Reaction-wheel slews, 20 deg, bang-bang 0.06 N m (issue 6)")
+        lines.append("")
+        lines.append(head.format("slew"))
+        lines.append("|---|---|---|---|---|---|---|---|")
+        for r in w.values():
+            lines.append(
+                f"| {r['label']} | {r['manoeuvre_s']:.3f} | {r['measured']['peak_m_s2']:.4f} / "
+                f"{r['measured']['rms_m_s2']:.4f} | {_e(r['fitted']['peak_m_s2'])} +- "
+                f"{_e(r['fitted']['sigma_m_s2'])} | {_e(r['truth']['peak_m_s2'])} | "
+                f"{r['ratio_fitted']:.1f} | {r['ratio_truth']:.1f} | "
+                f"{r['final_angle_error_deg']:+.4f} |")
+        lines.append("")
+        lines.append(f"Paper 004 (Wang 2022): {PAPER_WANG2022}.")
+        lines.append("")
+    th = results.get("thruster")
+    if th:
+        lines.append("Thruster slews, 5 deg, couple 0.1 N m, half couple by 50 % PWM (issue 5)")
+        lines.append("")
+        lines.append(head.format("slew"))
+        lines.append("|---|---|---|---|---|---|---|---|")
+        for r in th.values():
+            lines.append(
+                f"| {r['label']} | {r['manoeuvre_s']:.3f} | {r['measured']['peak_m_s2']:.4f} / "
+                f"{r['measured']['rms_m_s2']:.4f} | {_e(r['fitted']['peak_m_s2'])} +- "
+                f"{_e(r['fitted']['sigma_m_s2'])} | {_e(r['truth']['peak_m_s2'])} | "
+                f"{r['ratio_fitted']:.1f} | {r['ratio_truth']:.1f} | "
+                f"{r['final_angle_error_deg']:+.4f} |")
+        lines.append("")
+        bb = th["bang-bang"]
+        rel = results["paper_parman2022_relative"]
+        lines.append("| slew | design V_d mode 1 / 2 (%) | firings | valve on-time (s) | impulse "
+                     "(N m s) | impulse / bang-bang | duration / bang-bang | paper impulse / "
+                     "bang-bang (roll, yaw) | paper duration / bang-bang (roll, yaw) |")
+        lines.append("|---|---|---|---|---|---|---|---|---|")
+        for key, r in th.items():
+            kind = key.split("-")[0].upper()
+            paper = rel.get(kind)
+            pi = "" if paper is None else f"{paper['impulse'][0]:.2f}, {paper['impulse'][1]:.2f}"
+            pd = "" if paper is None else (f"{paper['duration'][0]:.2f}, "
+                                           f"{paper['duration'][1]:.2f}")
+            vd = " / ".join(f"{v:.2f}" for v in r["design_residual_percent"])
+            lines.append(
+                f"| {r['label']} | {vd} | {r['firings']} | {r['valve_on_time_s']:.3f} | "
+                f"{r['impulse_n_m_s']:.4f} | {r['impulse_n_m_s'] / bb['impulse_n_m_s']:.2f} | "
+                f"{r['manoeuvre_s'] / bb['manoeuvre_s']:.2f} | {pi} | {pd} |")
+        lines.append("")
+    lines.append("Done-when checks (ratios on the fitted residual; the truth alongside):")
+    for name, ok in results["checks"].items():
+        lines.append(f"  {'PASS' if ok else 'FAIL'}  {name}")
+    return "\n".join(lines)
+
+
+def _run(args: argparse.Namespace) -> int:
+    groups = ("wheel", "thruster") if args.only is None else (args.only,)
+
+    def progress(msg: str) -> None:
+        print(msg, file=sys.stderr, flush=True)
+
+    try:
+        results = run_study(args.out, groups, args.identify, args.window_s, progress)
+    except (RuntimeError, ValueError) as exc:
+        print(f"shaped-rig: {exc}", file=sys.stderr)
+        return 1
+    print(json.dumps(results, indent=2) if args.json else format_tables(results))
+    return 0
+
+
+def register_study(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "shaped-rig",
+        help="shaped slews on the virtual rig over CAN: wheel ZV/ZVD/EI vs unshaped, "
+        "thruster LHHL/HLLH vs bang-bang (issues 5, 6)")
+    p.add_argument("--json", action="store_true", help="print results as JSON on stdout")
+    p.add_argument("--out", type=Path, default=Path("logs"),
+                   help="parent directory of the run directories (default: ./logs)")
+    p.add_argument("--only", choices=("wheel", "thruster"), help="run one group only")
+    p.add_argument("--identify", action="store_true",
+                   help="first run free-decay, identify its modes and design every shaper "
+                   "with them (default: the identified modes in the run files)")
+    p.add_argument("--window-s", type=float, help="residual window (s; default: the run "
+                   "files' residual_window_s)")
+    p.set_defaults(func=_run)

@@ -1,0 +1,274 @@
+"""Shaped slews on the virtual rig (issues 5 and 6): the controllers, the residual readings and
+the Done-when claims, through the harness (CAN, drivers, virtual rig)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from harness.controllers.registry import CONTROLLERS
+from harness.controllers.shaped_wheel_slew import (
+    Mode,
+    ShapedWheelSlew,
+    bang_bang_ticks,
+    design_shaper,
+    parse_modes,
+)
+from harness.controllers.thruster_two_level import (
+    ThrusterTwoLevelSlew,
+    damped_residual_percent,
+    design_profile,
+    valve_schedule,
+    valve_usage,
+)
+from harness.runs import load_run
+from harness.shaping.impulse_shapers import residual_vibration
+from harness.state import RigState
+from harness.studies.shaped_rig import (
+    THRUSTER_SLEWS,
+    WHEEL_SLEWS,
+    fit_modal_residual,
+    identify_modes,
+    measure,
+    register_study,
+    slew_run,
+)
+from rig_models.schema import ConfigError
+
+DT = 0.002
+J = 15.0
+MODES = (Mode(2.8817, 0.0680), Mode(13.3236, 0.0520))  # as in the run files
+
+
+# --------------------------------------------------------------------------- wheel controller
+
+
+def test_bang_bang_is_tick_aligned_within_the_torque_and_turns_exactly():
+    n, torque = bang_bang_ticks(math.radians(20), J, 0.06, DT)
+    assert 0 < torque <= 0.06
+    assert torque * (n * DT) ** 2 / J == pytest.approx(math.radians(20), rel=1e-12)
+    n, torque = bang_bang_ticks(math.radians(-5), J, 0.06, DT)
+    assert torque < 0
+
+
+@pytest.mark.parametrize("shaper", ["none", "zv", "zvd", "ei"])
+def test_shaped_wheel_command_stays_within_torque_and_reaches_the_angle(shaper):
+    c = ShapedWheelSlew(math.radians(20), J, 0.06, 1.0, DT, design_shaper(shaper, MODES), shaper)
+    torque = c.schedule.values
+    assert np.max(np.abs(torque)) <= 0.06 + 1e-12
+    assert abs(np.sum(torque)) * DT < 1e-12  # rest to rest: zero net impulse
+    angle, rate, _ = c.reference(c.end_s + 1.0)
+    assert angle == pytest.approx(math.radians(20), rel=1e-9)
+    assert abs(rate) < 1e-12
+    # the command is the bang-bang convolved with the shaper: longer by the shaper's span
+    unshaped = ShapedWheelSlew(math.radians(20), J, 0.06, 1.0, DT, design_shaper("none", ()))
+    assert c.end_s - unshaped.end_s == pytest.approx(c.shaper.duration_s, abs=2 * DT)
+    # step() reads the precomputed command by tick
+    k = c.schedule.start_tick + 10
+    assert c.step(RigState(tick=k, time_s=k * DT)).wheel_torque_n_m == torque[10]
+    assert c.step(RigState(tick=0)).wheel_torque_n_m == 0.0
+
+
+def test_shaper_on_the_tick_grid_still_cancels_the_design_modes():
+    for kind, limit in (("zv", 1.0), ("zvd", 1.0), ("ei", 6.0)):
+        c = ShapedWheelSlew(math.radians(20), J, 0.06, 1.0, DT, design_shaper(kind, MODES))
+        for m in MODES:
+            v = residual_vibration(c.applied_shaper, m.omega_rad_s, m.damping_ratio)
+            assert v < limit, (kind, m, v)
+
+
+def test_mode_scale_moves_the_design_frequencies():
+    exact = design_shaper("zv", MODES[:1])
+    high = design_shaper("zv", MODES[:1], mode_scale=1.1)
+    assert high.duration_s == pytest.approx(exact.duration_s / 1.1)
+    assert residual_vibration(high, MODES[0].omega_rad_s, MODES[0].damping_ratio) > 10.0
+
+
+def test_wheel_controller_bad_input_names_the_parameter():
+    with pytest.raises(ValueError, match="shaper"):
+        design_shaper("zvdd", MODES)
+    with pytest.raises(ValueError, match="mode_scale"):
+        design_shaper("zv", MODES, mode_scale=0.0)
+    with pytest.raises(ValueError, match=r"modes\[1\]"):
+        parse_modes([{"omega_rad_s": 2.0}, {"omega_rad_s": -1.0}])
+    with pytest.raises(ValueError, match="modes"):
+        parse_modes([])
+    over = {"controller": {"torque_n_m": 0.07}}
+    run = load_run("slew-rw-zvd", over)
+    from harness.runs import build_controller
+
+    with pytest.raises(ConfigError, match="torque_n_m"):
+        build_controller(run)
+    with pytest.raises(ConfigError, match="controller.shaper"):
+        load_run("slew-rw-zvd", {"controller": {"shaper": "bogus"}})
+
+
+def test_both_controller_types_are_registered():
+    assert "shaped_wheel_slew" in CONTROLLERS and "thruster_two_level" in CONTROLLERS
+
+
+# --------------------------------------------------------------------------- thrusters
+
+
+def test_pwm_half_couple_keeps_the_impulse_and_the_minimum_on_time():
+    # a half-couple segment of 1.001 s, then a full-couple one of 0.5 s
+    d = valve_schedule([0.0, 1.001, 1.2, 1.7], [0.5, -0.5, 1.0, -1.0], DT, 0.01, 0.02)
+    half, full = d[:500], d[600:850]
+    assert np.count_nonzero(half) == round(500 / 2)
+    assert np.all(full == 1) and np.all(d[500:600] == 0)
+    # every pulse at least 5 ticks (10 ms), about one per 20 ms
+    edges = np.flatnonzero(np.diff(np.r_[0, half, 0]))
+    widths = edges[1::2] - edges[::2]
+    assert widths.min() >= 5 and len(widths) == 50
+    use = valve_usage(d, DT, 0.1)
+    assert use["firings"] == 51 and use["on_time_s"] == pytest.approx((250 + 250) * DT)
+
+
+def test_valve_schedule_refuses_what_the_valves_cannot_do():
+    with pytest.raises(ValueError, match="pwm_period_s"):
+        valve_schedule([0.0, 1.0], [0.5, -0.5], DT, 0.01, 0.015)
+    with pytest.raises(ValueError, match="minimum on-time"):
+        valve_schedule([0.0, 0.004], [1.0, -1.0], DT, 0.01, 0.02)
+    with pytest.raises(ValueError, match="level"):
+        valve_schedule([0.0, 1.0], [0.3, -0.3], DT, 0.01, 0.02)
+
+
+def test_damped_design_meets_its_limits_and_the_paper_design_does_not_on_damped_modes():
+    angle = math.radians(5)
+    damped = design_profile("lhhl", angle_rad=angle, inertia_kg_m2=J, torque_n_m=0.1,
+                            modes=MODES, vmax_percent=1.0, n_starts=32)
+    assert max(damped.damped_residual_percent) <= 1.0
+    # rest to rest at the angle: zero net impulse and the angle of eq 8
+    t, a = np.array(damped.times_s), np.array(damped.amplitudes)
+    acc = 0.1 / J
+    assert abs(np.sum(a * (t[-1] - t))) < 1e-6
+    assert acc * np.sum(a * (t[-1] - t) ** 2) / 2 == pytest.approx(angle, rel=1e-6)
+    paper = design_profile("lhhl", angle_rad=angle, inertia_kg_m2=J, torque_n_m=0.1,
+                           modes=MODES, vmax_percent=1.0, design="paper")
+    assert max(paper.undamped_residual_percent) <= 1.0  # eq 9, as the paper designs it
+    assert min(paper.damped_residual_percent) > 10.0  # ... but the rig's modes are damped
+    # a negative angle mirrors the sequence
+    neg = design_profile("lhhl", angle_rad=-angle, inertia_kg_m2=J, torque_n_m=0.1,
+                         modes=MODES, vmax_percent=1.0, n_starts=32)
+    assert neg.amplitudes == tuple(-x for x in damped.amplitudes)
+
+
+def test_damped_residual_of_the_bang_bang_is_100_percent():
+    tau = 3.0
+    v = damped_residual_percent([0, tau, 2 * tau], [1, -2, 1], MODES, tau)
+    assert v == pytest.approx([100.0, 100.0])
+
+
+def test_thruster_controller_schedules_a_symmetric_bang_bang():
+    d = design_profile("bang_bang", angle_rad=math.radians(5), inertia_kg_m2=J, torque_n_m=0.1)
+    c = ThrusterTwoLevelSlew(d, 0.1, J, 1.0, DT, 0.01, 0.02)
+    assert np.sum(c.directions) == 0 and c.usage["firings"] == 2
+    assert math.degrees(c.reference(100.0)[0]) == pytest.approx(5.0, abs=2e-3)
+    k = c.schedule.start_tick
+    assert c.step(RigState(tick=k)).valve_direction == 1
+    assert c.step(RigState(tick=k + len(c.directions) - 1)).valve_direction == -1
+    assert c.step(RigState(tick=k + len(c.directions))).valve_direction == 0
+    with pytest.raises(ValueError, match="profile"):
+        design_profile("lhlh", angle_rad=0.1, inertia_kg_m2=J, torque_n_m=0.1)
+    with pytest.raises(ValueError, match="modes"):
+        design_profile("hllh", angle_rad=0.1, inertia_kg_m2=J, torque_n_m=0.1)
+
+
+# --------------------------------------------------------------------------- residual readings
+
+
+def test_modal_fit_recovers_a_decay_under_the_accelerometer_noise():
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 8.0, DT)
+    t0 = 2.0
+    tau = np.clip(t - t0, 0, None)
+    m = MODES[0]
+    wd = m.omega_rad_s * math.sqrt(1 - m.damping_ratio**2)
+    clean = 0.004 * np.exp(-m.damping_ratio * m.omega_rad_s * tau) * np.cos(wd * tau + 0.3)
+    fit = fit_modal_residual(t, clean + 0.005 * rng.standard_normal(t.size), MODES, t0)
+    assert fit["peak_m_s2"] == pytest.approx(0.004 * math.cos(0.3), abs=3 * fit["sigma_m_s2"])
+    assert fit["noise_rms_m_s2"] == pytest.approx(0.005, rel=0.05)
+    noise_only = fit_modal_residual(t, 0.005 * rng.standard_normal(t.size), MODES, t0)
+    assert noise_only["peak_m_s2"] < 4 * noise_only["sigma_m_s2"] < 0.004
+    with pytest.raises(ValueError, match="t0_s"):
+        fit_modal_residual(t, clean, MODES, 7.99)
+
+
+def test_slew_run_ends_at_the_residual_window():
+    run, ctrl = slew_run(WHEEL_SLEWS[0])
+    assert run.data["duration_s"] == pytest.approx(ctrl.end_s + 0.1 + 6.0)
+    run, ctrl = slew_run(THRUSTER_SLEWS[0], window_s=2.0)
+    assert run.data["duration_s"] == pytest.approx(ctrl.end_s + 0.1 + 2.0)
+
+
+def test_study_registers_its_command():
+    parser = argparse.ArgumentParser()
+    register_study(parser.add_subparsers())
+    args = parser.parse_args(["shaped-rig", "--json", "--only", "wheel", "--out", "x"])
+    assert args.json and args.only == "wheel" and args.out == Path("x") and callable(args.func)
+
+
+# --------------------------------------------------------------------------- Done when
+
+
+@pytest.fixture(scope="module")
+def wheel_rows(tmp_path_factory):
+    out = Path(tmp_path_factory.mktemp("shaped_rig"))
+    keys = ("unshaped", "zvd-exact", "zv-minus-10", "zvd-minus-10", "zv-plus-10",
+            "zvd-plus-10")
+    return {s.key: measure(s, out) for s in WHEEL_SLEWS if s.key in keys}
+
+
+@pytest.fixture(scope="module")
+def thruster_rows(tmp_path_factory):
+    out = Path(tmp_path_factory.mktemp("shaped_rig"))
+    keys = ("bang-bang", "lhhl-damped")
+    return {s.key: measure(s, out) for s in THRUSTER_SLEWS if s.key in keys}
+
+
+def test_issue6_zvd_leaves_10x_less_than_unshaped_with_the_identified_modes(wheel_rows):
+    un, zvd = wheel_rows["unshaped"], wheel_rows["zvd-exact"]
+    # the unshaped slew excites the beam well above the fit's noise floor
+    assert un["fitted"]["peak_m_s2"] > 20 * un["fitted"]["sigma_m_s2"]
+    assert un["fitted"]["peak_m_s2"] >= 10 * zvd["fitted"]["peak_m_s2"]
+    assert un["truth"]["peak_m_s2"] >= 10 * zvd["truth"]["peak_m_s2"]
+    # the fit reads what is there: it agrees with the truth where the signal is clear
+    assert un["fitted"]["peak_m_s2"] == pytest.approx(un["truth"]["peak_m_s2"], rel=0.1)
+    for r in wheel_rows.values():  # every slew reaches its angle, within the torque limit
+        assert abs(r["final_angle_error_deg"]) < 0.01
+        assert r["peak_torque_n_m"] <= 0.06 + 1e-9
+
+
+@pytest.mark.parametrize("off", ["minus-10", "plus-10"])
+def test_issue6_zvd_stays_better_than_zv_with_the_modes_10_percent_off(wheel_rows, off):
+    zv, zvd = wheel_rows[f"zv-{off}"], wheel_rows[f"zvd-{off}"]
+    assert zvd["fitted"]["peak_m_s2"] < zv["fitted"]["peak_m_s2"]
+    assert zvd["truth"]["peak_m_s2"] < 0.5 * zv["truth"]["peak_m_s2"]
+    # ZV at 10 % off is measurably there: beyond 3 sigma of the fit
+    assert zv["fitted"]["peak_m_s2"] > 3 * zv["fitted"]["sigma_m_s2"]
+
+
+def test_issue5_two_level_slew_leaves_10x_less_than_bang_bang(thruster_rows):
+    bb, lhhl = thruster_rows["bang-bang"], thruster_rows["lhhl-damped"]
+    assert bb["fitted"]["peak_m_s2"] >= 10 * lhhl["fitted"]["peak_m_s2"]
+    assert bb["truth"]["peak_m_s2"] >= 10 * lhhl["truth"]["peak_m_s2"]
+    for r in (bb, lhhl):
+        assert abs(r["final_angle_error_deg"]) < 0.02
+        # the valves' own counters (over CAN) match the schedule the controller sent
+        assert r["firings"] == r["schedule"]["firings"]
+        assert r["valve_on_time_s"] == pytest.approx(r["schedule"]["on_time_s"], abs=2e-3)
+    assert lhhl["impulse_n_m_s"] < bb["impulse_n_m_s"]  # the half couple saves fuel
+
+
+@pytest.mark.slow
+def test_run_file_modes_are_what_identification_gives(tmp_path):
+    modes, info = identify_modes(tmp_path)
+    run = load_run("slew-rw-zvd")
+    for m, f, ident in zip(parse_modes(run.controller["modes"]), modes, info["modes"],
+                           strict=True):
+        assert f.omega_rad_s == pytest.approx(m.omega_rad_s, abs=3 * ident["sigma_omega_rad_s"])
+        assert f.damping_ratio == pytest.approx(m.damping_ratio, abs=3 * ident["sigma_damping"])
