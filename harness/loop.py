@@ -113,7 +113,7 @@ def run_loop(
                 pump()
             if realtime:  # never wait for telemetry past most of this tick's period
                 timeout = min(receive_timeout_s, max(0.0, clock.time_left(tick) - 0.3 * dt_s))
-            got = interface.receive(tick, timeout)
+            got = interface.receive(tick, timeout, lockstep=pump is not None and not realtime)
             missing = interface.expected_frames(tick) - got
             if missing > 0:
                 stats.missing_frames += missing

@@ -83,7 +83,7 @@ class RigInterface:
     # ------------------------------------------------------------------ sending
     def _send(self, name: str, data: bytes) -> None:
         msg = can.Message(arbitration_id=self._ids[name], data=data, is_extended_id=False,
-                          timestamp=time.time())
+                          timestamp=time.time(), is_rx=False)
         try:
             self.bus.send(msg)
         except can.CanError:
@@ -139,7 +139,7 @@ class RigInterface:
     def expected_frames(self, tick: int) -> int:
         return sum(1 for name, d in self.divider.items() if tick % d == 0)
 
-    def receive(self, tick: int, timeout_s: float) -> int:
+    def receive(self, tick: int, timeout_s: float, lockstep: bool = False) -> int:
         """Read telemetry until every device due at ``tick`` has answered or the timeout
         passes (0: only what is already waiting). Returns the number of frames read."""
         expected = self.expected_frames(tick)
@@ -147,7 +147,7 @@ class RigInterface:
         deadline = time.monotonic() + timeout_s
         recv = self.bus.recv
         while True:
-            if got >= expected and timeout_s == 0.0:
+            if lockstep and got >= expected:
                 return got  # lockstep: the rig answered already; later frames wait a tick
             remaining = deadline - time.monotonic()
             msg = recv(remaining if remaining > 0 and got < expected else 0.0)

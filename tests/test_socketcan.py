@@ -1,0 +1,458 @@
+"""The lab's SocketCAN path on a real Linux kernel: the virtual rig as its own process on
+vcan0, ``harness run slew-rw --bus socketcan:vcan0 --clock realtime`` against it, and
+``candump`` (can-utils) capturing the bus at the same time.
+
+These tests need a ``vcan0`` that is up, ``socket.AF_CAN`` and ``candump``; without them they
+skip (``SGSRT_SOCKETCAN_REQUIRED=1`` turns the skip into a failure, as in CI). CI runs them in
+a throwaway VM: ``tools/vcan_vm/run-in-vm .venv/bin/python -m pytest -m socketcan``
+(docs/socketcan.md). Times mean nothing there (the VM emulates its CPU): every timeout is
+generous and no test asserts a duration.
+
+On a slow or emulated machine the 500 Hz real-time loop cannot keep up; these variables
+(CI sets them) derive the run from the built-in slew-rw:
+- ``SGSRT_SOCKETCAN_RATE_HZ``: loop rate of the harness and of the virtual rig;
+- ``SGSRT_SOCKETCAN_REALTIME_GRACE_S``: the fault monitor's ``realtime_grace_s`` and
+  ``startup_s`` (how late telemetry may be on the wall clock before it is a fault).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import can
+import cantools
+import pytest
+import yaml
+
+from drivers.dbc import DBC_PATH
+from harness.can_log import read_can_log
+from harness.runs import load_run, run_path
+from rig_models.rig_file import load_rig
+
+pytestmark = pytest.mark.socketcan
+
+CHANNEL = "vcan0"
+RUN = "slew-rw"
+DB = cantools.database.load_file(str(DBC_PATH))
+MSG = {m.name: m for m in DB.messages}
+HARNESS_IDS = {m.frame_id for m in DB.messages if "HARNESS" in m.senders}
+COMMAND_IDS = {MSG[n].frame_id for n in ("WHEEL_CMD", "VALVE_CMD", "PIEZO_CMD", "ROTOR_CMD")}
+MARKER_ID = 0x7FE  # the test's own probe frame around each capture; no device uses it
+assert MARKER_ID not in {m.frame_id for m in DB.messages}
+
+# generous: under emulation importing the harness alone takes about 30 s
+START_TIMEOUT_S = 600.0
+RUN_TIMEOUT_S = 1800.0
+CANDUMP_LINE = re.compile(r"^\((\d+\.\d+)\) (\S+) ([0-9A-F]{3})#([0-9A-F]*)$")
+
+Frame = tuple[int, bytes]
+
+
+# ---------------------------------------------------------------------- availability
+def _unavailable() -> str | None:
+    """Why these tests cannot run here, or None."""
+    if not hasattr(socket, "AF_CAN"):
+        return "this Python has no socket.AF_CAN (SocketCAN needs Linux)"
+    flags = Path(f"/sys/class/net/{CHANNEL}/flags")
+    if not flags.exists():
+        return (f"no {CHANNEL} interface: create it with 'sudo modprobe vcan && sudo ip link add "
+                f"dev {CHANNEL} type vcan && sudo ip link set up {CHANNEL}', or run these tests "
+                "in the VM: tools/vcan_vm/run-in-vm .venv/bin/python -m pytest -m socketcan")
+    if not int(flags.read_text(), 16) & 0x1:
+        return f"{CHANNEL} is down: sudo ip link set up {CHANNEL}"
+    try:
+        with socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW) as s:
+            s.bind((CHANNEL,))
+    except OSError as exc:
+        return f"cannot open a CAN_RAW socket on {CHANNEL}: {exc}"
+    if shutil.which("candump") is None:
+        return "candump not found (Debian/Ubuntu: apt-get install can-utils)"
+    return None
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _vcan0_available() -> None:
+    reason = _unavailable()
+    if reason is not None:
+        if os.environ.get("SGSRT_SOCKETCAN_REQUIRED") == "1":
+            pytest.fail(f"SGSRT_SOCKETCAN_REQUIRED=1 but {reason}")
+        pytest.skip(reason)
+
+
+def _env_float(name: str) -> float | None:
+    text = os.environ.get(name, "").strip()
+    if not text:
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value > 0:
+        raise ValueError(f"{name}: expected a number > 0, got {text!r}")
+    return value
+
+
+def _run_argument(out: Path) -> tuple[str, float]:
+    """The run to pass to `harness run` and its rate: the built-in slew-rw itself, or slew-rw
+    with the SGSRT_SOCKETCAN_* overrides written to ``out/slew-rw.yaml``."""
+    rate = _env_float("SGSRT_SOCKETCAN_RATE_HZ")
+    grace = _env_float("SGSRT_SOCKETCAN_REALTIME_GRACE_S")
+    if rate is None and grace is None:
+        return RUN, load_run(RUN).data["rate_hz"]
+    raw: dict[str, Any] = yaml.safe_load(run_path(RUN).read_text())
+    if rate is not None:
+        raw["rate_hz"] = rate
+    if grace is not None:
+        raw.setdefault("monitor", {}).update({"realtime_grace_s": grace, "startup_s": grace})
+    path = out / f"{RUN}.yaml"
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    return str(path), load_run(str(path)).data["rate_hz"]
+
+
+def _harness_cmd(run: str, out: Path, *extra: str) -> list[str]:
+    return [sys.executable, "-m", "harness", "run", run, "--bus", f"socketcan:{CHANNEL}",
+            "--clock", "realtime", "--out", str(out), "--json", "--quiet", *extra]
+
+
+def _wait_for(predicate, what: str, timeout_s: float, proc: subprocess.Popen | None = None,
+              log: Path | None = None) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if proc is not None and proc.poll() is not None:
+            text = log.read_text() if log is not None and log.exists() else ""
+            pytest.fail(f"exited with {proc.returncode} while waiting for {what}:\n{text}")
+        if time.monotonic() > deadline:
+            pytest.fail(f"no {what} after {timeout_s:g} s")
+        time.sleep(0.2)
+
+
+# ---------------------------------------------------------------------- the rig process
+class RigProcess:
+    """`harness virtual-rig --bus socketcan:vcan0` in its own process."""
+
+    def __init__(self, rate_hz: float, log_dir: Path) -> None:
+        self.rate_hz = rate_hz
+        self.log_dir = log_dir
+        self.proc: subprocess.Popen | None = None
+        self.log = log_dir / "rig-0.log"
+        self.starts = 0
+        self.used = False
+
+    def start(self) -> None:
+        self.log = self.log_dir / f"rig-{self.starts}.log"
+        self.starts += 1
+        with self.log.open("w") as err:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "harness", "virtual-rig", "--bus", f"socketcan:{CHANNEL}",
+                 "--rate-hz", f"{self.rate_hz:g}"],
+                stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
+        _wait_for(lambda: "Ctrl-C to stop" in self.log.read_text(), "virtual rig ready line",
+                  START_TIMEOUT_S, self.proc, self.log)
+        self.used = False
+
+    def stop(self) -> str:
+        """Stop it (SIGTERM) and return what it printed, its counters last."""
+        if self.proc is None:
+            return ""
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=START_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self.proc = None
+        return self.log.read_text()
+
+    def running(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def fresh(self) -> None:
+        """A rig whose physics starts at rest at 0 deg (restarted if a run used it)."""
+        if self.used or not self.running():
+            self.stop()
+            self.start()
+        self.used = True
+
+    def ensure_running(self) -> None:
+        if not self.running():
+            self.start()
+        self.used = True
+
+
+@pytest.fixture(scope="module")
+def rate_and_run(tmp_path_factory) -> tuple[float, str]:
+    run, rate = _run_argument(tmp_path_factory.mktemp("run"))
+    return rate, run
+
+
+@pytest.fixture(scope="module")
+def rig(rate_and_run, tmp_path_factory):
+    r = RigProcess(rate_and_run[0], tmp_path_factory.mktemp("rig"))
+    yield r
+    r.stop()
+
+
+# ---------------------------------------------------------------------- candump
+def parse_candump(text: str) -> list[Frame]:
+    frames = []
+    for line in text.splitlines():
+        if line.startswith("DROPCOUNT"):
+            pytest.fail(f"candump lost frames, the capture is incomplete: {line}")
+        m = CANDUMP_LINE.match(line.strip())
+        assert m is not None, f"unexpected candump line {line!r}"
+        assert m.group(2) == CHANNEL
+        frames.append((int(m.group(3), 16), bytes.fromhex(m.group(4))))
+    return frames
+
+
+class Capture:
+    """``candump -L vcan0`` into a file (a 4 MiB socket buffer; lost frames are reported by
+    candump -d and fail the test). A marker frame (id 0x7FE) is sent, again and again until
+    candump has it (it may not listen yet), and another before it stops; ``frames`` holds
+    what the bus carried between the last start marker and the stop marker."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.frames: list[Frame] = []
+        self._proc: subprocess.Popen | None = None
+        self._bus: can.BusABC | None = None
+
+    def _marker_seen(self, data: bytes) -> bool:
+        return (MARKER_ID, data) in parse_candump(self.path.read_text())
+
+    def _mark(self, data: bytes) -> None:
+        assert self._bus is not None
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while True:
+            self._bus.send(can.Message(arbitration_id=MARKER_ID, data=data,
+                                       is_extended_id=False))
+            try:
+                _wait_for(lambda: self._marker_seen(data), f"marker {data!r} in the capture",
+                          2.0, self._proc)
+                return
+            except pytest.fail.Exception:
+                if time.monotonic() > deadline or (self._proc and self._proc.poll() is not None):
+                    raise
+
+    def lines_so_far(self) -> list[Frame]:
+        return parse_candump(self.path.read_text())
+
+    def __enter__(self) -> Capture:
+        with self.path.open("w") as out:
+            self._proc = subprocess.Popen(["candump", "-L", "-d", "-r", str(4 << 20), CHANNEL],
+                                          stdout=out, stderr=subprocess.STDOUT)
+        try:
+            # this bus only sends markers: receive nothing but its own id
+            self._bus = can.Bus(interface="socketcan", channel=CHANNEL,
+                                can_filters=[{"can_id": MARKER_ID, "can_mask": 0x7FF}])
+            self._mark(b"start")
+        except BaseException:
+            self._close()
+            raise
+        return self
+
+    def _close(self) -> None:
+        if self._bus is not None:
+            self._bus.shutdown()
+            self._bus = None
+        if self._proc is not None:
+            self._proc.terminate()
+            self._proc.wait(timeout=60)
+
+    def __exit__(self, *exc: object) -> None:
+        try:
+            if exc[0] is None:
+                self._mark(b"stop")
+        finally:
+            self._close()
+        if exc[0] is None:
+            frames = parse_candump(self.path.read_text())
+            stop = frames.index((MARKER_ID, b"stop"))
+            start = max(i for i, f in enumerate(frames[:stop]) if f == (MARKER_ID, b"start"))
+            self.frames = frames[start + 1 : stop]
+
+
+def decode(frame: Frame) -> tuple[str, dict[str, float]]:
+    """A frame from the bus decoded by cantools with the project's DBC (lengths exact)."""
+    frame_id, data = frame
+    msg = DB.get_message_by_frame_id(frame_id)
+    assert len(data) == msg.length, f"{msg.name}: {len(data)} bytes on the bus, DBC {msg.length}"
+    return msg.name, msg.decode(data, decode_choices=False, allow_excess=False)
+
+
+def _first_difference(a: list[Frame], b: list[Frame]) -> str:
+    for i, (x, y) in enumerate(zip(a, b, strict=False)):
+        if x != y:
+            return f"first difference at frame {i}: bus {x[0]:03X}#{x[1].hex()} log " \
+                   f"{y[0]:03X}#{y[1].hex()}"
+    return f"lengths differ: bus {len(a)}, log {len(b)}"
+
+
+def _match_in_order(log: list[Frame], bus: list[Frame]) -> list[tuple[int, Frame]]:
+    """Find ``log`` in ``bus`` as an ordered subsequence; return the bus frames it lacks (with
+    their index), or fail at the first logged frame the bus does not carry in that order."""
+    lost: list[tuple[int, Frame]] = []
+    j = 0
+    for i, frame in enumerate(log):
+        while j < len(bus) and bus[j] != frame:
+            lost.append((j, bus[j]))
+            j += 1
+        assert j < len(bus), (f"received frame {i} of the CAN log {frame[0]:03X}#"
+                              f"{frame[1].hex()} is not on the bus in that order")
+        j += 1
+    return lost + list(enumerate(bus))[j:]
+
+
+# ---------------------------------------------------------------------- tests
+@pytest.mark.slow
+def test_slew_over_vcan0_ends_on_target_and_candump_matches_the_can_log(
+        rig, rate_and_run, tmp_path):
+    rate, run = rate_and_run
+    rig.fresh()
+    with Capture(tmp_path / "candump.log") as cap:
+        proc = subprocess.run(_harness_cmd(run, tmp_path), capture_output=True, text=True,
+                              timeout=RUN_TIMEOUT_S)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    s = json.loads(proc.stdout)
+    assert s["stopped_by"] == "completed", s
+    assert s["bus"] == f"socketcan:{CHANNEL}" and s["clock"] == "realtime"
+    assert s["rate_hz"] == rate and s["ticks"] > 0
+    assert abs(s["final_angle_error_deg"]) < 0.1, s
+
+    # frame for frame: the bus against the harness's own log, one direction at a time (the
+    # log writes a received frame when the loop reads it, which may be after a command it
+    # sent later; each direction keeps its order on the bus)
+    logged = [(m.arbitration_id, bytes(m.data)) for m in read_can_log(Path(s["run_dir"]) /
+                                                                       "can.blf")]
+    bus = cap.frames
+    sent_log = [f for f in logged if f[0] in HARNESS_IDS]
+    recv_log = [f for f in logged if f[0] not in HARNESS_IDS]
+    sent_bus = [f for f in bus if f[0] in HARNESS_IDS]
+    recv_bus = [f for f in bus if f[0] not in HARNESS_IDS]
+    assert sent_bus == sent_log, _first_difference(sent_bus, sent_log)
+    # every frame the harness received, in the bus's order; the bus frames it never read are
+    # the answers to its last SYNCs (after its last read) and any its socket dropped while the
+    # loop ran late (the kernel drops when the socket's buffer is full: a busy machine)
+    lost = _match_in_order(recv_log, recv_bus)
+    assert len(lost) <= 50 + len(recv_log) // 100, lost[:20]
+    assert s["frames"]["sent"] == len(sent_log) and s["frames"]["received"] == len(recv_log)
+    assert len(sent_log) >= 2 * s["ticks"] and len(recv_log) >= s["ticks"]
+
+    # the capture decoded by cantools says what the harness says it did
+    decoded = [decode(f) for f in bus]
+    by_name: dict[str, list[dict[str, float]]] = {}
+    for name, values in decoded:
+        by_name.setdefault(name, []).append(values)
+    assert [int(v["tick"]) for v in by_name["SYNC"]] == list(range(s["ticks"]))
+    armed = [int(v["armed"]) for v in by_name["HEARTBEAT"]]
+    assert armed[-1] == 0 and all(armed[:-1])  # armed through the run, disarmed at its end
+    wheel = by_name["WHEEL_CMD"]
+    assert wheel[-1]["enable"] == 0 and wheel[-1]["torque_cmd"] == 0.0
+    peak = max(abs(v["torque_cmd"]) for v in wheel)
+    assert peak == pytest.approx(s["max_wheel_torque_cmd_n_m"], abs=2e-5)
+    assert peak <= s["wheel_torque_limit_n_m"]
+    # on its way out the harness commands every actuator safe, whatever the run used
+    last = {name: values for name, values in decoded}
+    assert last["VALVE_CMD"]["valve_pos"] == 0 and last["VALVE_CMD"]["valve_neg"] == 0
+    assert last["PIEZO_CMD"]["voltage_ch1"] == 0.0 and last["PIEZO_CMD"]["voltage_ch2"] == 0.0
+    assert last["ROTOR_CMD"]["enable"] == 0 and last["ROTOR_CMD"]["speed_cmd"] == 0.0
+    # the last hub angle the harness read (a bus frame, matched above), as cantools reads it:
+    # the run's end
+    last_hub = [f for f in recv_log if f[0] == MSG["HUB_TLM"].frame_id][-1]
+    last_hub_deg = math.degrees(decode(last_hub)[1]["angle"])
+    assert last_hub_deg == pytest.approx(s["final_angle_deg"], abs=1e-4)
+    assert last_hub_deg == pytest.approx(s["target_angle_deg"], abs=0.1)
+    print(f"slew over {CHANNEL} at {rate:g} Hz: final angle {last_hub_deg:.5f} deg (error "
+          f"{s['final_angle_error_deg']:.5f}), settle {s['settle_time_s']} s, peak wheel torque "
+          f"{peak:.5f} N m; {len(bus)} frames on the bus = {len(sent_log)} sent + "
+          f"{len(recv_log)} received in the CAN log + {len(lost)} never read by the harness; "
+          f"{s['overruns']} overruns, {s['real_time_factor']}x real time")
+
+
+def test_dry_run_over_vcan0_sends_no_command_frame(rig, rate_and_run, tmp_path):
+    _, run = rate_and_run
+    rig.ensure_running()
+    with Capture(tmp_path / "candump.log") as cap:
+        proc = subprocess.run(_harness_cmd(run, tmp_path, "--dry-run", "--duration-s", "2"),
+                              capture_output=True, text=True, timeout=RUN_TIMEOUT_S)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    s = json.loads(proc.stdout)
+    assert s["dry_run"] is True and s["stopped_by"] == "completed"
+    ids = {f[0] for f in cap.frames}
+    assert not ids & COMMAND_IDS, sorted(hex(i) for i in ids & COMMAND_IDS)
+    # the sensors were read over the bus, the heartbeat never armed the rig
+    assert {MSG["SYNC"].frame_id, MSG["HUB_TLM"].frame_id, MSG["WHEEL_TLM"].frame_id} <= ids
+    decoded = [decode(f) for f in cap.frames]
+    heartbeats = [v for name, v in decoded if name == "HEARTBEAT"]
+    assert heartbeats and not any(v["armed"] for v in heartbeats)
+    assert s["frames"]["received"] > 0
+
+
+def test_watchdog_makes_the_rig_safe_when_the_harness_is_killed(rig, rate_and_run, tmp_path):
+    _, run = rate_and_run
+    rig.ensure_running()
+    wheel_tlm = MSG["WHEEL_TLM"]
+    err = tmp_path / "harness.err"
+    with Capture(tmp_path / "candump.log") as cap:
+        with err.open("w") as err_file:
+            harness = subprocess.Popen(_harness_cmd(run, tmp_path, "--duration-s", "3600"),
+                                       stdout=subprocess.DEVNULL, stderr=err_file)
+        try:
+            # armed and the wheel enabled, as the rig itself reports on the bus
+            def wheel_enabled() -> bool:
+                return any(f[0] == wheel_tlm.frame_id and decode(f)[1]["enabled"] == 1
+                           for f in cap.lines_so_far())
+            _wait_for(wheel_enabled, "WHEEL_TLM with enabled=1", START_TIMEOUT_S, harness, err)
+        finally:
+            harness.kill()  # SIGKILL: no safe commands, no disarming heartbeat
+            harness.wait()
+        assert harness.returncode == -signal.SIGKILL
+
+        # only this test's own SYNCs from now on (the heartbeat is gone); a fresh socket
+        # that sees the rig's wheel telemetry, opened once the rig has answered everything
+        with can.Bus(interface="socketcan", channel=CHANNEL,
+                     can_filters=[{"can_id": wheel_tlm.frame_id, "can_mask": 0x7FF}]) as bus:
+            while bus.recv(2.0) is not None:
+                pass
+            # ticks at which the wheel answers (every n-th SYNC), after the harness's last
+            div = int(load_rig(load_run(run).data["rig"]).data["bus"]["sync_divider"][
+                "reaction_wheel"])
+            tick = 1 + max((int(decode(f)[1]["tick"]) for f in cap.lines_so_far()
+                            if f[0] == MSG["SYNC"].frame_id), default=0)
+            tick += -tick % div
+            answers: list[dict[str, float]] = []
+
+            def safe_and_still() -> bool:  # wheel disabled three times running, torque decayed
+                return (len(answers) >= 3 and all(a["enabled"] == 0 for a in answers[-3:])
+                        and answers[-1]["torque"] == 0.0)
+
+            deadline = time.monotonic() + START_TIMEOUT_S
+            while not safe_and_still() and len(answers) < 500 and time.monotonic() < deadline:
+                bus.send(can.Message(arbitration_id=MSG["SYNC"].frame_id, is_extended_id=False,
+                                     data=MSG["SYNC"].encode({"tick": tick})))
+                tick += div
+                msg = bus.recv(60.0)
+                assert msg is not None, "the rig did not answer a SYNC"
+                answers.append(decode((msg.arbitration_id, bytes(msg.data)))[1])
+                time.sleep(0.5)
+    # what the harness last said on the bus: still armed, wheel still enabled
+    decoded = [decode(f) for f in cap.frames]
+    last = {name: values for name, values in decoded if name in ("HEARTBEAT", "WHEEL_CMD")}
+    assert last["HEARTBEAT"]["armed"] == 1 and last["WHEEL_CMD"]["enable"] == 1
+    assert all(v["armed"] == 1 for name, v in decoded if name == "HEARTBEAT")
+    # ...and the rig made itself safe: the wheel reports disabled and its torque decays to 0
+    assert safe_and_still(), answers[-10:]
+    counters = re.search(r"watchdog trips (\d+)", rig.stop())
+    assert counters is not None and int(counters.group(1)) >= 1
