@@ -146,7 +146,28 @@ class TickSchedule:
         return float(a), float(r), float(acc)
 
 
-class ShapedWheelSlew:
+class ScheduledSlew:
+    """What an open-loop slew driven by a ``TickSchedule`` (``self.schedule``) exposes to the
+    harness: its end, duration and rigid-body reference."""
+
+    schedule: TickSchedule
+
+    @property
+    def end_s(self) -> float:
+        return self.schedule.end_s
+
+    @property
+    def duration_s(self) -> float:
+        return self.schedule.end_s - self.schedule.start_s
+
+    def reset(self) -> None:
+        pass
+
+    def reference(self, t_s: float) -> tuple[float, float, float]:
+        return self.schedule.reference(t_s)
+
+
+class ShapedWheelSlew(ScheduledSlew):
     """Open-loop wheel slew: the (shaped) bang-bang torque of every tick, precomputed."""
 
     def __init__(self, angle_rad: float, inertia_kg_m2: float, torque_n_m: float,
@@ -167,20 +188,6 @@ class ShapedWheelSlew:
         self.applied_shaper = shaping.quantized_sequence
         self.schedule = TickSchedule(shaped * self.torque_n_m, round(start_s / dt_s), dt_s,
                                      inertia_kg_m2, 1.0)
-
-    @property
-    def end_s(self) -> float:
-        return self.schedule.end_s
-
-    @property
-    def duration_s(self) -> float:
-        return self.schedule.end_s - self.schedule.start_s
-
-    def reset(self) -> None:
-        pass
-
-    def reference(self, t_s: float) -> tuple[float, float, float]:
-        return self.schedule.reference(t_s)
 
     def step(self, state: RigState) -> RigCommand:
         return RigCommand(wheel_torque_n_m=float(self.schedule.at_tick(state.tick)))

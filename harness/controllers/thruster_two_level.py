@@ -46,7 +46,12 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.stats import qmc
 
-from harness.controllers.shaped_wheel_slew import Mode, TickSchedule, parse_modes
+from harness.controllers.shaped_wheel_slew import (
+    Mode,
+    ScheduledSlew,
+    TickSchedule,
+    parse_modes,
+)
 from harness.shaping.two_amplitude import (
     ModeConstraint,
     design_two_amplitude,
@@ -348,7 +353,7 @@ def valve_usage(directions: np.ndarray, dt_s: float, couple_n_m: float) -> dict[
     return {"firings": firings, "on_time_s": on, "impulse_n_m_s": on * couple_n_m}
 
 
-class ThrusterTwoLevelSlew:
+class ThrusterTwoLevelSlew(ScheduledSlew):
     """Open-loop valve sequence of a two-level (or bang-bang) design."""
 
     def __init__(self, design: TwoLevelDesign, couple_n_m: float, inertia_kg_m2: float,
@@ -365,20 +370,6 @@ class ThrusterTwoLevelSlew:
         self.usage = valve_usage(self.directions, dt_s, couple_n_m)
         self.schedule = TickSchedule(self.directions, round(start_s / dt_s), dt_s,
                                      inertia_kg_m2, couple_n_m)
-
-    @property
-    def end_s(self) -> float:
-        return self.schedule.end_s
-
-    @property
-    def duration_s(self) -> float:
-        return self.schedule.end_s - self.schedule.start_s
-
-    def reset(self) -> None:
-        pass
-
-    def reference(self, t_s: float) -> tuple[float, float, float]:
-        return self.schedule.reference(t_s)
 
     def step(self, state: RigState) -> RigCommand:
         return RigCommand(valve_direction=int(self.schedule.at_tick(state.tick)))
