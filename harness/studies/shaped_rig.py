@@ -318,6 +318,15 @@ def _e(x: float) -> str:
     return f"{x:.2e}"
 
 
+def _residual_row(r: dict[str, Any]) -> str:
+    """One markdown row of the residual table."""
+    return (f"| {r['label']} | {r['manoeuvre_s']:.3f} | {r['measured']['peak_m_s2']:.4f} / "
+            f"{r['measured']['rms_m_s2']:.4f} | {_e(r['fitted']['peak_m_s2'])} +- "
+            f"{_e(r['fitted']['sigma_m_s2'])} | {_e(r['truth']['peak_m_s2'])} | "
+            f"{r['ratio_fitted']:.1f} | {r['ratio_truth']:.1f} | "
+            f"{r['final_angle_error_deg']:+.4f} |")
+
+
 def format_tables(results: dict[str, Any]) -> str:
     lines: list[str] = []
     if "identified" in results:
@@ -334,13 +343,7 @@ def format_tables(results: dict[str, Any]) -> str:
         lines.append("")
         lines.append(head.format("slew"))
         lines.append("|---|---|---|---|---|---|---|---|")
-        for r in w.values():
-            lines.append(
-                f"| {r['label']} | {r['manoeuvre_s']:.3f} | {r['measured']['peak_m_s2']:.4f} / "
-                f"{r['measured']['rms_m_s2']:.4f} | {_e(r['fitted']['peak_m_s2'])} +- "
-                f"{_e(r['fitted']['sigma_m_s2'])} | {_e(r['truth']['peak_m_s2'])} | "
-                f"{r['ratio_fitted']:.1f} | {r['ratio_truth']:.1f} | "
-                f"{r['final_angle_error_deg']:+.4f} |")
+        lines.extend(_residual_row(r) for r in w.values())
         lines.append("")
         lines.append(f"Paper 004 (Wang 2022): {PAPER_WANG2022}.")
         lines.append("")
@@ -350,13 +353,7 @@ def format_tables(results: dict[str, Any]) -> str:
         lines.append("")
         lines.append(head.format("slew"))
         lines.append("|---|---|---|---|---|---|---|---|")
-        for r in th.values():
-            lines.append(
-                f"| {r['label']} | {r['manoeuvre_s']:.3f} | {r['measured']['peak_m_s2']:.4f} / "
-                f"{r['measured']['rms_m_s2']:.4f} | {_e(r['fitted']['peak_m_s2'])} +- "
-                f"{_e(r['fitted']['sigma_m_s2'])} | {_e(r['truth']['peak_m_s2'])} | "
-                f"{r['ratio_fitted']:.1f} | {r['ratio_truth']:.1f} | "
-                f"{r['final_angle_error_deg']:+.4f} |")
+        lines.extend(_residual_row(r) for r in th.values())
         lines.append("")
         bb = th["bang-bang"]
         rel = results["paper_parman2022_relative"]
