@@ -42,7 +42,7 @@ from scipy.linalg import solve_discrete_are
 from harness.controllers.thruster_slew import ThrusterSlewController
 from harness.runs import RunConfig, build_controller, load_run
 from harness.session import RunResult, execute_run
-from harness.studies.hu2006 import PAPER_HU2006
+from harness.studies.hu2006 import PAPER_HU2006, _json_default
 from rig_models.devices import ThrusterValves
 from rig_models.rig_file import RigConfig
 
@@ -392,14 +392,6 @@ def format_report(study: dict[str, Any]) -> str:
         f"{_fmt(scale)} on the rig.",
     ]
     return "\n".join(lines)
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(type(o))
 
 
 def _run(args: argparse.Namespace) -> int:
