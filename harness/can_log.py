@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import can
+from can.util import channel2int
 
 
 class CanLog:
@@ -18,8 +19,18 @@ class CanLog:
         self._writer = can.BLFWriter(str(path))
         self.frames = 0
         self._closed = False
+        self._numbered: dict[object, bool] = {}
 
     def log(self, msg: can.Message) -> None:
+        channel = msg.channel
+        if channel is not None:
+            numbered = self._numbered.get(channel)
+            if numbered is None:
+                numbered = self._numbered[channel] = channel2int(channel) is not None
+            if not numbered:
+                # a channel name without a number ("sgsrt") is written as the writer's default
+                # channel either way; dropping it skips python-can's regex for every frame
+                msg.channel = None
         self._writer.on_message_received(msg)
         self.frames += 1
 
