@@ -8,6 +8,7 @@ python-can's ``udp_multicast`` interface is refused: it sends on the real networ
 
 from __future__ import annotations
 
+import logging
 import queue
 import time
 from dataclasses import dataclass
@@ -130,6 +131,26 @@ class CopyingVirtualBus(VirtualBus):
                 raise can.CanOperationError(f"virtual bus {self.channel_id}: {exc}") from exc
 
 
+class _BenignSplitFilter(logging.Filter):
+    """python-can's socketcand client reads the TCP stream 1024 bytes at a time and warns
+    every time a frame straddles two reads, which is ordinary TCP framing: it keeps the
+    partial text and completes the frame on the next read. Only that warning is dropped;
+    bad data, over-long and invalid frames are still reported."""
+
+    MESSAGE = "Got incomplete message => waiting for more data"
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.getMessage() != self.MESSAGE
+
+
+_SOCKETCAND_LOG = logging.getLogger("can.interfaces.socketcand.socketcand")
+
+
+def _quiet_socketcand_client() -> None:
+    if not any(isinstance(f, _BenignSplitFilter) for f in _SOCKETCAND_LOG.filters):
+        _SOCKETCAND_LOG.addFilter(_BenignSplitFilter())
+
+
 def open_bus(spec: BusSpec, receive_own_messages: bool = False) -> can.BusABC:
     try:
         if spec.interface == "virtual":
@@ -138,6 +159,7 @@ def open_bus(spec: BusSpec, receive_own_messages: bool = False) -> can.BusABC:
         if spec.interface == "socketcan":
             return can.Bus(interface="socketcan", channel=spec.channel,
                            receive_own_messages=receive_own_messages)
+        _quiet_socketcand_client()
         return can.Bus(interface="socketcand", channel=spec.channel, host=spec.host,
                        port=spec.port, tcp_tune=True)
     except (OSError, can.CanError, AttributeError) as exc:

@@ -68,3 +68,19 @@ def test_closed_bus_refuses_and_udp_multicast_is_refused():
         bus.recv(0)
     with pytest.raises(BusSpecError, match="udp_multicast"):
         parse_bus("udp_multicast:224.0.0.1")
+
+
+def test_only_the_benign_socketcand_split_warning_is_dropped():
+    import logging
+
+    from harness.bus import _BenignSplitFilter
+
+    f = _BenignSplitFilter()
+
+    def rec(msg: str) -> logging.LogRecord:
+        return logging.LogRecord("can.interfaces.socketcand.socketcand", logging.WARNING,
+                                 __file__, 1, msg, None, None)
+
+    assert not f.filter(rec("Got incomplete message => waiting for more data"))
+    assert f.filter(rec("Incomplete message exceeds 200 chars => Discarding"))
+    assert f.filter(rec("Invalid Frame: < frame 123 >"))
