@@ -91,6 +91,7 @@ def run_loop(
     perf = time.perf_counter
     realtime = clock.realtime
     timeout = receive_timeout_s if (realtime or pump is None) else 0.0
+    can_log = interface.can_log
     cmd = RigCommand()
     sent = RigCommand()
     progress_every = max(1, n_ticks // 20)
@@ -147,12 +148,16 @@ def run_loop(
                     recorder.log_event(t_s, f"/events/{event.device}", str(event), "ERROR")
                     print(f"\nharness: FAULT {event}; leaving the rig safe", file=sys.stderr)
                     break
-            # block logging happens outside the tick's critical path
+            # block logging and the CAN log's writer run outside the tick's critical path
             if realtime:
                 if clock.time_left(tick) > 0.5 * dt_s:
                     recorder.drain(1)
+                    if can_log is not None:
+                        can_log.drain()
             else:
                 recorder.drain()
+                if can_log is not None and tick % 50 == 0:
+                    can_log.drain()
             if progress is not None and tick % progress_every == 0:
                 progress(tick, n_ticks)
     except KeyboardInterrupt:
