@@ -214,9 +214,9 @@ def test_simulation_conserves_angular_momentum(satellite):
 
 
 def test_shaped_roll_leaves_much_less_residual_than_bang_bang(satellite_no_offset):
-    """On the zero-offset satellite (coupled frequencies within 0.3 % of the paper's) the paper's LHHL roll sequence
-    leaves a small fraction of the bang-bang residual at node 27, whose period is the first
-    mode's."""
+    """On the zero-offset satellite (coupled frequencies within 0.3 % of the paper's) the
+    paper's LHHL roll sequence leaves a small fraction of the bang-bang residual at node 27,
+    whose period is the first mode's."""
     model = satellite_no_offset
     i_xx = model.inertia_kg_m2[0, 0]
     tau = math.sqrt(math.radians(3) * i_xx / 8.0)
