@@ -1,0 +1,185 @@
+"""`harness replay PATH [--rig R] [--rate-hz F] [--check] [--rrd OUT.rrd] [--json]`: replay a
+CAN log through the harness's own drivers.
+
+PATH is a run directory (its ``can.blf``, rig and rate from its ``config.yaml``) or a CAN log
+file python-can reads (``.blf``, ``.asc``, candump ``.log``: e.g. a capture of the real rig),
+decoded for the rig ``--rig`` (built-in name or rig file, default ``sgsrt``; it gives the
+devices' SYNC dividers and limits) at ``--rate-hz`` (default 500). The log is split into ticks
+at each SYNC (0x080); each tick's telemetry goes through the same drivers as in a run, which
+rebuild the tick's RigState; the command frames the harness sent are decoded with the DBC.
+Printed: frames per id (DBC name, sent by the harness or by the devices), malformed frames,
+unknown ids, error frames, SYNC gaps (a tick not the previous plus one), the devices' sequence
+errors (a frame counter that did not advance by one) and missing telemetry.
+
+``--check`` (run directories only) rebuilds the run's controller from ``config.yaml`` as
+``harness run`` does, steps it on the replayed states and compares its commands, after the
+drivers' clamping and encoding, with the logged command frames tick by tick (integer signals
+exactly, scaled signals within one quantisation step). The safe commands the harness sends
+when a run ends (completed, fault, interrupted) are recognised and not compared; a last tick
+whose commands never went out is skipped with the reason. ``--rrd OUT.rrd`` writes the replayed
+telemetry and the logged commands as scalar channels on the ``time`` timeline (tick x dt).
+
+Exit status: 0 replayed (and, with --check, every compared tick matches), 1 the commands
+differ, 2 bad input (missing or unreadable file, --check without a run directory).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from drivers.dbc import load_protocol
+from harness.replay import (
+    CheckResult,
+    Replay,
+    ReplayError,
+    check_replay,
+    load_run_dir,
+    replay_log,
+    write_rrd,
+)
+from rig_models.rig_file import load_rig
+from rig_models.schema import ConfigError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("replay", help="replay a run's CAN log (or a capture) through the "
+                       "drivers; --check its controller's determinism",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("path", type=Path, help="run directory, or a CAN log (.blf, .asc, .log)")
+    p.add_argument("--rig", help="rig (built-in name or file) of a bare log (default sgsrt); "
+                   "a run directory uses the rig in its config.yaml")
+    p.add_argument("--rate-hz", type=float, help="loop rate of a bare log (default 500 Hz); "
+                   "a run directory uses its config.yaml")
+    p.add_argument("--check", action="store_true", help="rebuild the run's controller and "
+                   "compare its commands with the logged ones (run directories only)")
+    p.add_argument("--rrd", type=Path, metavar="OUT.rrd",
+                   help="write the replayed telemetry and commands to a Rerun recording")
+    p.add_argument("--json", action="store_true", help="JSON on stdout")
+    p.set_defaults(func=cmd_replay)
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    path: Path = args.path
+    result: CheckResult | None = None
+    try:
+        if not path.exists():
+            raise ReplayError(f"{path}: no such file or directory")
+        if path.is_dir():
+            run, summary = load_run_dir(path)
+            if args.rig or args.rate_hz:
+                print("harness replay: --rig/--rate-hz ignored: the run directory's "
+                      "config.yaml gives its rig and rate", file=sys.stderr)
+            replay = replay_log(path / "can.blf", run.rig, run.dt_s)
+            rig_name = run.rig.name
+        else:
+            if args.check:
+                raise ReplayError(f"{path}: --check needs a run directory (with config.yaml "
+                                  "and can.blf), not a log file")
+            if args.rate_hz is not None and not args.rate_hz > 0:
+                raise ReplayError(f"--rate-hz: expected a number > 0 (Hz), got {args.rate_hz}")
+            rig = load_rig(args.rig or "sgsrt")
+            replay = replay_log(path, rig, 1.0 / (args.rate_hz or 500.0))
+            rig_name = rig.name
+        if not replay.ticks:
+            raise ReplayError(f"{replay.source}: no SYNC frame (0x080): not a log of a "
+                              "harness run")
+        if args.check:
+            result = check_replay(replay, run, dry_run=bool(summary.get("dry_run", False)))
+            result.stopped_by = summary.get("stopped_by")
+            result.summary_ticks = summary.get("ticks")
+        if args.rrd is not None:
+            write_rrd(replay, args.rrd)
+    except (ReplayError, ConfigError, OSError) as exc:
+        print(f"harness replay: {exc}", file=sys.stderr)
+        return 2
+    report = to_dict(replay, rig_name, result)
+    if args.rrd is not None:
+        report["rrd"] = str(args.rrd)
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print_report(report)
+    return 1 if result is not None and not result.consistent else 0
+
+
+def to_dict(replay: Replay, rig_name: str, result: CheckResult | None) -> dict[str, Any]:
+    protocol = load_protocol()
+    frames = []
+    for fid, n in sorted(replay.frames_by_id.items()):
+        codec = protocol.by_id.get(fid)
+        frames.append({"id": f"0x{fid:03X}", "name": codec.name if codec else "?",
+                       "from": "harness" if fid in replay.harness_ids else
+                       "device" if codec else "unknown", "frames": n})
+    t = replay.ticks
+    out: dict[str, Any] = {
+        "log": str(replay.source), "rig": rig_name, "rate_hz": 1.0 / replay.dt_s,
+        "ticks": len(t), "first_tick": t[0].tick, "last_tick": t[-1].tick,
+        "duration_s": t[-1].time_s - t[0].time_s, "frames": frames,
+        "total_frames": replay.total_frames, "malformed": sum(replay.malformed.values()),
+        "malformed_by_frame": {k: v for k, v in replay.malformed.items() if v},
+        "unknown_ids": replay.unknown, "error_frames": replay.error_frames,
+        "bus_off": replay.bus_off, "sync_gaps": replay.sync_gaps,
+        "sequence_errors": {k: v for k, v in replay.sequence_errors.items() if v},
+        "missing_telemetry": replay.missing_frames,
+        "before_first_sync": replay.before_first_sync,
+    }
+    if result is not None:
+        m = result.first_mismatch
+        out["check"] = {
+            "consistent": result.consistent, "ticks_compared": result.ticks_compared,
+            "ticks_matching": result.ticks_matching,
+            "ticks_identical": result.ticks_identical,
+            "first_mismatch": None if m is None else {
+                "tick": m.tick, "time_s": m.time_s, "frame": m.frame, "detail": m.detail,
+                "logged": _tidy(m.logged), "replayed": _tidy(m.replayed)},
+            "skipped": [{"tick": k, "reason": r} for k, r in result.skipped],
+            "safe_commands_tick": result.safe_tick, "stopped_by": result.stopped_by,
+            "summary_ticks": result.summary_ticks,
+        }
+    return out
+
+
+def _tidy(v: Any) -> Any:
+    """Decoded values to 9 significant digits (0.00028, not 0.00028000000000000003)."""
+    return {k: float(f"{x:.9g}") for k, x in v.items()} if isinstance(v, dict) else v
+
+
+def print_report(r: dict[str, Any]) -> None:
+    print(f"{r['log']}: rig {r['rig']}, {r['rate_hz']:g} Hz, {r['ticks']} ticks "
+          f"({r['first_tick']}..{r['last_tick']}, {r['duration_s']:.3f} s), "
+          f"{r['total_frames']} frames")
+    print(f"{'id':>6}  {'frame':<10} {'from':<8} {'frames':>8}")
+    for f in r["frames"]:
+        print(f"{f['id']:>6}  {f['name']:<10} {f['from']:<8} {f['frames']:>8}")
+    seq = ", ".join(f"{k} {v}" for k, v in r["sequence_errors"].items()) or "0"
+    bad = ", ".join(f"{k} {v}" for k, v in r["malformed_by_frame"].items())
+    print(f"malformed {r['malformed']}{f' ({bad})' if bad else ''}, unknown ids "
+          f"{r['unknown_ids']}, error frames {r['error_frames']}"
+          f"{' (bus-off)' if r['bus_off'] else ''}, SYNC gaps {r['sync_gaps']}, sequence "
+          f"errors {seq}, missing telemetry {r['missing_telemetry']}, frames before the "
+          f"first SYNC {r['before_first_sync']}")
+    c = r.get("check")
+    if c is None:
+        return
+    print(f"check: {c['ticks_compared']} ticks compared, {c['ticks_matching']} matching "
+          f"({c['ticks_identical']} byte-identical); run {c['stopped_by'] or '?'}, "
+          f"{c['summary_ticks'] if c['summary_ticks'] is not None else '?'} ticks in "
+          "summary.json; " + ("no safe commands in the log" if c["safe_commands_tick"] is None
+                               else f"safe commands in tick {c['safe_commands_tick']}"))
+    if c["summary_ticks"] is not None and c["summary_ticks"] != r["ticks"]:
+        print(f"check: note: the log has {r['ticks']} ticks, summary.json "
+              f"{c['summary_ticks']}: is this log the run's?")
+    for s in c["skipped"]:
+        print(f"check: tick {s['tick']} not compared: {s['reason']}")
+    m = c["first_mismatch"]
+    if m is None:
+        print("check: consistent: the controller gives the logged commands")
+        return
+    print(f"check: MISMATCH: first at tick {m['tick']} (t = {m['time_s']:.3f} s), "
+          f"{m['frame']}: {m['detail']}")
+    print(f"  logged:   {m['logged']}")
+    print(f"  replayed: {m['replayed']}")

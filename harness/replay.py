@@ -1,0 +1,450 @@
+"""Replaying a CAN log through the harness's own drivers, and the determinism check.
+
+A log (the run's ``can.blf``, or an ``.asc`` / candump ``.log`` capture of the real rig) is
+split into ticks at each SYNC frame. The frames the devices sent in a tick are fed, in log
+order, through :class:`RigInterface` (on a bus object that serves them from memory) exactly as
+the loop received them: the same drivers decode them, count malformed frames, unknown ids,
+error frames and sequence errors, and ``snapshot`` gives the tick's :class:`RigState`. The
+frames the harness sent (the DBC's ``HARNESS`` node: SYNC, HEARTBEAT, ``*_CMD``) are decoded
+with the DBC codecs. A HEARTBEAT goes out just before its tick's SYNC, so it falls into the
+previous tick; it carries nothing the replay needs.
+
+:func:`check_run` rebuilds a run's controller from its ``config.yaml`` as ``execute_run``
+does, steps it on the reconstructed states, sends its commands through a second
+``RigInterface`` (same clamping, encoding and frame counter) and compares them with the
+logged command frames tick by tick: integer signals (enable, valve, counter) exactly,
+scaled signals within one quantisation step.
+
+The loop leaves the rig safe on every exit path (``leave_safe``: wheel disabled, valves
+closed, piezo 0 V, rotor stopped, all four frames with one new counter), after the last
+tick's own commands. That group is recognised (``split_commands``) and not compared with the
+controller. A last tick without controller commands (the run was interrupted, or the
+controller raised, before its commands went out; or the log stops there) is skipped with the
+reason; anywhere else a missing command is a mismatch.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+from collections import Counter, deque
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, cast
+
+import can
+import yaml
+
+from drivers.dbc import FrameCodec, FrameError, Protocol, load_protocol
+from harness.recording import Recorder
+from harness.rig_interface import RigInterface
+from harness.runs import RunConfig, build_controller, run_from_dict
+from harness.state import RigState
+from rig_models.rig_file import RigConfig, rig_from_dict
+from rig_models.schema import ConfigError
+
+HARNESS_NODE = "HARNESS"
+COMMAND_FRAMES = ("WHEEL_CMD", "VALVE_CMD", "PIEZO_CMD", "ROTOR_CMD")
+"""Every command frame, in the order ``RigInterface.command``/``command_safe`` send them."""
+
+
+class ReplayError(ValueError):
+    """The log (or run directory) cannot be replayed; the message names the file."""
+
+
+@dataclass(frozen=True)
+class CommandFrame:
+    """One command frame the harness sent: DBC name, payload, decoded values (empty if the
+    payload does not fit the DBC)."""
+
+    name: str
+    data: bytes
+    values: dict[str, float]
+
+    @property
+    def malformed(self) -> bool:
+        return not self.values
+
+
+@dataclass
+class ReplayTick:
+    tick: int
+    time_s: float
+    state: RigState
+    commands: list[CommandFrame]
+    """Every command frame the harness sent in this tick, in log order."""
+    telemetry_frames: int
+    """Telemetry frames the drivers accepted in this tick."""
+    missing: int
+    """Devices due at this tick (``sync_divider``) that did not answer."""
+
+
+@dataclass
+class Replay:
+    source: Path
+    dt_s: float
+    ticks: list[ReplayTick]
+    frames_by_id: dict[int, int]
+    """Data frames (error frames excluded) per arbitration id."""
+    harness_ids: frozenset[int]
+    error_frames: int
+    bus_off: bool
+    unknown: int
+    malformed: dict[str, int]
+    """Per frame name: telemetry as counted by the drivers, harness frames by their codec."""
+    sequence_errors: dict[str, int]
+    """Per device: frame counters that did not advance by one (the drivers' count)."""
+    sync_gaps: int
+    """SYNC frames whose tick is not the previous one plus one."""
+    before_first_sync: int
+    """Device frames before the first SYNC (not fed to the drivers: their tick is unknown)."""
+
+    @property
+    def total_frames(self) -> int:
+        return sum(self.frames_by_id.values()) + self.error_frames
+
+    @property
+    def missing_frames(self) -> int:
+        return sum(t.missing for t in self.ticks)
+
+
+@dataclass(frozen=True)
+class Mismatch:
+    tick: int
+    time_s: float
+    frame: str
+    """Command frame name, or ``"(frames)"`` when the frames sent differ in number or id."""
+    logged: dict[str, float] | list[str] | None
+    replayed: dict[str, float] | list[str] | None
+    detail: str
+
+
+@dataclass
+class CheckResult:
+    ticks_compared: int = 0
+    ticks_matching: int = 0
+    ticks_identical: int = 0
+    """Ticks whose command payloads are byte-identical (a subset of the matching ones)."""
+    first_mismatch: Mismatch | None = None
+    skipped: list[tuple[int, str]] = field(default_factory=list)
+    """(tick, reason) of ticks not compared."""
+    safe_tick: int | None = None
+    """Tick whose frames end with the leave-safe commands (normally the last)."""
+    stopped_by: str | None = None
+    """From summary.json, if there."""
+    summary_ticks: int | None = None
+
+    @property
+    def consistent(self) -> bool:
+        return self.first_mismatch is None and self.ticks_matching == self.ticks_compared
+
+
+class _LogBus:
+    """What ``RigInterface`` needs of a bus: ``recv`` serves queued frames, ``send`` keeps
+    them."""
+
+    def __init__(self) -> None:
+        self.queue: deque[can.Message] = deque()
+        self.sent: list[can.Message] = []
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        return self.queue.popleft() if self.queue else None
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self.sent.append(msg)
+
+
+def _interface(protocol: Protocol, rig: RigConfig, actuators: tuple[str, ...] = (),
+               dry_run: bool = False) -> tuple[RigInterface, _LogBus]:
+    bus = _LogBus()
+    iface = RigInterface(cast(can.BusABC, bus), protocol, rig, None,
+                         actuators or ("reaction_wheel",), dry_run=dry_run)
+    return iface, bus
+
+
+def harness_frame_ids(protocol: Protocol) -> frozenset[int]:
+    """Ids of the frames the harness sends (the DBC's ``HARNESS`` node)."""
+    return frozenset(m.frame_id for m in protocol.database.messages
+                     if HARNESS_NODE in (m.senders or []))
+
+
+def read_log(path: Path) -> list[can.Message]:
+    """Every frame of a CAN log python-can reads (.blf, .asc, candump .log, ...)."""
+    if not path.is_file():
+        raise ReplayError(f"{path}: no such file")
+    try:
+        return list(can.LogReader(str(path)))
+    except Exception as exc:  # python-can raises many kinds for a damaged or foreign file
+        raise ReplayError(f"{path}: cannot read as a CAN log ({type(exc).__name__}: {exc})"
+                          ) from exc
+
+
+def _decode(codec: FrameCodec, data: bytes) -> dict[str, float]:
+    try:
+        return codec.decode(data)
+    except FrameError:
+        return {}
+
+
+def replay_messages(messages: Iterable[can.Message], rig: RigConfig, dt_s: float,
+                    source: Path = Path("-"), protocol: Protocol | None = None) -> Replay:
+    """Split ``messages`` into ticks at each SYNC and decode them with the harness's drivers."""
+    protocol = protocol or load_protocol()
+    iface, bus = _interface(protocol, rig)
+    tx_ids = harness_frame_ids(protocol)
+    sync = protocol["SYNC"]
+    frames_by_id: Counter[int] = Counter()
+    harness_malformed: Counter[str] = Counter()
+    ticks: list[ReplayTick] = []
+    sync_gaps = before = 0
+    tick: int | None = None
+    rx: list[can.Message] = []
+    cmds: list[CommandFrame] = []
+
+    def close_tick() -> None:
+        if tick is None:
+            return
+        bus.queue.extend(rx)
+        got = iface.receive(tick, 0.0)
+        state = copy.copy(iface.snapshot(tick, tick * dt_s))
+        ticks.append(ReplayTick(tick, tick * dt_s, state, list(cmds), got,
+                                max(0, iface.expected_frames(tick) - got)))
+
+    for msg in messages:
+        if not msg.is_error_frame:
+            frames_by_id[msg.arbitration_id] += 1
+        harness = not msg.is_error_frame and msg.arbitration_id in tx_ids
+        if harness and msg.arbitration_id == sync.frame_id:
+            close_tick()
+            rx, cmds = [], []
+            values = _decode(sync, bytes(msg.data))
+            if not values:
+                harness_malformed["SYNC"] += 1
+            new = int(values["tick"]) if values else (tick + 1 if tick is not None else 0)
+            if tick is not None and new != tick + 1:
+                sync_gaps += 1
+            tick = new
+            continue
+        if tick is None:
+            before += not harness
+            continue
+        if harness:
+            codec = protocol.by_id[msg.arbitration_id]
+            values = _decode(codec, bytes(msg.data))
+            if not values:
+                harness_malformed[codec.name] += 1
+            if codec.name in COMMAND_FRAMES:
+                cmds.append(CommandFrame(codec.name, bytes(msg.data), values))
+        else:
+            rx.append(msg)
+    close_tick()
+    malformed = {d.telemetry_frame: d.counters.malformed for d in iface.drivers.values()}
+    malformed.update(harness_malformed)
+    return Replay(
+        source=source, dt_s=dt_s, ticks=ticks, frames_by_id=dict(frames_by_id),
+        harness_ids=tx_ids, error_frames=iface.counters.error_frames,
+        bus_off=iface.counters.bus_off, unknown=iface.counters.unknown, malformed=malformed,
+        sequence_errors={n: d.counters.sequence_errors for n, d in iface.drivers.items()},
+        sync_gaps=sync_gaps, before_first_sync=before)
+
+
+def replay_log(path: Path, rig: RigConfig, dt_s: float) -> Replay:
+    return replay_messages(read_log(path), rig, dt_s, source=path)
+
+
+# ----------------------------------------------------------------------- run directories
+def load_run_dir(run_dir: Path) -> tuple[RunConfig, dict[str, Any]]:
+    """(the run's RunConfig rebuilt from config.yaml, summary.json or {}).
+
+    The run section is validated again by ``run_from_dict`` and the rig is the resolved rig
+    written in config.yaml (rig file and ``rig_overrides`` already merged), so the rig file
+    the run named need not exist any more."""
+    cfg_path = run_dir / "config.yaml"
+    if not cfg_path.is_file():
+        raise ReplayError(f"{cfg_path}: no such file (not a run directory)")
+    try:
+        cfg = yaml.safe_load(cfg_path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ReplayError(f"{cfg_path}: cannot read: {exc}") from exc
+    if not isinstance(cfg, dict) or not isinstance(cfg.get("run"), dict) \
+            or not isinstance(cfg.get("rig"), dict):
+        raise ReplayError(f"{cfg_path}: expected the resolved run config (keys run, rig)")
+    try:
+        rig = rig_from_dict(cfg["rig"], source=f"{cfg_path}: rig")
+        # the run's own rig reference may be a file that is gone: validate against the
+        # built-in rig, then put the resolved rig (and the original keys) back
+        raw = dict(cfg["run"], rig="sgsrt", rig_overrides=None)
+        checked = run_from_dict(raw, source=f"{cfg_path}: run")
+    except ConfigError as exc:
+        raise ReplayError(str(exc)) from exc
+    data = dict(checked.data, rig=cfg["run"].get("rig"),
+                rig_overrides=cfg["run"].get("rig_overrides"))
+    run = RunConfig(source=checked.source, data=data, rig=rig)
+    summary: dict[str, Any] = {}
+    sum_path = run_dir / "summary.json"
+    if sum_path.is_file():
+        try:
+            summary = json.loads(sum_path.read_text())
+        except (OSError, ValueError):
+            summary = {}
+    return run, summary
+
+
+def split_commands(commands: list[CommandFrame]
+                   ) -> tuple[list[CommandFrame], list[CommandFrame]]:
+    """(the controller's command frames, the leave-safe frames) of one tick.
+
+    The leave-safe group is all four command frames in ``command_safe``'s order, one
+    counter, wheel disabled with zero torque, valves closed, piezo 0 V, rotor disabled at
+    zero speed. ``command`` always enables the wheel, so a controller's all-zero command is
+    never taken for it."""
+    names = [c.name for c in commands]
+    for i in range(len(commands) - len(COMMAND_FRAMES), -1, -1):
+        group = commands[i:i + len(COMMAND_FRAMES)]
+        if names[i:i + len(COMMAND_FRAMES)] == list(COMMAND_FRAMES) and _is_safe(group):
+            return commands[:i] + commands[i + len(COMMAND_FRAMES):], group
+    return list(commands), []
+
+
+def _is_safe(group: list[CommandFrame]) -> bool:
+    if any(c.malformed for c in group) or len({c.values["counter"] for c in group}) != 1:
+        return False
+    wheel, valve, piezo, rotor = (c.values for c in group)
+    return (wheel["enable"] == 0 and wheel["torque_cmd"] == 0 and valve["valve_pos"] == 0
+            and valve["valve_neg"] == 0 and piezo["voltage_ch1"] == 0
+            and piezo["voltage_ch2"] == 0 and rotor["enable"] == 0 and rotor["speed_cmd"] == 0)
+
+
+def _compare(codec: FrameCodec, logged: CommandFrame, replayed: bytes) -> str:
+    """'' if equal within one quantisation step (integer signals exactly), else the first
+    differing signal."""
+    if logged.malformed:
+        return f"logged payload of {len(logged.data)} bytes does not fit the DBC"
+    want = codec.decode(replayed)
+    for sig in codec.signals:
+        integer = sig.scale == 1.0 and sig.offset == 0.0
+        tol = 0.0 if integer else abs(sig.scale) * (1.0 + 1e-9)
+        if abs(logged.values[sig.name] - want[sig.name]) > tol:
+            return (f"{sig.name}: logged {logged.values[sig.name]:.9g}, "
+                    f"replayed {want[sig.name]:.9g} {sig.unit}").rstrip()
+    return ""
+
+
+def check_replay(replay: Replay, run: RunConfig, dry_run: bool = False,
+                 protocol: Protocol | None = None) -> CheckResult:
+    """Step ``run``'s controller (built as ``execute_run`` builds it) on the replayed states
+    and compare its encoded commands with the logged ones, tick by tick."""
+    protocol = protocol or load_protocol()
+    controller = build_controller(run)
+    enc, bus = _interface(protocol, run.rig, run.actuators, dry_run=dry_run)
+    out = CheckResult()
+    last = len(replay.ticks) - 1
+    for i, t in enumerate(replay.ticks):
+        logged, safe = split_commands(t.commands)
+        if safe:
+            out.safe_tick = t.tick
+        bus.sent.clear()
+        try:
+            enc.command(controller.step(t.state))
+        except Exception as exc:  # the run's controller failed at this tick
+            if i == last and not logged:
+                out.skipped.append((t.tick, f"the controller raised {type(exc).__name__}: "
+                                    f"{exc}; the run sent no command in this tick either"))
+                break
+            out.ticks_compared += 1
+            _mismatch(out, Mismatch(t.tick, t.time_s, "(controller)", None, None,
+                                    f"the controller raised {type(exc).__name__}: {exc}"))
+            continue
+        sent = [(protocol.by_id[m.arbitration_id], bytes(m.data)) for m in bus.sent]
+        if i == last and sent and not logged:
+            out.skipped.append((t.tick, "no controller command in the log: the run stopped "
+                                "before this tick's commands went out"
+                                + (" (only the safe commands)" if safe else "")))
+            continue
+        out.ticks_compared += 1
+        if [c.name for c in logged] != [c.name for c, _ in sent]:
+            _mismatch(out, Mismatch(
+                t.tick, t.time_s, "(frames)", [c.name for c in logged],
+                [c.name for c, _ in sent], "the command frames sent differ"))
+            continue
+        pairs = list(zip(logged, sent, strict=True))
+        bad = [(c.name, d) for c, (codec, data) in pairs if (d := _compare(codec, c, data))]
+        if bad:
+            name, detail = bad[0]
+            k = [c.name for c in logged].index(name)
+            _mismatch(out, Mismatch(t.tick, t.time_s, name, logged[k].values,
+                                    sent[k][0].decode(sent[k][1]), detail))
+            continue
+        out.ticks_matching += 1
+        if all(c.data == data for c, (_, data) in pairs):
+            out.ticks_identical += 1
+    return out
+
+
+def _mismatch(out: CheckResult, m: Mismatch) -> None:
+    if out.first_mismatch is None:
+        out.first_mismatch = m
+
+
+def check_run(run_dir: Path, log: Path | None = None) -> tuple[Replay, CheckResult]:
+    """Replay a run directory's CAN log (or ``log``, e.g. a copy) with its rig and rate, and
+    check its controller's commands against the logged ones."""
+    run, summary = load_run_dir(run_dir)
+    replay = replay_log(log or run_dir / "can.blf", run.rig, run.dt_s)
+    result = check_replay(replay, run, dry_run=bool(summary.get("dry_run", False)))
+    result.stopped_by = summary.get("stopped_by")
+    result.summary_ticks = summary.get("ticks")
+    return replay, result
+
+
+# ----------------------------------------------------------------------- recording
+TELEMETRY_CHANNELS: dict[str, Any] = {
+    "/attitude/angle_deg": lambda s: math.degrees(s.hub_angle_rad),
+    "/attitude/rate_deg_s": lambda s: math.degrees(s.hub_rate_rad_s),
+    "/wheel/torque_n_m": lambda s: s.wheel_torque_n_m,
+    "/wheel/speed_rad_s": lambda s: s.wheel_speed_rad_s,
+    "/tip/accel_m_s2": lambda s: s.tip_accel_m_s2,
+    "/thrusters/valve_state": lambda s: s.valve_state,
+    "/thrusters/firings": lambda s: s.valve_firings,
+    "/thrusters/on_time_s": lambda s: s.valve_on_time_s,
+    "/piezo/sensor_ch1_v": lambda s: s.piezo_sensor_v[0],
+    "/piezo/sensor_ch2_v": lambda s: s.piezo_sensor_v[1],
+    "/rotor/angle_rad": lambda s: s.rotor_angle_rad,
+    "/rotor/speed_rad_s": lambda s: s.rotor_speed_rad_s,
+}
+# channel -> (command frame, value from its decoded signals); NaN when not sent that tick
+COMMAND_CHANNELS: dict[str, tuple[str, Any]] = {
+    "/wheel/torque_cmd_n_m": ("WHEEL_CMD", lambda v: v["torque_cmd"]),
+    "/wheel/enable_cmd": ("WHEEL_CMD", lambda v: v["enable"]),
+    "/thrusters/valve_cmd": ("VALVE_CMD", lambda v: v["valve_pos"] - v["valve_neg"]),
+    "/piezo/cmd_ch1_v": ("PIEZO_CMD", lambda v: v["voltage_ch1"]),
+    "/piezo/cmd_ch2_v": ("PIEZO_CMD", lambda v: v["voltage_ch2"]),
+    "/rotor/speed_cmd_rad_s": ("ROTOR_CMD", lambda v: v["speed_cmd"]),
+    "/rotor/enable_cmd": ("ROTOR_CMD", lambda v: v["enable"]),
+}
+REPLAY_CHANNELS = [*TELEMETRY_CHANNELS, *COMMAND_CHANNELS, "/timing/frames_rx"]
+
+
+def write_rrd(replay: Replay, path: Path, recording_name: str | None = None) -> Path:
+    """The replayed telemetry and the controller's command frames (the leave-safe group
+    left out, as run.rrd records them) as scalar channels on the ``time`` timeline
+    (tick * dt), with the entity paths of run.rrd."""
+    rec = Recorder(path, REPLAY_CHANNELS, max(1, len(replay.ticks)),
+                   recording_name or f"replay-{replay.source.parent.name or replay.source.name}")
+    try:
+        for t in replay.ticks:
+            row = rec.row(t.time_s)
+            ctrl = {c.name: c.values for c in split_commands(t.commands)[0] if not c.malformed}
+            row[:] = (
+                *(f(t.state) for f in TELEMETRY_CHANNELS.values()),
+                *(get(ctrl[name]) if name in ctrl else math.nan
+                  for name, get in COMMAND_CHANNELS.values()),
+                t.telemetry_frames,
+            )
+            rec.commit()
+            rec.drain()
+    finally:
+        rec.close()
+    return path
