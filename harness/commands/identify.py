@@ -2,11 +2,33 @@
 
 Two views side by side: the paper's (peaks of the windowed, zero-padded FFT of the free
 decay, interpolated) and a parametric fit of the free decay (matrix pencil, then nonlinear
-least squares) with damping and 1-sigma uncertainties. For a run directory the free decay
-starts after the wheel pulse (from its config.yaml) unless ``--start-s`` says otherwise, and
-the model's true hub-free modes of the run's rig are printed beside ours. The spectrum and
-the picked peaks are written to ``identify.rrd`` in the run directory (open it together with
-run.rrd: same recording id).
+least squares) with damping and 1-sigma uncertainties.
+
+Free-decay windows. For a run directory they come from its config.yaml: after a wheel pulse,
+one window from its end; after ``wheel_bursts``, one window in every zero-torque gap that a
+burst's ``free_decay_s`` leaves before the next burst, and one from the end of the last burst
+to the end of the record (each window starts 0.1 s after its burst, for the wheel's torque
+lag). Each window is fitted on its own. Windows after bursts of the same nominal frequency
+(``repeat``) are repetitions of one experiment: their estimates of a mode are averaged
+(1 sigma scaled up by the Birge ratio if they scatter more than their sigmas say). Each mode
+is reported from the experiment that determines it best, and only if it is determined
+(frequency to 5 %, damping to 50 %, found in half the repetitions; other components are
+listed in the notes). A mode found in one window is held (frequency and damping fixed,
+amplitude fitted) in the windows that do not show it, so that its leftover does not bias
+theirs (``harness.identification.windows``). So the free-decay run's seven 1.9 s decays
+after its mode-3 bursts give mode 3 (36.9 rad/s, gone in about 2 s), and the long decay
+after the mode-1 and mode-2 bursts gives modes 1 and 2. ``--start-s`` (one window from
+there) or ``--window START:END`` (repeatable, each its own experiment) override the run's
+windows; a CSV or an .rrd without config.yaml is one window over the whole record.
+
+The FFT view of a short window does not resolve a fast-decaying mode (for mode 3 its
+Rayleigh resolution, 3.3 rad/s, is about the peak's half-power width): its FFT peak and
+half-power damping are then averaged over the repetitions and marked rough in a note; the
+parametric fit is the estimate.
+
+The model's true hub-free modes of the run's rig are printed beside ours (each identified
+mode against the nearest model mode). The spectra and the picked peaks are written to
+``identify.rrd`` in the run directory (open it together with run.rrd: same recording id).
 """
 
 from __future__ import annotations
@@ -21,13 +43,14 @@ from typing import Any
 import numpy as np
 import yaml
 
-from harness.identification import identify
 from harness.identification.csv_input import read_accel_csv
+from harness.identification.windows import AnalysisWindow, MultiWindowResult, identify_windows
 from harness.recording_reader import read_scalar_channel
 from rig_models.rig_file import rig_from_dict
 
 # Paper 003 Table 1 (rad/s), comparison only.
 PAPER_TABLE1 = {"measured_fft": [2.7382, 13.9487], "calculated": [2.8081, 13.643]}
+SETTLE_S = 0.1  # a free-decay window starts this long after its excitation ends
 
 
 def load_record(path: Path) -> tuple[np.ndarray, np.ndarray, dict[str, Any] | None, Path | None]:
@@ -47,18 +70,27 @@ def load_record(path: Path) -> tuple[np.ndarray, np.ndarray, dict[str, Any] | No
     return t, a, cfg, run_dir
 
 
-def default_start(cfg: dict[str, Any] | None) -> float | None:
-    """End of the excitation of a wheel-pulse run (plus 0.1 s), else None."""
+def analysis_windows(cfg: dict[str, Any] | None) -> list[AnalysisWindow] | None:
+    """The free-decay windows of a run (see the module docstring), else None."""
     if not cfg:
         return None
     c = cfg.get("run", {}).get("controller", {})
     if c.get("type") == "wheel_pulse":
-        return float(c["start_s"] + c["width_s"] + 0.1)
+        return [AnalysisWindow(float(c["start_s"] + c["width_s"] + SETTLE_S))]
     if c.get("type") == "wheel_bursts":
         from harness.controllers.registry import WheelBursts, _bursts
 
-        return float(WheelBursts(c["torque_n_m"], c["start_s"], _bursts(c)).end_s + 0.1)
+        wb = WheelBursts(c["torque_n_m"], c["start_s"], _bursts(c))
+        wins = [AnalysisWindow(t0 + SETTLE_S, t1, omega) for t0, t1, omega in wb.free_intervals
+                if t1 - t0 > 2 * SETTLE_S]
+        return [*wins, AnalysisWindow(wb.end_s + SETTLE_S, None, wb.last_omega_rad_s)]
     return None
+
+
+def default_start(cfg: dict[str, Any] | None) -> float | None:
+    """Start of a run's final free decay (after all of its excitation), else None."""
+    wins = analysis_windows(cfg)
+    return None if wins is None else wins[-1].start_s
 
 
 def model_modes(cfg: dict[str, Any] | None) -> dict[str, list[float]] | None:
@@ -69,7 +101,9 @@ def model_modes(cfg: dict[str, Any] | None) -> dict[str, list[float]] | None:
     return {"omega_rad_s": wn.tolist(), "damping_ratio": zeta.tolist()}
 
 
-def write_spectrum_rrd(run_dir: Path, result: Any) -> Path:
+def write_spectrum_rrd(run_dir: Path, result: MultiWindowResult) -> Path:
+    """The long window's spectrum at /identify/spectrum (and its peaks), every other
+    window's at /identify/windows/<k>, the identified modes at their damped frequency."""
     import rerun as rr
     import rerun.blueprint as rrb
 
@@ -77,14 +111,23 @@ def write_spectrum_rrd(run_dir: Path, result: Any) -> Path:
     rec = rr.RecordingStream("sgsrt-harness", recording_id=run_dir.name)
     bp = rrb.Blueprint(rrb.Spatial2DView(origin="/identify", name="Spectrum (Hz, m/s^2)"))
     rec.save(str(path), default_blueprint=bp)
-    sp = result.spectrum
-    sel = sp.freq_hz <= max(10.0, 3 * max((p.freq_hz for p in result.fft_peaks), default=1.0))
-    pts = np.column_stack([sp.freq_hz[sel], sp.amplitude[sel]])
-    rec.log("/identify/spectrum", rr.LineStrips2D([pts], colors=[[80, 160, 255]]), static=True)
-    peaks = np.array([[p.freq_hz, p.amplitude] for p in result.fft_peaks]).reshape(-1, 2)
-    rec.log("/identify/fft_peaks", rr.Points2D(
-        peaks, radii=0.02, colors=[[255, 80, 80]],
-        labels=[f"{p.omega_rad_s:.4f} rad/s" for p in result.fft_peaks]), static=True)
+    f_top = max((m.freq_hz for m in result.modes), default=1.0)
+    primary = result.primary
+    for k, res in enumerate(result.results):
+        sp = res.spectrum
+        sel = sp.freq_hz <= max(10.0, 3 * f_top)
+        pts = np.column_stack([sp.freq_hz[sel], sp.amplitude[sel]])
+        if res is primary:
+            rec.log("/identify/spectrum", rr.LineStrips2D([pts], colors=[[80, 160, 255]]),
+                    static=True)
+            peaks = np.array([[p.freq_hz, p.amplitude] for p in res.fft_peaks]).reshape(-1, 2)
+            rec.log("/identify/fft_peaks", rr.Points2D(
+                peaks, radii=0.02, colors=[[255, 80, 80]],
+                labels=[f"{p.omega_rad_s:.4f} rad/s" for p in res.fft_peaks]), static=True)
+        else:
+            rec.log(f"/identify/windows/{k}", rr.LineStrips2D(
+                [pts], colors=[[255, 170, 60]],
+                labels=[f"window {k} {result.windows[k].label()}"]), static=True)
     fits = np.array([[m.omega_damped_rad_s / (2 * math.pi), 0.0] for m in result.modes])
     rec.log("/identify/fitted_modes", rr.Points2D(
         fits.reshape(-1, 2), radii=0.03, colors=[[60, 200, 60]],
@@ -95,38 +138,74 @@ def write_spectrum_rrd(run_dir: Path, result: Any) -> Path:
     return path
 
 
+def _window_arg(text: str) -> tuple[float, float | None]:
+    try:
+        start, _, end = text.partition(":")
+        return float(start), (float(end) if end.strip() else None)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected START_S:END_S (END_S may be empty), got {text!r}") from None
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("identify", help="identify vibration modes from the tip accelerometer",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("source", type=Path, help="run directory, run.rrd, or CSV of time,accel")
-    p.add_argument("--start-s", type=float, help="start of the free decay (s)")
-    p.add_argument("--n-modes", type=int, default=2, help="modes to report (default 2)")
+    p.add_argument("--start-s", type=float,
+                   help="one free decay from this time (s) to the end, instead of the run's "
+                        "windows")
+    p.add_argument("--window", type=_window_arg, action="append", metavar="START_S:END_S",
+                   help="a free-decay window (s; END_S empty: to the end of the record); "
+                        "repeat for several, each analysed on its own")
+    p.add_argument("--n-modes", type=int,
+                   help="report the N lowest modes (default: every mode identified)")
     p.add_argument("--f-max-hz", type=float, help="upper edge of the analysed band (Hz)")
     p.add_argument("--json", action="store_true", help="JSON on stdout")
     p.set_defaults(func=cmd_identify)
 
 
+def _windows(args: argparse.Namespace, t: np.ndarray,
+             cfg: dict[str, Any] | None) -> list[AnalysisWindow]:
+    if args.start_s is not None and args.window:
+        raise ValueError("give --start-s or --window, not both")
+    if args.start_s is not None:
+        return [AnalysisWindow(args.start_s)]
+    if args.window:
+        return [AnalysisWindow(s, e) for s, e in args.window]
+    return analysis_windows(cfg) or [AnalysisWindow(float(t[0]))]
+
+
+def _nearest_model_mode(omega: float, truth: dict[str, list[float]]) -> int:
+    return int(np.argmin([abs(math.log(omega / w)) for w in truth["omega_rad_s"]]))
+
+
 def cmd_identify(args: argparse.Namespace) -> int:
     try:
+        if args.n_modes is not None and args.n_modes < 1:
+            raise ValueError(f"--n-modes must be >= 1, got {args.n_modes}")
         t, a, cfg, run_dir = load_record(args.source)
-        start = args.start_s if args.start_s is not None else default_start(cfg)
-        print(f"harness identify: {len(t)} samples, {t[-1] - t[0]:.1f} s, free decay from "
-              f"{start if start is not None else t[0]:.2f} s ...", file=sys.stderr)
-        result = identify(t, a, n_modes=args.n_modes, f_max_hz=args.f_max_hz, start_s=start)
+        windows = _windows(args, t, cfg)
+        print(f"harness identify: {len(t)} samples, {t[-1] - t[0]:.1f} s, free decay"
+              f"{'s' if len(windows) > 1 else ''} "
+              f"{', '.join(w.label() for w in windows)} ...", file=sys.stderr)
+        result = identify_windows(t, a, windows, n_modes=args.n_modes, f_max_hz=args.f_max_hz)
         truth = model_modes(cfg)
     except (ValueError, OSError) as exc:
         print(f"harness identify: {exc}", file=sys.stderr)
         return 2
-    out = result.to_dict()
+    # top-level keys of the long window (fs, fft, fit, ...) as before; modes from all windows
+    out = result.primary.to_dict()
+    out.update(result.to_dict())
     if truth is not None:
         out["model_hub_free"] = truth
-        for i, m in enumerate(out["modes"]):
-            if i < len(truth["omega_rad_s"]):
-                m["model_omega_rad_s"] = truth["omega_rad_s"][i]
-                m["omega_error_percent"] = 100 * (m["omega_rad_s"] / truth["omega_rad_s"][i] - 1)
-                m["model_damping_ratio"] = truth["damping_ratio"][i]
-                m["damping_error_percent"] = 100 * (
-                    m["damping_ratio"] / truth["damping_ratio"][i] - 1)
+        for m in out["modes"]:
+            i = _nearest_model_mode(m["omega_rad_s"], truth)
+            m["model_mode"] = i + 1
+            m["model_omega_rad_s"] = truth["omega_rad_s"][i]
+            m["omega_error_percent"] = 100 * (m["omega_rad_s"] / truth["omega_rad_s"][i] - 1)
+            m["model_damping_ratio"] = truth["damping_ratio"][i]
+            m["damping_error_percent"] = 100 * (
+                m["damping_ratio"] / truth["damping_ratio"][i] - 1)
     out["paper_003_table1_rad_s"] = PAPER_TABLE1
     if run_dir is not None:
         out["spectrum_rrd"] = str(write_spectrum_rrd(run_dir, result))
@@ -136,15 +215,23 @@ def cmd_identify(args: argparse.Namespace) -> int:
     print(f"{'mode':>4} {'fit rad/s':>10} {'+-':>8} {'Hz':>8} {'zeta':>7} {'+-':>7} "
           f"{'FFT rad/s':>10} {'model rad/s':>11} {'model zeta':>10} {'paper meas.':>11} "
           f"{'paper calc.':>11}")
+    nan = float("nan")
     for i, m in enumerate(out["modes"]):
         fft = m.get("fft_peak_omega_rad_s")
+        j = m.get("model_mode", i + 1) - 1
         print(f"{i + 1:>4} {m['omega_rad_s']:>10.4f} {m['sigma_omega_rad_s']:>8.4f} "
               f"{m['freq_hz']:>8.4f} {m['damping_ratio']:>7.4f} {m['sigma_damping']:>7.4f} "
-              f"{fft if fft is not None else float('nan'):>10.4f} "
-              f"{m.get('model_omega_rad_s', float('nan')):>11.4f} "
-              f"{m.get('model_damping_ratio', float('nan')):>10.4f} "
-              f"{PAPER_TABLE1['measured_fft'][i] if i < 2 else float('nan'):>11.4f} "
-              f"{PAPER_TABLE1['calculated'][i] if i < 2 else float('nan'):>11.4f}")
+              f"{fft if fft is not None else nan:>10.4f} "
+              f"{m.get('model_omega_rad_s', nan):>11.4f} "
+              f"{m.get('model_damping_ratio', nan):>10.4f} "
+              f"{PAPER_TABLE1['measured_fft'][j] if j < 2 else nan:>11.4f} "
+              f"{PAPER_TABLE1['calculated'][j] if j < 2 else nan:>11.4f}")
+    if len(windows) > 1:
+        for i, m in enumerate(out["modes"]):
+            src = m["source"]
+            birge = (f" (Birge ratio {src['birge_ratio_omega']:.2f} / "
+                     f"{src['birge_ratio_damping']:.2f})" if src["n_windows"] > 1 else "")
+            print(f"mode {i + 1} from {src['experiment']}{birge}")
     for note in out.get("notes", []):
         print(f"note: {note}")
     return 0

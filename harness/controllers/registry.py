@@ -136,21 +136,37 @@ CONTROLLERS["square_wave"] = (SQUARE_WAVE_SCHEMA, build_square_wave)
 class WheelBursts:
     """Square-wave wheel torque bursts, one after the other (each +-T at a frequency for a
     whole number of cycles, zero mean), then nothing: resonant excitation of chosen modes
-    before a free decay. ``end_s`` is when the excitation stops."""
+    before a free decay. A burst may be followed by ``free_decay_s`` seconds of zero torque
+    before the next one, so that a fast-decaying mode rings down on its own before the
+    slower modes are excited (``harness identify`` analyses each such gap as its own free
+    decay), and repeated (run file ``repeat: N``: N identical bursts, each with its gap).
+    ``end_s`` is when the excitation stops; ``free_intervals`` are the gaps (t0, t1, nominal
+    omega of the burst before)."""
 
     def __init__(self, torque_n_m: float, start_s: float,
-                 bursts: list[tuple[float, int]]) -> None:
+                 bursts: list[tuple[float, int]] | list[tuple[float, int, float]]) -> None:
         self.torque_n_m = torque_n_m
         self.segments: list[tuple[float, float, float]] = []  # (t0, t1, omega)
+        # (t0, t1, nominal omega of the burst before): zero-torque gaps between bursts
+        self.free_intervals: list[tuple[float, float, float]] = []
         t = start_s
-        for omega, cycles in bursts:
-            if not omega > 0 or cycles < 1:
-                raise ValueError(f"bursts: omega_rad_s must be > 0 and cycles >= 1, got "
-                                 f"{omega}, {cycles}")
+        for burst in bursts:
+            omega, cycles = burst[0], burst[1]
+            free_s = float(burst[2]) if len(burst) > 2 else 0.0
+            if not omega > 0 or cycles < 1 or not free_s >= 0:
+                raise ValueError(f"bursts: omega_rad_s must be > 0, cycles >= 1 and "
+                                 f"free_decay_s >= 0, got {omega}, {cycles}, {free_s}")
             dur = cycles * 2 * math.pi / omega
             self.segments.append((t, t + dur, omega))
             t += dur
+            if free_s > 0:
+                self.free_intervals.append((t, t + free_s, omega))
+                t += free_s
+        if self.free_intervals and self.free_intervals[-1][1] == t:
+            # a gap after the last burst is just part of the final free decay
+            t = self.free_intervals.pop()[0]
         self.end_s = t
+        self.last_omega_rad_s = self.segments[-1][2]
 
     def reset(self) -> None:
         pass
@@ -165,15 +181,21 @@ class WheelBursts:
         return RigCommand(wheel_torque_n_m=self.torque(state.time_s))
 
 
-def _bursts(c: dict[str, Any]) -> list[tuple[float, int]]:
+def _bursts(c: dict[str, Any]) -> list[tuple[float, int, float]]:
     raw = c["bursts"]
     if not isinstance(raw, list) or not raw:
-        raise ValueError("bursts: expected a list of {omega_rad_s, cycles}")
+        raise ValueError("bursts: expected a list of {omega_rad_s, cycles[, free_decay_s, repeat]}")
     out = []
     for i, b in enumerate(raw):
-        if not isinstance(b, dict) or set(b) != {"omega_rad_s", "cycles"}:
-            raise ValueError(f"bursts[{i}]: expected {{omega_rad_s: rad/s, cycles: int}}")
-        out.append((float(b["omega_rad_s"]), int(b["cycles"])))
+        if (not isinstance(b, dict) or not {"omega_rad_s", "cycles"} <= set(b)
+                or not set(b) <= {"omega_rad_s", "cycles", "free_decay_s", "repeat"}):
+            raise ValueError(f"bursts[{i}]: expected {{omega_rad_s: rad/s, cycles: int"
+                             f"[, free_decay_s: s][, repeat: int]}}")
+        repeat = int(b.get("repeat", 1))
+        if repeat < 1:
+            raise ValueError(f"bursts[{i}]: repeat must be >= 1, got {repeat}")
+        burst = (float(b["omega_rad_s"]), int(b["cycles"]), float(b.get("free_decay_s", 0.0)))
+        out += [burst] * repeat
     return out
 
 

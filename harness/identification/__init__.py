@@ -2,8 +2,11 @@
 
 Two views: FFT peaks of the free decay (``spectrum``, the paper's view) and a parametric
 sum-of-damped-sinusoids fit with 1-sigma uncertainties (``decay_fit``); ``identify``
-combines them. ``cramer_rao`` gives the lower bound to judge the fit against;
-``csv_input`` reads a time/acceleration CSV.
+combines them on one free decay, ``identify_windows`` on several free-decay windows of one
+record (a fast-decaying mode excited and left to ring down on its own, repeatedly, before
+the slow modes' long free decay: repetitions combined, each mode reported from the windows
+that determine it best; see ``windows``). ``cramer_rao`` gives the lower bound to judge
+the fit against; ``csv_input`` reads a time/acceleration CSV.
 """
 
 from harness.identification.api import IdentificationResult, identify, sample_rate_hz
@@ -31,19 +34,28 @@ from harness.identification.spectrum import (
     amplitude_spectrum,
     find_spectral_peaks,
 )
+from harness.identification.windows import (
+    AnalysisWindow,
+    MultiWindowResult,
+    WindowedMode,
+    identify_windows,
+)
 
 __all__ = [
     "AccelRecord",
+    "AnalysisWindow",
     "CramerRaoBound",
     "DampedMode",
     "DecayFit",
     "DecimationPlan",
     "IdentificationResult",
     "IdentifiedMode",
+    "MultiWindowResult",
     "ModeBound",
     "PencilResult",
     "SpectralPeak",
     "Spectrum",
+    "WindowedMode",
     "amplitude_spectrum",
     "cramer_rao_bound",
     "damped_sinusoid_sum",
@@ -52,6 +64,7 @@ __all__ = [
     "find_spectral_peaks",
     "fit_free_decay",
     "identify",
+    "identify_windows",
     "matrix_pencil",
     "read_accel_csv",
     "sample_rate_hz",

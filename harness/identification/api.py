@@ -11,6 +11,7 @@ The two views are kept side by side:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -156,19 +157,25 @@ def identify(
     n_modes: int | None = None,
     f_max_hz: float | None = None,
     start_s: float | None = None,
+    end_s: float | None = None,
     clip_level_m_s2: float | None = DEFAULT_CLIP_LEVEL_M_S2,
     window: str = "exponential",
     pad_factor: int = 8,
     time_rel_tol: float = 0.05,
+    known_modes: Sequence[tuple[float, float]] = (),
 ) -> IdentificationResult:
     """Identify the modes of the free decay in ``accel`` (m/s^2) sampled at times ``t`` (s).
 
     ``start_s``: start of the free decay (default ``t[0]``); earlier samples (forced part)
-    are ignored, and amplitudes/phases refer to ``start_s``. Samples with
+    are ignored, and amplitudes/phases refer to ``start_s``. ``end_s``: end of the free
+    decay (default: the end of the record); samples at or after it are ignored (a later
+    excitation). ``identify_windows`` analyses several such windows of one record. Samples with
     ``|accel| >= 0.99 clip_level_m_s2`` count as clipped: the analysis starts after the last
     one (``None`` disables the check). ``n_modes``: report the ``n_modes`` lowest-frequency
     modes (all modes found are still fitted together; see ``fit_free_decay``). ``f_max_hz``:
-    upper edge of the analysed band (default from the FFT peaks).
+    upper edge of the analysed band (default from the FFT peaks). ``known_modes``:
+    (omega_rad_s, damping_ratio) of modes identified elsewhere, held in the fit if this
+    record does not show them (see ``fit_free_decay``).
     """
     t = np.asarray(t, dtype=float)
     a = np.asarray(accel, dtype=float)
@@ -196,8 +203,12 @@ def identify(
         raise ValueError(
             f"start_s must lie within the record [{t[0]:g}, {t[-1]:g}) s, got {start_s!r}"
         )
+    if end_s is not None and not end_s > start_s:
+        raise ValueError(f"end_s must be after start_s = {start_s:g} s, got {end_s!r}")
     notes: list[str] = []
     i0 = int(np.searchsorted(t, start_s - 1e-6 * dt))
+    i1 = t.size if end_s is None else int(np.searchsorted(t, end_s - 1e-6 * dt))
+    t, a = t[:i1], a[:i1]
     n_clipped = 0
     if clip_level_m_s2 is not None:
         clipped = np.flatnonzero(np.abs(a[i0:]) >= CLIP_FRACTION * clip_level_m_s2)
@@ -213,12 +224,14 @@ def identify(
     if t.size - i0 < MIN_DECAY_SAMPLES:
         raise ValueError(
             f"only {max(t.size - i0, 0)} samples remain after start_s = {start_s:g} s "
-            f"(and clipping); need at least {MIN_DECAY_SAMPLES}"
+            f"(and clipping{'' if end_s is None else f', before end_s = {end_s:g} s'}); "
+            f"need at least {MIN_DECAY_SAMPLES}"
         )
     x = a[i0:]
     tau0 = float(t[i0] - start_s)
     spec = amplitude_spectrum(x, fs, window=window, pad_factor=pad_factor)
-    fit = fit_free_decay(x, fs, tau0_s=tau0, n_modes=n_modes, f_max_hz=f_max_hz, spectrum=spec)
+    fit = fit_free_decay(x, fs, tau0_s=tau0, n_modes=n_modes, f_max_hz=f_max_hz, spectrum=spec,
+                         known_modes=known_modes)
     notes.extend(fit.notes)
     return IdentificationResult(
         modes=fit.modes if n_modes is None else fit.modes[:n_modes],

@@ -28,7 +28,11 @@ Steps (``fit_free_decay``):
    real, growing (zeta < -0.02), overdamped (zeta > ``zeta_max``), in the filter's stop band
    or too weak to be told from noise are discarded.
 3. Nonlinear least squares (``scipy.optimize.least_squares``, trust-region reflective)
-   over (w, zeta, A, phi) per mode plus the offset, with an analytic Jacobian.
+   over (w, zeta, A, phi) per mode plus the offset, with an analytic Jacobian. Modes known
+   from another record (``known_modes``, e.g. another free-decay window of the same run)
+   that the pencil does not find here are added with w and zeta held, (A, phi) fitted, so
+   that a leftover below this record's detection threshold does not bias the others; they
+   are reported apart (``DecayFit.fixed_modes``).
 4. 1-sigma uncertainties from the Jacobian and the residual variance. The FIR colours the
    noise, so the covariance is the sandwich ``B^-1 (J^T R J) B^-1``, ``B = J^T J``, with
    ``R`` the known autocorrelation of the filter (white noise assumed at the raw rate).
@@ -36,6 +40,7 @@ Steps (``fit_free_decay``):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -51,6 +56,7 @@ from harness.identification.spectrum import (
 )
 
 N_MODE_PARAMS = 4  # (omega_rad_s, damping_ratio, amplitude, phase_rad) per mode
+KNOWN_MATCH_REL = 0.03  # a known mode counts as found if a pencil mode lies this close
 RATE_FACTOR = 16.0  # decimated sample rate >= RATE_FACTOR x f_max_hz
 
 
@@ -144,6 +150,9 @@ class DecayFit:
     success: bool
     message: str
     notes: list[str] = field(default_factory=list)
+    # ``known_modes`` added with frequency and damping held (their sigmas are 0); not in
+    # ``modes``, ``covariance`` or the mode count, but in the fitted model and residual
+    fixed_modes: list[IdentifiedMode] = field(default_factory=list)
 
 
 # ----------------------------------------------------------------------------- model
@@ -334,6 +343,26 @@ def auto_f_max_hz(peaks: list[SpectralPeak], fs_hz: float, resolution_hz: float)
     return float(min(max(1.5 * top, 10.0 * resolution_hz), 0.45 * fs_hz))
 
 
+def _fixed_mode_amplitudes(
+    fixed: list[tuple[float, float]],
+    cands: list[tuple[float, float, complex, float]],
+    tau: np.ndarray,
+    y: np.ndarray,
+    plan: DecimationPlan,
+) -> list[complex]:
+    """Start complex amplitudes (at tau = 0, raw signal) of the held modes: linear least
+    squares of ``y`` on the held and the pencil's modes plus an offset."""
+    if not fixed:
+        return []
+    cols = [np.ones(tau.size)]
+    for omega, zeta in [*fixed, *((c[0], min(max(c[1], 1e-4), 0.95)) for c in cands)]:
+        s = mode_pole(omega, zeta)
+        g = plan.response(s)[0] * np.exp(s * tau)
+        cols += [g.real, -g.imag]
+    coef = lstsq(np.column_stack(cols), y)[0]
+    return [complex(coef[1 + 2 * k], coef[2 + 2 * k]) for k in range(len(fixed))]
+
+
 def fit_free_decay(
     x: np.ndarray,
     fs_hz: float,
@@ -344,6 +373,7 @@ def fit_free_decay(
     spectrum: Spectrum | None = None,
     zeta_max: float = 0.5,
     min_energy_snr: float = 50.0,
+    known_modes: Sequence[tuple[float, float]] = (),
 ) -> DecayFit:
     """Fit a free decay ``x`` (uniformly sampled at ``fs_hz``; ``x[0]`` at ``tau0_s`` seconds
     after the start of the decay, to which amplitudes and phases refer).
@@ -352,7 +382,11 @@ def fit_free_decay(
     band is fitted (leaving one out would bias the others). ``n_modes``: at least this many
     modes are fitted; if the pencil finds fewer, start values are completed from FFT peaks.
     ``f_max_hz`` None: 1.5 x the highest significant FFT peak (of the ``n_modes`` lowest,
-    if given).
+    if given). ``known_modes``: (omega_rad_s, damping_ratio) of modes identified in another
+    record of the same structure; each one below the stop band that the pencil does not find
+    here (none within ``KNOWN_MATCH_REL``) is added to the model with frequency and damping
+    held, only amplitude and phase fitted, and is left out of ``modes`` (``fixed_modes``):
+    a leftover too weak to be identified here would otherwise bias the modes that are.
     """
     x = np.asarray(x, dtype=float)
     if x.ndim != 1 or x.size < 32:
@@ -402,30 +436,60 @@ def fit_free_decay(
     if not cands:
         raise ValueError("no physical mode found in the record (is it a free decay above noise?)")
 
+    # Known modes (from another record) that the pencil did not find here: fitted with
+    # frequency and damping held, amplitude and phase free (start values by linear LS).
+    fixed: list[tuple[float, float]] = []
+    for omega_k, zeta_k in known_modes:
+        if not (omega_k > 0 and 0.0 <= zeta_k < 1.0):
+            raise ValueError(f"known_modes: need omega > 0 and 0 <= zeta < 1, got "
+                             f"({omega_k!r}, {zeta_k!r})")
+        if omega_k >= 2.0 * np.pi * plan.f_stop_hz:
+            continue  # the decimation filter removes it
+        if any(abs(c[0] - omega_k) <= KNOWN_MATCH_REL * omega_k for c in cands):
+            continue  # found here: fitted freely
+        if any(abs(f[0] - omega_k) <= KNOWN_MATCH_REL * omega_k for f in fixed):
+            continue
+        fixed.append((float(omega_k), float(zeta_k)))
+    fixed_amps = _fixed_mode_amplitudes(fixed, cands, tau, y, plan)
+
     # Start values: complex amplitudes refer to y[0]; move them to tau = 0, remove H(s).
     x0 = [float(np.median(y[-max(y.size // 5, 1) :]))]
-    for omega, zeta, c, _ in sorted(cands, key=lambda m: m[0]):
-        zeta0 = min(max(zeta, 1e-4), zeta_max)
+    entries = [(c[0], c[1], c[2], False) for c in cands]
+    entries += [(w, z, c, True) for (w, z), c in zip(fixed, fixed_amps, strict=True)]
+    entries.sort(key=lambda m: m[0])
+    is_fixed = [e[3] for e in entries]
+    for omega, zeta, c, held in entries:
+        zeta0 = zeta if held else min(max(zeta, 1e-4), zeta_max)
         s = mode_pole(omega, zeta0)
         h, _ = plan.response(s)
-        c0 = c / (h * np.exp(s * tau[0]))
+        c0 = c if held else c / (h * np.exp(s * tau[0]))
         x0 += [omega, zeta0, abs(c0), float(np.angle(c0))]
     x0_arr = np.asarray(x0)
     n_fit = (x0_arr.size - 1) // N_MODE_PARAMS
+    free = np.ones(x0_arr.size, dtype=bool)
+    for k, held in enumerate(is_fixed):
+        if held:
+            free[1 + N_MODE_PARAMS * k : 3 + N_MODE_PARAMS * k] = False  # omega, zeta
     w_hi = 2.0 * np.pi * plan.f_stop_hz
-    lower = [-np.inf] + [0.0, -0.2, -np.inf, -np.inf] * n_fit
-    upper = [np.inf] + [w_hi, 0.95, np.inf, np.inf] * n_fit
-    x0_arr = np.clip(x0_arr, np.asarray(lower) + 1e-9, np.asarray(upper) - 1e-9)
+    lower = np.asarray([-np.inf] + [0.0, -0.2, -np.inf, -np.inf] * n_fit)[free]
+    upper = np.asarray([np.inf] + [w_hi, 0.95, np.inf, np.inf] * n_fit)[free]
+    template = x0_arr.copy()
+    x0_free = np.clip(x0_arr[free], lower + 1e-9, upper - 1e-9)
 
-    def residual(p: np.ndarray) -> np.ndarray:
-        return damped_sinusoid_sum(tau, p, plan)[0] - y
+    def full(pf: np.ndarray) -> np.ndarray:
+        q = template.copy()
+        q[free] = pf
+        return q
 
-    def jacobian(p: np.ndarray) -> np.ndarray:
-        return damped_sinusoid_sum(tau, p, plan)[1]
+    def residual(pf: np.ndarray) -> np.ndarray:
+        return damped_sinusoid_sum(tau, full(pf), plan)[0] - y
+
+    def jacobian(pf: np.ndarray) -> np.ndarray:
+        return damped_sinusoid_sum(tau, full(pf), plan)[1][:, free]
 
     sol = least_squares(
         residual,
-        x0_arr,
+        x0_free,
         jac=jacobian,
         bounds=(lower, upper),
         method="trf",
@@ -435,9 +499,11 @@ def fit_free_decay(
         gtol=1e-10,
         max_nfev=500,
     )
-    p = sol.x.copy()
+    p = full(sol.x)
     res = sol.fun
-    cov, noise_rms = _sandwich_covariance(sol.jac, res, plan)
+    cov_free, noise_rms = _sandwich_covariance(sol.jac, res, plan)
+    cov = np.zeros((p.size, p.size))
+    cov[np.ix_(free, free)] = cov_free
 
     # Normalise signs (A > 0, phase in (-pi, pi]) and sort by frequency.
     for k in range(n_fit):
@@ -450,24 +516,28 @@ def fit_free_decay(
     perm = [0] + [1 + N_MODE_PARAMS * int(k) + j for k in order for j in range(N_MODE_PARAMS)]
     p = p[perm]
     cov = cov[np.ix_(perm, perm)]
+    is_fixed = [is_fixed[int(k)] for k in order]
     sig = np.sqrt(np.maximum(np.diag(cov), 0.0))
     modes = []
+    fixed_modes = []
     for k in range(n_fit):
         i = 1 + N_MODE_PARAMS * k
         omega, zeta, amp, phase = p[i : i + N_MODE_PARAMS]
-        modes.append(
-            IdentifiedMode(
-                omega_rad_s=float(omega),
-                freq_hz=float(omega / (2.0 * np.pi)),
-                damping_ratio=float(zeta),
-                amplitude=float(amp),
-                phase_rad=float(phase),
-                sigma_omega_rad_s=float(sig[i]),
-                sigma_damping=float(sig[i + 1]),
-                sigma_amplitude=float(sig[i + 2]),
-                sigma_phase_rad=float(sig[i + 3]),
-            )
+        mode = IdentifiedMode(
+            omega_rad_s=float(omega),
+            freq_hz=float(omega / (2.0 * np.pi)),
+            damping_ratio=float(zeta),
+            amplitude=float(amp),
+            phase_rad=float(phase),
+            sigma_omega_rad_s=float(sig[i]),
+            sigma_damping=float(sig[i + 1]),
+            sigma_amplitude=float(sig[i + 2]),
+            sigma_phase_rad=float(sig[i + 3]),
         )
+        if is_fixed[k]:
+            fixed_modes.append(mode)
+            continue
+        modes.append(mode)
         if zeta <= 0.0:
             notes.append(f"mode at {omega:.4g} rad/s has non-positive damping {zeta:.3g}")
         if omega / (2.0 * np.pi) > f_max_hz:
@@ -476,6 +546,15 @@ def fit_free_decay(
                 f"mode at {omega:.4g} rad/s lies above f_max_hz = {f_max_hz:.4g} Hz, in the "
                 f"decimation filter's transition band (gain {gain:.3g}, corrected)"
             )
+    if fixed_modes:
+        notes.append(
+            "held at known frequency and damping (amplitude fitted): "
+            + ", ".join(f"{m.omega_rad_s:.4g} rad/s ({m.amplitude:.2g} m/s^2)"
+                        for m in fixed_modes))
+    # covariance of the offset and the reported modes only
+    keep = [0] + [1 + N_MODE_PARAMS * k + j for k in range(n_fit) if not is_fixed[k]
+                  for j in range(N_MODE_PARAMS)]
+    cov = cov[np.ix_(keep, keep)]
     raw_start = int(idx[0])
     tau_raw = tau0_s + np.arange(raw_start, x.size) * dt
     raw_res = x[raw_start:] - damped_sinusoid_sum(tau_raw, p)[0]
@@ -499,4 +578,5 @@ def fit_free_decay(
         success=bool(sol.success),
         message=str(sol.message),
         notes=notes,
+        fixed_modes=fixed_modes,
     )
