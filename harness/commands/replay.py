@@ -62,6 +62,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_replay)
 
 
+def _stage(text: str) -> None:
+    print(f"harness replay: {text} ...", file=sys.stderr, flush=True)
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     path: Path = args.path
     result: CheckResult | None = None
@@ -73,6 +77,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             if args.rig or args.rate_hz:
                 print("harness replay: --rig/--rate-hz ignored: the run directory's "
                       "config.yaml gives its rig and rate", file=sys.stderr)
+            _stage(f"reading and replaying {path / 'can.blf'}")
             replay = replay_log(path / "can.blf", run.rig, run.dt_s)
             rig_name = run.rig.name
         else:
@@ -82,16 +87,19 @@ def cmd_replay(args: argparse.Namespace) -> int:
             if args.rate_hz is not None and not args.rate_hz > 0:
                 raise ReplayError(f"--rate-hz: expected a number > 0 (Hz), got {args.rate_hz}")
             rig = load_rig(args.rig or "sgsrt")
+            _stage(f"reading and replaying {path}")
             replay = replay_log(path, rig, 1.0 / (args.rate_hz or 500.0))
             rig_name = rig.name
         if not replay.ticks:
             raise ReplayError(f"{replay.source}: no SYNC frame (0x080): not a log of a "
                               "harness run")
         if args.check:
+            _stage(f"checking the controller on {len(replay.ticks)} ticks")
             result = check_replay(replay, run, dry_run=bool(summary.get("dry_run", False)))
             result.stopped_by = summary.get("stopped_by")
             result.summary_ticks = summary.get("ticks")
         if args.rrd is not None:
+            _stage(f"writing {args.rrd}")
             write_rrd(replay, args.rrd)
     except (ReplayError, ConfigError, OSError) as exc:
         print(f"harness replay: {exc}", file=sys.stderr)
