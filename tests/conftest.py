@@ -19,3 +19,13 @@ def slew_result(tmp_path_factory):
     """One full slew-rw run on the in-process virtual rig, shared by several tests."""
     out = tmp_path_factory.mktemp("logs")
     return execute_run(load_run("slew-rw"), out_dir=Path(out), show_progress=False)
+
+
+@pytest.fixture(scope="session")
+def free_decay_run(tmp_path_factory):
+    """One full free-decay run (70 s simulated, accelerometer noise on), shared by the
+    identification tests and the shaped-rig study's identification test."""
+    out = tmp_path_factory.mktemp("free_decay")
+    res = execute_run(load_run("free-decay"), out_dir=Path(out), show_progress=False)
+    assert res.run_dir.exists()
+    return res

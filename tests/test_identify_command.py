@@ -9,16 +9,11 @@ import sys
 import numpy as np
 import pytest
 
-from harness.runs import load_run
-from harness.session import execute_run
 
-
-@pytest.fixture(scope="module")
-def free_decay(tmp_path_factory):
-    out = tmp_path_factory.mktemp("fd")
-    res = execute_run(load_run("free-decay"), out_dir=out, show_progress=False)
-    assert res.run_dir.exists()
-    return res
+@pytest.fixture
+def free_decay(free_decay_run):
+    """The session's free-decay run (tests/conftest.py)."""
+    return free_decay_run
 
 
 def identify_json(*args):

@@ -5,7 +5,10 @@ Profiles, in units of the valves' couple T (``thruster_valves.couple_n_m``):
 * ``bang_bang``: +T for tau, -T for tau, tau = sqrt(theta J / T) rounded to whole ticks.
 * ``lhhl`` / ``hllh``: the eight-switch sequences of ``harness.shaping.two_amplitude`` (low
   level T/2), the shortest meeting V(w_k) <= ``vmax_percent`` at every mode the run file
-  gives (identified from a free decay), against the bang-bang of the same angle.
+  gives (identified from a free decay), against the bang-bang of the same angle;
+  ``design_modes: N`` constrains only the first N of them (listed by frequency: the rest
+  stay listed for the residual analysis; docs/shaped_rig.md says why the rig's third mode
+  is not designed for).
   ``design: paper`` is the paper's design as published: undamped modes (eq 9), symmetric
   switch times (eq 7), solved by ``design_two_amplitude``. ``design: damped`` (default) keeps
   the amplitude pattern but lets the seven gaps between switches vary freely and requires the
@@ -384,6 +387,7 @@ THRUSTER_TWO_LEVEL_SCHEMA = {
     "vmax_percent": Field("number", "%", default=1.0, exclusive_minimum=0.0),
     "design": Field("str", default="damped", choices=DESIGNS),
     "pwm_period_s": Field("number", "s", default=0.02, exclusive_minimum=0.0),
+    "design_modes": Field("int", default=None, minimum=1),
     "n_starts": Field("int", default=128, minimum=1),
     "seed": Field("int", default=0, minimum=0),
 }
@@ -395,6 +399,10 @@ def build_thruster_two_level(c: dict[str, Any], rig: RigConfig,
     modes: tuple[Mode, ...] = ()
     if c["profile"] != "bang_bang" or c["modes"] is not None:
         modes = parse_modes(c["modes"])
+    if c["design_modes"] is not None:
+        if c["design_modes"] > len(modes):
+            raise ValueError(f"design_modes {c['design_modes']}: only {len(modes)} modes given")
+        modes = modes[: c["design_modes"]]
     inertia = rig.plant.inertia_kg_m2
     design = design_profile(c["profile"], angle_rad=math.radians(c["angle_deg"]),
                             inertia_kg_m2=inertia, torque_n_m=tv["couple_n_m"], modes=modes,

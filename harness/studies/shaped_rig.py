@@ -3,8 +3,10 @@
 Every slew is a built-in run file (``harness/runs/slew-rw-*.yaml``,
 ``slew-thruster-*.yaml``) executed through the harness (``execute_run``: CAN bus, drivers,
 virtual rig, recording). The shapers are designed with the modes in the run files, which
-were identified from a free decay with ``harness identify`` (``--identify`` repeats that now
-and designs with the fresh numbers instead).
+were identified from a free decay with ``harness identify`` (``--identify`` repeats that now,
+the same way: ``free-decay``'s windows from its burst schedule, ``identify_windows``, and
+designs with the fresh numbers instead). The wheel shapers use all three identified modes;
+the thruster runs list all three but design for the first two (``design_modes``).
 
 Residual vibration, one definition for every run: the tip acceleration over the window
 ``[end + 0.1 s, end + 0.1 s + W]``, ``end`` being the end of that run's own manoeuvre (every
@@ -16,8 +18,9 @@ duration is set so the run ends at the window's end, so the summary's
 * ``measured``: peak and rms of the recorded accelerometer signal. Its noise (0.005 m/s^2
   rms, 0.02 m/s^2 peaks over 6 s) floors both, well above what a shaped slew leaves.
 * ``fitted``: a least-squares fit of the identified modes' free decay (damped sinusoids at
-  their frequency and damping, plus an offset) to the recorded signal over the window; the
-  peak of the fitted vibration. Noise averages out over the ~3000 samples (``sigma``: the
+  their frequency and damping, one per mode in the run file, plus an offset) to the recorded
+  signal over the window; the peak of the fitted vibration, and each mode's amplitude at the
+  window's start. Noise averages out over the ~3000 samples (``sigma``: the
   fit's 1-sigma uncertainty of that signal at its worst point). This is what the lab rig
   would measure; the Done-when ratios use it.
 * ``truth``: the noise-free tip acceleration of the virtual rig's own state (its final state
@@ -39,6 +42,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from harness.controllers.shaped_wheel_slew import Mode, parse_modes
+from harness.controllers.thruster_two_level import damped_residual_percent
 from harness.runs import RunConfig, build_controller, load_run
 from harness.session import execute_run
 
@@ -88,8 +92,9 @@ def fit_modal_residual(t: np.ndarray, accel: np.ndarray, modes: Sequence[Mode],
     """Least-squares fit of the modes' free decay to ``accel`` over t >= t0 (pure).
 
     Model: c + sum_k exp(-zeta w tau) (a_k cos(w_d tau) + b_k sin(w_d tau)), tau = t - t0.
-    Returns the peak and rms of the fitted modal part, its worst 1-sigma uncertainty and the
-    rms of what the fit leaves (the noise)."""
+    Returns the peak and rms of the fitted modal part, its worst 1-sigma uncertainty, the
+    rms of what the fit leaves (the noise) and, per mode, its amplitude at t0 (the envelope
+    sqrt(a_k^2 + b_k^2)) with its 1-sigma (first order)."""
     t = np.asarray(t, dtype=float)
     a = np.asarray(accel, dtype=float)
     sel = t >= t0_s - 1e-9
@@ -109,10 +114,19 @@ def fit_modal_residual(t: np.ndarray, accel: np.ndarray, modes: Sequence[Mode],
     xm = x[:, 1:]
     modal = xm @ coef[1:]
     var = np.einsum("ij,jk,ik->i", xm, cov[1:, 1:], xm)
+    by_mode = []
+    for k in range(len(modes)):
+        i = 1 + 2 * k
+        ab = coef[i:i + 2]
+        amp = float(np.hypot(*ab))
+        grad = ab / amp if amp > 0 else np.array([1.0, 0.0]) / math.sqrt(2)
+        by_mode.append({"amplitude_m_s2": amp,
+                        "sigma_m_s2": float(np.sqrt(grad @ cov[i:i + 2, i:i + 2] @ grad))})
     return {"peak_m_s2": float(np.max(np.abs(modal))),
             "rms_m_s2": float(np.sqrt(np.mean(modal**2))),
             "sigma_m_s2": float(np.sqrt(np.max(var))),
-            "noise_rms_m_s2": float(np.sqrt(float(left @ left) / dof))}
+            "noise_rms_m_s2": float(np.sqrt(float(left @ left) / dof)),
+            "by_mode_at_start": by_mode}
 
 
 def true_residual(rig: Any, t0_s: float) -> dict[str, float]:
@@ -207,9 +221,19 @@ def measure(slew: Slew, out_dir: Path, modes: Sequence[Mode] | None = None,
         d = controller.design
         couple = run.rig.section("thruster_valves")["couple_n_m"]
         on_time = float(rec.column("/thrusters/on_time_s")[-1])
+        tau = d.bang_bang_duration_s / 2
+        steps = np.diff(np.r_[0.0, controller.directions.astype(float), 0.0])
+        k = np.flatnonzero(steps)
         row.update({
             "design": d.design,
+            "design_modes": [[m.omega_rad_s, m.damping_ratio] for m in d.modes],
             "design_residual_percent": list(d.damped_residual_percent),
+            # V_d at every mode of the analysis (designed for or not), of the design's switch
+            # times and of the valve schedule actually sent (ticks, PWM half couple)
+            "analysis_residual_percent": damped_residual_percent(
+                d.times_s, d.amplitudes, analysis_modes, tau).tolist(),
+            "realised_residual_percent": damped_residual_percent(
+                k * run.dt_s, steps[k], analysis_modes, tau).tolist(),
             "design_undamped_residual_percent": list(d.undamped_residual_percent),
             "design_t8_s": d.t8_s,
             "design_search": {"starts": d.n_starts, "feasible": d.n_feasible,
@@ -222,21 +246,29 @@ def measure(slew: Slew, out_dir: Path, modes: Sequence[Mode] | None = None,
     return row
 
 
-def identify_modes(out_dir: Path, n_modes: int = 2) -> tuple[tuple[Mode, ...], dict[str, Any]]:
-    """Run ``free-decay`` through the harness and fit its modes (``harness identify``)."""
-    from harness.commands.identify import default_start
-    from harness.identification import identify
+def identify_modes(out_dir: Path, n_modes: int | None = None,
+                   free_decay: Any = None) -> tuple[tuple[Mode, ...], dict[str, Any]]:
+    """Run ``free-decay`` through the harness (or take ``free_decay``, the result of such a
+    run) and identify its modes as ``harness identify RUN_DIR`` does: every free-decay
+    window of the run's burst schedule (``analysis_windows``), ``identify_windows``.
+    ``n_modes``: the lowest N (default: every mode identified)."""
+    from harness.commands.identify import analysis_windows, load_record
+    from harness.identification.windows import identify_windows
 
-    run = load_run("free-decay")
-    result = execute_run(run, out_dir=out_dir, show_progress=False)
-    rec = result.recorder
-    t, a = rec.time_s[: rec.rows], rec.column("/tip/accel_m_s2")
-    ident = identify(t, a, n_modes=n_modes, start_s=default_start(run.resolved()))
+    if free_decay is None:
+        free_decay = execute_run(load_run("free-decay"), out_dir=out_dir, show_progress=False)
+    # the recording and config.yaml of the run directory, read as `harness identify` reads them
+    t, a, cfg, _ = load_record(Path(free_decay.run_dir))
+    windows = analysis_windows(cfg)
+    if windows is None:
+        raise ValueError(f"{free_decay.run_dir}: not a free-decay run (no free-decay windows)")
+    ident = identify_windows(t, a, windows, n_modes=n_modes)
     modes = tuple(Mode(m.omega_rad_s, m.damping_ratio) for m in ident.modes)
-    info = {"run_dir": str(result.run_dir), "modes": [
+    info = {"run_dir": str(free_decay.run_dir), "modes": [
         {"omega_rad_s": m.omega_rad_s, "sigma_omega_rad_s": m.sigma_omega_rad_s,
-         "damping_ratio": m.damping_ratio, "sigma_damping": m.sigma_damping}
-        for m in ident.modes]}
+         "damping_ratio": m.damping_ratio, "sigma_damping": m.sigma_damping,
+         "source": ident.experiment_label(m.experiment)}
+        for m in ident.modes], "notes": list(ident.notes)}
     return modes, info
 
 
@@ -357,19 +389,25 @@ def format_tables(results: dict[str, Any]) -> str:
         lines.append("")
         bb = th["bang-bang"]
         rel = results["paper_parman2022_relative"]
-        lines.append("| slew | design V_d mode 1 / 2 (%) | firings | valve on-time (s) | impulse "
-                     "(N m s) | impulse / bang-bang | duration / bang-bang | paper impulse / "
-                     "bang-bang (roll, yaw) | paper duration / bang-bang (roll, yaw) |")
-        lines.append("|---|---|---|---|---|---|---|---|---|")
+        n_modes = len(bb["analysis_residual_percent"])
+        per_mode = " / ".join(str(i + 1) for i in range(n_modes))
+        lines.append(f"| slew | modes designed for | V_d mode {per_mode} (%), design | V_d on the "
+                     "valves (%) | firings | valve on-time (s) | impulse (N m s) | impulse / "
+                     "bang-bang | duration / bang-bang | paper impulse / bang-bang (roll, yaw) "
+                     "| paper duration / bang-bang (roll, yaw) |")
+        lines.append("|---|---|---|---|---|---|---|---|---|---|---|")
         for key, r in th.items():
             kind = key.split("-")[0].upper()
             paper = rel.get(kind)
             pi = "" if paper is None else f"{paper['impulse'][0]:.2f}, {paper['impulse'][1]:.2f}"
             pd = "" if paper is None else (f"{paper['duration'][0]:.2f}, "
                                            f"{paper['duration'][1]:.2f}")
-            vd = " / ".join(f"{v:.2f}" for v in r["design_residual_percent"])
+            vd = " / ".join(f"{v:.3g}" for v in r["analysis_residual_percent"])
+            vr = " / ".join(f"{v:.3g}" for v in r["realised_residual_percent"])
+            designed = len(r["design_modes"]) if r["design"] != "bang-bang" else "-"
             lines.append(
-                f"| {r['label']} | {vd} | {r['firings']} | {r['valve_on_time_s']:.3f} | "
+                f"| {r['label']} | {designed} | {vd} | {vr} | {r['firings']} | "
+                f"{r['valve_on_time_s']:.3f} | "
                 f"{r['impulse_n_m_s']:.4f} | {r['impulse_n_m_s'] / bb['impulse_n_m_s']:.2f} | "
                 f"{r['manoeuvre_s'] / bb['manoeuvre_s']:.2f} | {pi} | {pd} |")
         lines.append("")
