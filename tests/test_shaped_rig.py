@@ -131,6 +131,17 @@ def test_pwm_half_couple_keeps_the_impulse_and_the_minimum_on_time():
     assert use["firings"] == 51 and use["on_time_s"] == pytest.approx((250 + 250) * DT)
 
 
+@pytest.mark.parametrize("n_ticks", [101, 123, 150, 177, 231])
+def test_pwm_half_couple_keeps_the_segments_time_centroid(n_ticks):
+    """Leftover ticks (on-ticks not a multiple of the pulses) are spread symmetrically: the
+    half-couple segment's time centroid stays within half a tick of the segment's middle
+    (with them all on the first pulses it moved by up to half a pulse period)."""
+    d = valve_schedule([0.0, n_ticks * DT], [0.5, -0.5], DT, 0.01, 0.02)
+    on = np.flatnonzero(d) + 0.5  # tick k is on over [k, k + 1)
+    assert len(on) == round(n_ticks / 2)
+    assert on.mean() == pytest.approx(n_ticks / 2, abs=0.5)
+
+
 def test_valve_schedule_refuses_what_the_valves_cannot_do():
     with pytest.raises(ValueError, match="pwm_period_s"):
         valve_schedule([0.0, 1.0], [0.5, -0.5], DT, 0.01, 0.015)

@@ -339,7 +339,10 @@ def valve_schedule(times_s: Sequence[float], amplitudes: Sequence[float], dt_s: 
             raise ValueError(f"a half-couple segment of {n * dt_s:.4f} s is too short for "
                              f"one {min_on_s} s valve pulse")
         widths = np.full(n_pulses, n_on // n_pulses)
-        widths[: n_on - widths.sum()] += 1
+        extra = n_on - int(widths.sum())
+        # the leftover ticks go to pulses spread symmetrically over the segment (all at the
+        # front would move its time centroid by up to half a pulse period)
+        widths[((np.arange(extra) + 0.5) * n_pulses / max(extra, 1)).astype(int)] += 1
         for j, w in enumerate(widths):
             centre = k0 + (j + 0.5) * n / n_pulses
             start = int(math.floor(centre - w / 2 + 0.5))
