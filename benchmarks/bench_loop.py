@@ -31,13 +31,32 @@ from harness.session import execute_run
 from rig_models.rig_file import load_rig
 
 
+def _stock_virtual_bus(spec, receive_own_messages: bool = False):  # noqa: ANN001, ANN202
+    """python-can's own VirtualBus (deepcopy per frame, queue.Queue), for comparison."""
+    from can.interfaces.virtual import VirtualBus
+
+    return VirtualBus(channel=spec.channel, receive_own_messages=receive_own_messages)
+
+
 def bench_lockstep(repeats: int, out: Path) -> dict[str, float]:
-    factors = []
+    """Our bus and python-can's stock VirtualBus, interleaved run by run so that the ratio is
+    measured under the same machine load."""
+    import harness.session as session
+
+    ours: list[float] = []
+    stock: list[float] = []
+    own_open_bus = session.open_bus
     for _ in range(repeats):
-        res = execute_run(load_run("slew-rw"), out_dir=out, show_progress=False)
-        factors.append(res.summary["real_time_factor"])
-    return {"median": float(np.median(factors)), "min": float(np.min(factors)),
-            "max": float(np.max(factors))}
+        for factors, opener in ((ours, own_open_bus), (stock, _stock_virtual_bus)):
+            session.open_bus = opener
+            try:
+                res = execute_run(load_run("slew-rw"), out_dir=out, show_progress=False)
+            finally:
+                session.open_bus = own_open_bus
+            factors.append(res.summary["real_time_factor"])
+    return {"median": float(np.median(ours)), "min": float(np.min(ours)),
+            "max": float(np.max(ours)), "stock_median": float(np.median(stock)),
+            "ours_over_stock": float(np.median(np.array(ours) / np.array(stock)))}
 
 
 def _free_port() -> int:
@@ -132,6 +151,8 @@ def main() -> int:
     print(f"| lockstep real-time factor, slew-rw at 500 Hz, full CAN path (median of "
           f"{args.repeats}) | {lock['median']:.1f}x (min {lock['min']:.1f}, max "
           f"{lock['max']:.1f}) |")
+    print(f"| same, on python-can's stock VirtualBus (interleaved runs) | "
+          f"{lock['stock_median']:.1f}x; ours / stock {lock['ours_over_stock']:.2f} |")
     print(f"| real time 500 Hz, {args.realtime_s:g} s, rig in own process: lateness p50 / p99 / "
           f"max | {lat['p50']:.3f} / {lat['p99']:.3f} / {lat['max']:.3f} ms |")
     print(f"| real time: overruns / ticks, late telemetry frames | {rt['overruns']} / "
