@@ -31,6 +31,11 @@ class CanLog:
         self._pending.append(msg)
         self.frames += 1
 
+    @property
+    def pending(self) -> int:
+        """Frames queued and not yet handed to the writer."""
+        return len(self._pending)
+
     def drain(self) -> int:
         """Write the queued frames through python-can's BLF writer; returns how many."""
         pending, self._pending = self._pending, []

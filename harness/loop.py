@@ -68,6 +68,11 @@ class LoopStats:
                 "max": float(a.max())}
 
 
+CAN_LOG_MAX_PENDING = 20_000
+"""Frames the CAN log may queue in real time before it is written regardless (about 3 s of
+the rig's traffic at 500 Hz)."""
+
+
 def run_loop(
     interface: RigInterface,
     controller: object,
@@ -154,6 +159,8 @@ def run_loop(
                     recorder.drain(1)
                     if can_log is not None:
                         can_log.drain()
+                elif can_log is not None and can_log.pending > CAN_LOG_MAX_PENDING:
+                    can_log.drain()  # a loop that never has time left still bounds memory
             else:
                 recorder.drain()
                 if can_log is not None and tick % 50 == 0:
