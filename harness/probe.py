@@ -1,0 +1,128 @@
+"""Pre-flight check of the rig's bus: does every device answer its SYNCs, correctly?
+
+The probe never arms the rig: the heartbeat goes out with ``armed = 0`` and no command frame
+is sent (a ``RigInterface`` in dry-run mode), so the devices stay in their safe state while
+it listens. Each tick it sends SYNC and reads the telemetry through the harness's own
+drivers, then counts per device: frames received, SYNCs due (its ``sync_divider``), SYNCs
+it did not answer within the tick, malformed frames and sequence errors, and keeps the last
+decoded values. Unknown ids and error frames on the bus are counted too.
+
+Pure logic, no printing: ``harness probe`` is the command.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import can
+
+from drivers.dbc import load_protocol
+from harness.clock import LockstepClock, RealTimeClock
+from harness.rig_interface import RigInterface
+from rig_models.rig_file import RigConfig
+
+HEARTBEAT_HZ = 20.0
+
+
+@dataclass
+class DeviceReport:
+    device: str
+    frame: str
+    frame_id: int
+    sync_divider: int
+    due: int
+    """SYNCs this device should have answered."""
+    received: int
+    missing: int
+    """Due SYNCs not answered within their tick (late or lost)."""
+    malformed: int
+    sequence_errors: int
+    last_values: dict[str, float] = field(default_factory=dict)
+    last_error: str = ""
+
+    @property
+    def status(self) -> str:
+        if self.received == 0 and self.malformed == 0:
+            return "silent"
+        problems = []
+        if self.malformed:
+            problems.append(f"{self.malformed} malformed")
+        if self.missing:
+            problems.append(f"{self.missing} of {self.due} SYNCs unanswered")
+        if self.sequence_errors:
+            problems.append(f"{self.sequence_errors} sequence errors")
+        return "; ".join(problems) or "ok"
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+
+@dataclass
+class ProbeResult:
+    bus: str
+    rate_hz: float
+    ticks: int
+    devices: list[DeviceReport]
+    unknown: int
+    last_unknown_id: int
+    error_frames: int
+    bus_off: bool
+
+    @property
+    def ok(self) -> bool:
+        return (all(d.ok for d in self.devices) and self.unknown == 0
+                and self.error_frames == 0 and not self.bus_off)
+
+
+def probe(bus: can.BusABC, rig: RigConfig, rate_hz: float, duration_s: float, *,
+          bus_name: str = "", pump: Callable[[], object] | None = None,
+          realtime: bool = True, receive_timeout_s: float = 0.005) -> ProbeResult:
+    """Send ``duration_s`` of SYNCs at ``rate_hz`` (disarmed heartbeat, no commands) and
+    report how each device answered. ``pump`` lets an in-process virtual rig answer after
+    each SYNC (then ``realtime=False`` runs as fast as it can)."""
+    if not rate_hz > 0:
+        raise ValueError(f"rate_hz: expected a number > 0 (Hz), got {rate_hz}")
+    if not duration_s > 0:
+        raise ValueError(f"duration_s: expected a number > 0 (s), got {duration_s}")
+    protocol = load_protocol()
+    iface = RigInterface(bus, protocol, rig, None, (), dry_run=True)
+    dt_s = 1.0 / rate_hz
+    clock: LockstepClock | RealTimeClock = RealTimeClock(dt_s) if realtime else LockstepClock(dt_s)
+    n_ticks = max(1, round(duration_s * rate_hz))
+    heartbeat_every = max(1, round(rate_hz / HEARTBEAT_HZ))
+    due = dict.fromkeys(iface.drivers, 0)
+    missing = dict.fromkeys(iface.drivers, 0)
+    lockstep = pump is not None and not realtime
+    clock.start()
+    for tick in range(n_ticks):
+        clock.wait(tick)
+        if tick % heartbeat_every == 0:
+            iface.send_heartbeat(armed=False)
+        iface.send_sync(tick)
+        if pump is not None:
+            pump()
+        timeout = 0.0
+        if realtime:
+            timeout = min(receive_timeout_s, max(0.0, clock.time_left(tick) - 0.3 * dt_s))
+        iface.receive(tick, timeout, lockstep=lockstep)
+        for name, drv in iface.drivers.items():
+            if tick % iface.divider[name] == 0:
+                due[name] += 1
+                if drv.last_tick != tick:
+                    missing[name] += 1
+    devices = [
+        DeviceReport(
+            device=name, frame=drv.telemetry_frame,
+            frame_id=protocol[drv.telemetry_frame].frame_id,
+            sync_divider=iface.divider[name], due=due[name], received=drv.counters.received,
+            missing=missing[name], malformed=drv.counters.malformed,
+            sequence_errors=drv.counters.sequence_errors, last_values=dict(drv.values),
+            last_error=drv.counters.last_error)
+        for name, drv in iface.drivers.items()
+    ]
+    c = iface.counters
+    return ProbeResult(bus=bus_name, rate_hz=rate_hz, ticks=n_ticks, devices=devices,
+                       unknown=c.unknown, last_unknown_id=c.last_unknown_id,
+                       error_frames=c.error_frames, bus_off=c.bus_off)
