@@ -1,0 +1,102 @@
+"""`harness logs [--logs DIR] [--last N] [--json]`: the recorded runs and how each ended.
+
+One line per run directory under ``--logs`` (default ``./logs``), oldest first (directory
+names start with the UTC time): run name, clock and bus, simulated time, how it stopped
+(completed, fault, interrupted, error), the first fault, the final angle error and residual
+tip acceleration where the run has them, and the real-time factor. A directory without a
+readable ``summary.json`` (the harness was killed, or the file was damaged) is listed as
+such: its ``run.rrd`` and ``can.blf`` hold what was written. Exit 0, or 1 if there is no run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("logs", help="list the recorded runs and how each ended",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--logs", type=Path, default=Path("logs"), help="logs directory (./logs)")
+    p.add_argument("--last", type=int, default=0, metavar="N", help="only the newest N runs")
+    p.add_argument("--json", action="store_true", help="the list as JSON on stdout")
+    p.set_defaults(func=cmd_logs)
+
+
+def collect(logs: Path) -> list[dict[str, Any]]:
+    rows: list[dict[str, Any]] = []
+    if not logs.is_dir():
+        return rows
+    for run_dir in sorted(p for p in logs.iterdir() if p.is_dir()):
+        if not any((run_dir / f).exists() for f in ("config.yaml", "run.rrd", "can.blf")):
+            continue  # not a run directory
+        row: dict[str, Any] = {"dir": str(run_dir)}
+        path = run_dir / "summary.json"
+        try:
+            s = json.loads(path.read_text())
+        except FileNotFoundError:
+            row["status"] = "no summary.json (killed?)"
+            rows.append(row)
+            continue
+        except (OSError, ValueError) as exc:
+            row["status"] = f"unreadable summary.json ({type(exc).__name__})"
+            rows.append(row)
+            continue
+        faults = s.get("faults") or []
+        row.update({
+            "run": s.get("run"), "clock": s.get("clock"), "bus": s.get("bus"),
+            "simulated_s": s.get("simulated_time_s"), "ticks": s.get("ticks"),
+            "status": s.get("stopped_by") or "?", "dry_run": bool(s.get("dry_run")),
+            "first_fault": _fault_text(faults[0]) if faults else None,
+            "error": s.get("error"),
+            "final_angle_error_deg": s.get("final_angle_error_deg"),
+            "residual_tip_accel_m_s2": s.get("residual_tip_accel_m_s2"),
+            "real_time_factor": s.get("real_time_factor"),
+        })
+        rows.append(row)
+    return rows
+
+
+def _fault_text(f: Any) -> str:
+    if isinstance(f, dict):
+        return (f"{f.get('device', '?')}: {f.get('kind', '?')}: {f.get('message', '')} "
+                f"(t = {float(f.get('time_s', 0.0)):.3f} s)")
+    return str(f)
+
+
+def _num(v: Any, fmt: str) -> str:
+    return "-" if v is None else format(v, fmt)
+
+
+def cmd_logs(args: argparse.Namespace) -> int:
+    if args.last < 0:
+        print(f"harness logs: --last: expected N >= 0, got {args.last}", file=sys.stderr)
+        return 2
+    rows = collect(args.logs)
+    if args.last:
+        rows = rows[-args.last:]
+    if args.json:
+        print(json.dumps(rows, indent=2))
+    if not rows:
+        print(f"harness logs: no run directories under {args.logs}", file=sys.stderr)
+        return 1
+    if args.json:
+        return 0
+    w = max(len("run directory"), *(len(Path(r["dir"]).name) for r in rows))
+    print(f"{'run directory':<{w}} {'clock':<9} {'sim s':>7} {'status':<12} "
+          f"{'final err deg':>13} {'resid m/s^2':>11} {'x real':>7}  first fault / error")
+    for r in rows:
+        name = Path(r["dir"]).name
+        if "run" not in r:
+            print(f"{name:<{w}} {r['status']}")
+            continue
+        status = r["status"] + (" (dry)" if r["dry_run"] else "")
+        print(f"{name:<{w}} {str(r['clock'] or '-'):<9} {_num(r['simulated_s'], '7.2f')} "
+              f"{status:<12} {_num(r['final_angle_error_deg'], '13.2e')} "
+              f"{_num(r['residual_tip_accel_m_s2'], '11.4f')} "
+              f"{_num(r['real_time_factor'], '7.1f')}  "
+              f"{r['first_fault'] or r['error'] or ''}")
+    return 0
