@@ -456,3 +456,27 @@ def test_watchdog_makes_the_rig_safe_when_the_harness_is_killed(rig, rate_and_ru
     assert safe_and_still(), answers[-10:]
     counters = re.search(r"watchdog trips (\d+)", rig.stop())
     assert counters is not None and int(counters.group(1)) >= 1
+
+
+def test_probe_over_vcan0_hears_every_device_and_arms_nothing(rig, rate_and_run, tmp_path):
+    """`harness probe` against the rig process: every device answers, well-formed, and the
+    bus carries no command frame and only disarmed heartbeats. Under emulation some answers
+    may miss their tick, so the exit status may be 3 (unanswered SYNCs) but not 2."""
+    rate, _ = rate_and_run
+    rig.ensure_running()
+    timeout_ms = 0.7 * 1e3 / rate
+    with Capture(tmp_path / "candump.log") as cap:
+        proc = subprocess.run(
+            [sys.executable, "-m", "harness", "probe", "--bus", f"socketcan:{CHANNEL}",
+             "--rate-hz", f"{rate:g}", "--duration-s", "2", "--receive-timeout-ms",
+             f"{timeout_ms:g}", "--json"],
+            capture_output=True, text=True, timeout=RUN_TIMEOUT_S)
+    assert proc.returncode in (0, 3), proc.stderr[-4000:]
+    report = json.loads(proc.stdout)
+    assert report["bus"] == f"socketcan:{CHANNEL}" and report["error_frames"] == 0
+    for d in report["devices"]:
+        assert d["received"] > 0 and d["malformed"] == 0, d
+    ids = [f[0] for f in cap.frames]
+    assert MSG["SYNC"].frame_id in ids and not COMMAND_IDS & set(ids)
+    beats = [decode(f)[1] for f in cap.frames if f[0] == MSG["HEARTBEAT"].frame_id]
+    assert beats and all(b["armed"] == 0 for b in beats)

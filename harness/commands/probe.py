@@ -44,6 +44,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rig", default="sgsrt", help="rig name or YAML path (default sgsrt)")
     p.add_argument("--rate-hz", type=float, default=100.0, help="SYNC rate (default 100 Hz)")
     p.add_argument("--duration-s", type=float, default=2.0, help="how long (default 2 s)")
+    p.add_argument("--receive-timeout-ms", type=float, default=5.0,
+                   help="real time: how long to wait for a tick's telemetry (default 5 ms; "
+                   "never more than 70 %% of the period)")
     p.add_argument("--fault", action="append", metavar="KIND@AT_S[:DEVICE][=VALUE]",
                    help="virtual bus only: inject a fault in the in-process virtual rig")
     p.add_argument("--json", action="store_true", help="the report as JSON on stdout")
@@ -58,6 +61,9 @@ def cmd_probe(args: argparse.Namespace) -> int:
             raise ValueError(f"--rate-hz: expected a number > 0 (Hz), got {args.rate_hz}")
         if not args.duration_s > 0:
             raise ValueError(f"--duration-s: expected a number > 0 (s), got {args.duration_s}")
+        if not args.receive_timeout_ms > 0:
+            raise ValueError("--receive-timeout-ms: expected a number > 0 (ms), got "
+                             f"{args.receive_timeout_ms}")
         rig_cfg = load_rig(args.rig)
         spec = parse_bus(args.bus)
         faults = [parse_fault(f) for f in args.fault or []]
@@ -75,7 +81,8 @@ def cmd_probe(args: argparse.Namespace) -> int:
         print(f"harness probe: {args.duration_s:g} s of SYNC at {args.rate_hz:g} Hz on {spec} "
               "(heartbeat disarmed, no commands) ...", file=sys.stderr, flush=True)
         result = probe(bus, rig_cfg, args.rate_hz, args.duration_s, bus_name=str(spec),
-                       pump=pump, realtime=pump is None)
+                       pump=pump, realtime=pump is None,
+                       receive_timeout_s=args.receive_timeout_ms / 1e3)
     except (ConfigError, BusSpecError, ValueError, OSError) as exc:
         print(f"harness probe: {exc}", file=sys.stderr)
         return 2
