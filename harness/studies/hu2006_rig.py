@@ -42,7 +42,7 @@ from scipy.linalg import solve_discrete_are
 from harness.controllers.thruster_slew import ThrusterSlewController
 from harness.runs import RunConfig, build_controller, load_run
 from harness.session import RunResult, execute_run
-from harness.studies.hu2006 import PAPER_HU2006, _json_default
+from harness.studies.hu2006 import PAPER_HU2006, _fmt, _json_default
 from rig_models.devices import ThrusterValves
 from rig_models.rig_file import RigConfig
 
@@ -312,16 +312,6 @@ def run_study(out_dir: Path, duration_s: float | None = None,
         "ordering": ordering(rows),
         "paper": PAPER_HU2006,
     }
-
-
-def _fmt(v: Any, spec: str = ".3g") -> str:
-    if v is None:
-        return "-"
-    if isinstance(v, str):
-        return v
-    if isinstance(v, float) and math.isnan(v):
-        return "n/a"
-    return format(v, spec)
 
 
 def format_report(study: dict[str, Any]) -> str:
