@@ -2,9 +2,9 @@
 
 A log (the run's ``can.blf``, or an ``.asc`` / candump ``.log`` capture of the real rig) is
 split into ticks at each SYNC frame. The frames the devices sent in a tick are fed, in log
-order, through :class:`RigInterface` (on a bus object that serves them from memory) exactly as
-the loop received them: the same drivers decode them, count malformed frames, unknown ids,
-error frames and sequence errors, and ``snapshot`` gives the tick's :class:`RigState`. The
+order, through :meth:`RigInterface.feed`, the per-frame path of the loop's ``receive``: the
+same drivers decode them, count malformed frames, unknown ids, error frames and sequence
+errors, and ``snapshot`` gives the tick's :class:`RigState`. The
 frames the harness sent (the DBC's ``HARNESS`` node: SYNC, HEARTBEAT, ``*_CMD``) are decoded
 with the DBC codecs. A HEARTBEAT goes out just before its tick's SYNC, so it falls into the
 previous tick; it carries nothing the replay needs.
@@ -28,7 +28,7 @@ from __future__ import annotations
 import copy
 import json
 import math
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -142,15 +142,14 @@ class CheckResult:
 
 
 class _LogBus:
-    """What ``RigInterface`` needs of a bus: ``recv`` serves queued frames, ``send`` keeps
-    them."""
+    """What ``RigInterface`` needs of a bus: nothing to receive (frames are fed), ``send``
+    keeps what the replayed controller's commands would have put on the bus."""
 
     def __init__(self) -> None:
-        self.queue: deque[can.Message] = deque()
         self.sent: list[can.Message] = []
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
-        return self.queue.popleft() if self.queue else None
+        return None
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self.sent.append(msg)
@@ -206,8 +205,7 @@ def replay_messages(messages: Iterable[can.Message], rig: RigConfig, dt_s: float
     def close_tick() -> None:
         if tick is None:
             return
-        bus.queue.extend(rx)
-        got = iface.receive(tick, 0.0)
+        got = sum(iface.feed(msg, tick) for msg in rx)
         state = copy.copy(iface.snapshot(tick, tick * dt_s))
         ticks.append(ReplayTick(tick, tick * dt_s, state, list(cmds), got,
                                 max(0, iface.expected_frames(tick) - got)))

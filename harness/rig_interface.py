@@ -155,21 +155,28 @@ class RigInterface:
                 if got >= expected or remaining <= 0:
                     return got
                 continue
-            self.counters.received += 1
-            if self.can_log is not None:
-                self.can_log.log(msg)
-            if msg.is_error_frame:
-                self.counters.error_frames += 1
-                if msg.arbitration_id & CAN_ERR_BUSOFF:
-                    self.counters.bus_off = True
-                continue
-            drv = self._by_id.get(msg.arbitration_id)
-            if drv is None:
-                self.counters.unknown += 1
-                self.counters.last_unknown_id = msg.arbitration_id
-                continue
-            if drv.handle(msg.data, tick):
+            if self.feed(msg, tick):
                 got += 1
+
+    def feed(self, msg: can.Message, tick: int) -> bool:
+        """One received frame: logged, counted, and decoded by its device's driver (as
+        received during ``tick``). True if a driver accepted it as telemetry; error frames,
+        unknown ids and malformed frames are counted, never raised. ``harness replay`` feeds
+        a CAN log's frames through here."""
+        self.counters.received += 1
+        if self.can_log is not None:
+            self.can_log.log(msg)
+        if msg.is_error_frame:
+            self.counters.error_frames += 1
+            if msg.arbitration_id & CAN_ERR_BUSOFF:
+                self.counters.bus_off = True
+            return False
+        drv = self._by_id.get(msg.arbitration_id)
+        if drv is None:
+            self.counters.unknown += 1
+            self.counters.last_unknown_id = msg.arbitration_id
+            return False
+        return drv.handle(msg.data, tick)
 
     def snapshot(self, tick: int, time_s: float) -> RigState:
         s = self.state
