@@ -7,6 +7,7 @@ log are closed on every exit path.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import json
 import math
@@ -21,7 +22,7 @@ import numpy as np
 import yaml
 
 from drivers.dbc import load_protocol
-from harness.bus import open_bus, parse_bus
+from harness.bus import BusSpec, open_bus, parse_bus
 from harness.busload import compute_bus_load
 from harness.can_log import CanLog
 from harness.clock import LockstepClock, RealTimeClock, RealTimeSetup
@@ -30,6 +31,7 @@ from harness.monitor import FaultMonitor
 from harness.periodic import steady_state_amplitude
 from harness.recording import Recorder
 from harness.rig_interface import RigInterface
+from harness.rig_process import RigProcess
 from harness.runs import RunConfig, build_controller
 from rig_models.faults import FaultSpec
 from rig_models.schema import ConfigError
@@ -87,9 +89,14 @@ def execute_run(
     dry_run: bool = False,
     faults: list[FaultSpec] | None = None,
     should_stop: Callable[[], str | None] | None = None,
+    rig_process: bool = False,
 ) -> RunResult:
     spec = parse_bus(bus or run.data["bus"])
     clock_name = clock or run.data["clock"]
+    if rig_process and not (spec.in_process and clock_name == "realtime"):
+        raise RunRefused(f"{run.source}: --rig-process runs the virtual rig as its own "
+                         f"process for a real-time run on the virtual bus; got bus {spec} "
+                         f"and clock {clock_name}")
     load = bus_load_of(run)
     if load.percent > run.data["max_bus_load_percent"]:
         worst = max(load.rows, key=lambda r: r[2])
@@ -99,10 +106,25 @@ def execute_run(
             f"({load.frames_per_s:.0f} frames/s; largest: {worst[0]} {worst[2] / 1e3:.0f} kbit/s)"
             "; lower rate_hz or raise the devices' sync_divider")
     controller = build_controller(run)
-    dt_s = run.dt_s
-    protocol = load_protocol()
     run_dir = make_run_dir(out_dir, run.name)
     (run_dir / "config.yaml").write_text(yaml.safe_dump(run.resolved(), sort_keys=False))
+    with contextlib.ExitStack() as stack:
+        if rig_process:
+            where = stack.enter_context(RigProcess(
+                run.rig, run.data["rate_hz"], run_dir, run.faults + list(faults or []),
+                lifetime_s=run.data["duration_s"] + 60.0))
+            spec = parse_bus(where)
+            faults = []
+        return _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
+                        show_progress, dry_run, faults, should_stop)
+
+
+def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
+             load: Any, run_dir: Path, live_view_url: str | None, show_progress: bool,
+             dry_run: bool, faults: list[FaultSpec] | None,
+             should_stop: Callable[[], str | None] | None) -> RunResult:
+    dt_s = run.dt_s
+    protocol = load_protocol()
     harness_bus = open_bus(spec)
     rig_bus = None
     rig: VirtualRig | None = None

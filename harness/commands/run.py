@@ -9,6 +9,7 @@ from pathlib import Path
 
 from harness.bus import BusSpecError
 from harness.interrupts import StopRequest, stop_on_signals
+from harness.rig_process import RigProcessError
 from harness.runs import load_run
 from harness.session import RunRefused, execute_run
 from rig_models.faults import parse_fault
@@ -37,6 +38,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "silent_sensor@5:hub_sensor (repeatable; kinds: 'harness faults')")
     p.add_argument("--dry-run", action="store_true",
                    help="read every sensor, never send a command frame (actuators stay at rest)")
+    p.add_argument("--rig-process", action="store_true",
+                   help="real-time runs on the virtual bus: run the virtual rig as its own "
+                   "process (socketcand on 127.0.0.1) instead of a thread of this one, so the "
+                   "loop does not share the interpreter lock with the physics")
     p.add_argument("--view", nargs="?", const="rerun+http://127.0.0.1:9876/proxy",
                    metavar="URL", help="also stream to a Rerun viewer you started with "
                    "'rerun --bind 127.0.0.1' (default URL rerun+http://127.0.0.1:9876/proxy)")
@@ -75,7 +80,8 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
                 print(f"harness: {run.name}", file=sys.stderr)
             result = execute_run(run, out_dir=args.out, bus=args.bus, clock=args.clock,
                                  live_view_url=args.view, show_progress=not args.quiet,
-                                 dry_run=args.dry_run, faults=faults, should_stop=stop)
+                                 dry_run=args.dry_run, faults=faults, should_stop=stop,
+                                 rig_process=args.rig_process)
             s = result.summary
             s["run_dir"] = str(result.run_dir)
             summaries.append(s)
@@ -91,7 +97,7 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
                       f"t = {f['time_s']:.3f} s; actuators commanded safe", file=sys.stderr)
             if s["stopped_by"] != "completed":
                 break
-    except (ConfigError, BusSpecError, RunRefused) as exc:
+    except (ConfigError, BusSpecError, RunRefused, RigProcessError) as exc:
         print(f"harness: {exc}", file=sys.stderr)
         return 2
     if args.json:

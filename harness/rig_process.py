@@ -1,0 +1,124 @@
+"""The virtual rig as its own process for a real-time run (``harness run --rig-process``).
+
+In a real-time run with the rig in-process, the rig is a thread of the harness's own Python
+process and shares its interpreter lock: the loop and the physics take turns, which costs
+the loop timing margin that the lab rig (separate devices) would not take. With
+``--rig-process`` the run starts ``harness virtual-rig --serve-socketcand 0`` (a socketcand
+server on 127.0.0.1, an OS-chosen port) with the run's resolved rig written beside the
+recording, connects to it over python-can's ``socketcand`` interface, and stops it (SIGTERM,
+then SIGKILL) when the run ends, on every exit path. Should the harness itself be killed, the
+rig process exits on its own a minute after the run's planned end (its watchdog has made it
+safe long before). The rig's stderr goes to ``rig.log`` in
+the run directory.
+"""
+
+from __future__ import annotations
+
+import queue
+import re
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+from types import TracebackType
+from typing import IO
+
+import yaml
+
+from rig_models.faults import FaultSpec
+from rig_models.rig_file import RigConfig
+
+READY = re.compile(r" on (socketcand:127\.0\.0\.1:\d+) ")
+START_TIMEOUT_S = 60.0
+
+
+class RigProcessError(RuntimeError):
+    pass
+
+
+def fault_argument(f: FaultSpec) -> str:
+    """The ``--fault`` text of a fault (``KIND@AT_S[:DEVICE][=VALUE]``); a fault with a
+    duration has no such text and is refused."""
+    if f.duration_s > 0:
+        raise RigProcessError(f"fault {f.kind}@{f.at_s:g}: a fault with duration_s cannot be "
+                              "passed to a rig process; run without --rig-process")
+    text = f"{f.kind}@{f.at_s!r}"
+    if f.device:
+        text += f":{f.device}"
+    if f.value is not None:
+        text += f"={f.value!r}"
+    return text
+
+
+class RigProcess:
+    """Context manager: start the rig process, yield its bus spec, stop it."""
+
+    def __init__(self, rig: RigConfig, rate_hz: float, run_dir: Path,
+                 faults: list[FaultSpec] | None = None, lifetime_s: float = 0.0) -> None:
+        self.rig_file = run_dir / "rig.yaml"
+        self.log_path = run_dir / "rig.log"
+        self.rate_hz = rate_hz
+        self.lifetime_s = lifetime_s
+        self.fault_args = [a for f in faults or [] for a in ("--fault", fault_argument(f))]
+        self.rig_file.write_text(yaml.safe_dump(rig.data, sort_keys=False))
+        self.proc: subprocess.Popen[str] | None = None
+        self._log: IO[str] | None = None
+        self._pump: threading.Thread | None = None
+
+    def __enter__(self) -> str:
+        cmd = [sys.executable, "-m", "harness", "virtual-rig", "--rig", str(self.rig_file),
+               "--serve-socketcand", "0", "--rate-hz", f"{self.rate_hz:g}", *self.fault_args]
+        if self.lifetime_s > 0:  # if the harness is killed, the rig still exits by itself
+            cmd += ["--duration-s", f"{self.lifetime_s:g}"]
+        self._log = self.log_path.open("w")
+        self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.PIPE, text=True, start_new_session=True)
+        lines: queue.Queue[str | None] = queue.Queue()
+        self._pump = threading.Thread(target=self._copy_stderr, args=(lines,), daemon=True)
+        self._pump.start()
+        try:
+            while True:
+                line = lines.get(timeout=START_TIMEOUT_S)
+                if line is None:
+                    raise RigProcessError(
+                        f"the virtual rig process exited ({self.proc.wait()}) before serving; "
+                        f"see {self.log_path}")
+                m = READY.search(line)
+                if m:
+                    return m.group(1)
+        except queue.Empty:
+            self._stop()
+            raise RigProcessError(f"the virtual rig process did not start within "
+                                  f"{START_TIMEOUT_S:g} s; see {self.log_path}") from None
+        except BaseException:
+            self._stop()
+            raise
+
+    def _copy_stderr(self, lines: queue.Queue[str | None]) -> None:
+        assert self.proc is not None and self.proc.stderr is not None and self._log is not None
+        for line in self.proc.stderr:
+            self._log.write(line)
+            self._log.flush()
+            lines.put(line)
+        lines.put(None)
+
+    def _stop(self) -> None:
+        if self.proc is None:
+            return
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self._pump is not None:
+            self._pump.join(timeout=5)
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self._stop()
