@@ -23,8 +23,10 @@ from harness.controllers.thruster_two_level import (
     ThrusterTwoLevelSlew,
     damped_residual_percent,
     design_profile,
+    end_residual,
     valve_schedule,
     valve_usage,
+    with_extra_zv,
 )
 from harness.runs import load_run
 from harness.shaping.impulse_shapers import residual_vibration
@@ -142,13 +144,107 @@ def test_pwm_half_couple_keeps_the_segments_time_centroid(n_ticks):
     assert on.mean() == pytest.approx(n_ticks / 2, abs=0.5)
 
 
+def _pulses(d):
+    edges = np.flatnonzero(np.diff(np.r_[0, d, 0]))
+    return edges[::2], edges[1::2] - edges[::2]
+
+
+@pytest.mark.parametrize("duty", [0.1, 0.2303, 0.2697, 0.4606, 0.5394, 0.7697, 0.95])
+@pytest.mark.parametrize("n_ticks", [21, 43, 101, 177, 600])
+def test_pwm_of_any_duty_keeps_impulse_and_centroid_to_half_a_tick(duty, n_ticks):
+    """A level between 0 and the couple (here the ZV-shaped profiles' intermediate levels
+    among them): round(duty x n) on-ticks, in pulses of at least the minimum on-time inside
+    the segment, centred so the on-ticks' centroid is the segment's middle."""
+    n_on = round(duty * n_ticks)
+    if 0 < n_on < 5:  # fewer on-ticks than one 10 ms pulse: refused
+        with pytest.raises(ValueError, match="minimum on-time"):
+            valve_schedule([0.0, n_ticks * DT], [-duty, duty], DT, 0.01, 0.02)
+        return
+    d = valve_schedule([0.0, n_ticks * DT], [-duty, duty], DT, 0.01, 0.02)
+    assert len(d) == n_ticks and set(np.unique(d)) <= {-1, 0}
+    on = np.flatnonzero(d) + 0.5  # tick k is on over [k, k + 1)
+    assert abs(len(on) - duty * n_ticks) <= 0.5
+    assert on.mean() == pytest.approx(n_ticks / 2, abs=0.5)
+    starts, widths = _pulses(-d)
+    assert widths.min() >= 5
+    # about one pulse per pwm period where the minimum on-time allows
+    assert len(widths) <= max(1, round(n_ticks * DT / 0.02))
+
+
+def test_pwm_refuses_a_level_too_small_for_one_pulse_or_merges_it_into_its_neighbour():
+    # 0.2 of the couple over 20 ticks is 4 on-ticks: less than one 10 ms pulse
+    with pytest.raises(ValueError, match=r"0\.2 of the couple over 0\.0400 s.*4 on-tick.*"
+                       "minimum on-time"):
+        valve_schedule([0.0, 0.04], [0.2, -0.2], DT, 0.01, 0.02)
+    # ... also with merging allowed when it has no fractional neighbour of its sign
+    with pytest.raises(ValueError, match="no neighbouring fractional segment"):
+        valve_schedule([0.0, 0.04, 0.2], [-0.2, 1.2, -1.0], DT, 0.01, 0.02, merge_short=True)
+    with pytest.raises(ValueError, match="exceeds the couple"):
+        valve_schedule([0.0, 1.0], [1.5, -1.5], DT, 0.01, 0.02)
+    # merged with its neighbour (the larger impulse): impulse and centroid kept
+    times, amps = [0.0, 0.15, 0.16, 0.3], [-0.46, -0.27, 0.46, 0.27]  # -0.46, -0.73, -0.27
+    with pytest.raises(ValueError, match="minimum on-time"):
+        valve_schedule(times, amps, DT, 0.01, 0.02)
+    d = valve_schedule(times, amps, DT, 0.01, 0.02, merge_short=True)
+    want = np.repeat([0.46, 0.73, 0.27], [75, 5, 70])
+    centre = np.arange(150) + 0.5
+    assert abs(np.count_nonzero(d) - want.sum()) <= 0.5
+    assert np.mean(centre[d != 0]) == pytest.approx(np.sum(want * centre) / want.sum(),
+                                                    abs=0.5)
+    assert _pulses(-d)[1].min() >= 5
+
+
 def test_valve_schedule_refuses_what_the_valves_cannot_do():
     with pytest.raises(ValueError, match="pwm_period_s"):
         valve_schedule([0.0, 1.0], [0.5, -0.5], DT, 0.01, 0.015)
     with pytest.raises(ValueError, match="minimum on-time"):
         valve_schedule([0.0, 0.004], [1.0, -1.0], DT, 0.01, 0.02)
-    with pytest.raises(ValueError, match="level"):
-        valve_schedule([0.0, 1.0], [0.3, -0.3], DT, 0.01, 0.02)
+
+
+def test_zv_for_mode_3_cancels_it_in_the_continuous_profile_and_keeps_modes_1_2():
+    angle = math.radians(5)
+    base = design_profile("lhhl", angle_rad=angle, inertia_kg_m2=J, torque_n_m=0.1,
+                          modes=THRUSTER_MODES, vmax_percent=1.0, n_starts=32)
+    d = with_extra_zv(base, MODES[2:], angle_rad=angle, inertia_kg_m2=J, torque_n_m=0.1)
+    assert d.zv_modes == MODES[2:] and d.modes == THRUSTER_MODES
+    tau = d.bang_bang_duration_s / 2
+    before = damped_residual_percent(base.times_s, base.amplitudes, MODES, tau)
+    after = damped_residual_percent(d.times_s, d.amplitudes, MODES, tau)
+    assert before[2] > 30.0 and after[2] < 1e-6  # mode 3: from half the bang-bang's to none
+    # modes 1 and 2: the design's residual times |a1 exp(-s T/2) + a2| < 1, so within its 1 %
+    assert np.all(after[:2] <= before[:2] + 1e-9) and np.all(after[:2] <= 1.0)
+    # the same angle, at rest, longer by half mode 3's damped period, levels within the couple
+    t, a = np.array(d.times_s), np.array(d.amplitudes)
+    assert abs(np.sum(a * (t[-1] - t))) < 1e-9
+    assert 0.1 / J * np.sum(a * (t[-1] - t) ** 2) / 2 == pytest.approx(angle, rel=1e-9)
+    half_period = math.pi / (MODES[2].omega_rad_s * math.sqrt(1 - MODES[2].damping_ratio**2))
+    assert d.t8_s - base.t8_s == pytest.approx(half_period, abs=1e-9)
+    levels = np.cumsum(a)[:-1]
+    assert np.max(np.abs(levels)) <= 1 + 1e-9
+    assert len(np.unique(np.round(np.abs(levels), 6))) > 3  # intermediate levels appear
+    # the valve schedule of it: mode 3 within a few per cent, not zero (module docstring)
+    c = ThrusterTwoLevelSlew(d, 0.1, J, 1.0, DT, 0.01, 0.02)
+    steps = np.diff(np.r_[0.0, c.directions.astype(float), 0.0])
+    k = np.flatnonzero(steps)
+    on_valves = damped_residual_percent(k * DT, steps[k], MODES, tau)
+    assert on_valves[2] < 10.0 and np.all(on_valves[:2] < 3.0)
+    assert end_residual(d.times_s, d.amplitudes, MODES[2:])[0] < 1e-9
+
+
+def test_extra_zv_modes_is_validated_by_name():
+    from harness.runs import build_controller
+
+    for bad in ([4], [0], [3, 3], "3", [True], [2.0]):
+        with pytest.raises(ConfigError, match="extra_zv_modes"):
+            build_controller(load_run("slew-thruster-lhhl", {"controller": {
+                "design": "paper", "extra_zv_modes": bad}}))
+    # a ZV-shaped bang-bang needs -0.08 of the couple for 0.085 s at its reversal: 3 on-ticks
+    with pytest.raises(ConfigError, match="extra_zv_modes.*cannot make"):
+        build_controller(load_run("slew-thruster-bangbang", {"controller": {
+            "extra_zv_modes": [3]}}))
+    run = load_run("slew-thruster-lhhl", {"controller": {"design": "paper",
+                                                          "extra_zv_modes": [3]}})
+    assert build_controller(run).design.zv_modes == MODES[2:]
 
 
 def test_damped_design_meets_its_limits_and_the_paper_design_does_not_on_damped_modes():
@@ -263,7 +359,7 @@ def wheel_rows(tmp_path_factory):
 @pytest.fixture(scope="module")
 def thruster_rows(tmp_path_factory):
     out = Path(tmp_path_factory.mktemp("shaped_rig"))
-    keys = ("bang-bang", "lhhl-damped")
+    keys = ("bang-bang", "lhhl-damped", "lhhl-damped-zv3")
     return {s.key: measure(s, out) for s in THRUSTER_SLEWS if s.key in keys}
 
 
@@ -311,6 +407,24 @@ def test_issue5_two_level_slew_leaves_10x_less_than_bang_bang(thruster_rows):
     assert max(lhhl["design_residual_percent"]) <= 1.0
     by_mode = lhhl["truth"]["by_mode_at_start_m_s2"]
     assert by_mode[2] > max(by_mode[:2])
+
+
+def test_zv_for_mode_3_on_the_valves_removes_most_of_what_the_damped_lhhl_leaves(
+        thruster_rows):
+    lhhl, zv3 = thruster_rows["lhhl-damped"], thruster_rows["lhhl-damped-zv3"]
+    assert zv3["extra_zv_modes"] == [3] and len(zv3["design_modes"]) == 2
+    # continuous profile: mode 3 cancelled; on the valves a few per cent of it remain
+    assert zv3["analysis_residual_percent"][2] < 1e-6
+    assert zv3["realised_residual_percent"][2] < 0.2 * lhhl["realised_residual_percent"][2]
+    # truth (noise-free): mode 3 down by 10x, no longer the largest; the total about halved
+    true_lhhl, true_zv3 = (r["truth"]["by_mode_at_start_m_s2"] for r in (lhhl, zv3))
+    assert true_zv3[2] < 0.2 * true_lhhl[2]
+    assert true_zv3[2] < true_zv3[0]
+    assert zv3["truth"]["peak_m_s2"] < 0.6 * lhhl["truth"]["peak_m_s2"]
+    # the same angle, fuel within 1 %, the valves' counters match the schedule
+    assert abs(zv3["final_angle_error_deg"]) < 0.02
+    assert zv3["impulse_n_m_s"] == pytest.approx(lhhl["impulse_n_m_s"], rel=0.01)
+    assert zv3["firings"] == zv3["schedule"]["firings"]
 
 
 @pytest.mark.slow

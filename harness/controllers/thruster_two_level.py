@@ -25,14 +25,38 @@ Profiles, in units of the valves' couple T (``thruster_valves.couple_n_m``):
   solved by SLSQP from the paper's optimum and from scrambled Sobol starts on the angle
   manifold; the report says how many starts reached the returned t_8.
 
-**Half couple.** The valves are on/off (0 or +-T), with a 10 ms minimum on-time and equal
-opening and closing delays. The nearest they allow to T/2 is pulse-width modulation at 50 %
-duty: within a half-level segment of n ticks, round(n/2) ticks of full couple (the segment's
-impulse, to half a tick) in pulses spread evenly over the segment (about one per
-``pwm_period_s``, 20 ms by default: 10 ms pulses, the minimum on-time), each centred in its
-share of the segment so the segment's impulse and time centroid are kept. The ripple is at
-50 Hz, 8.5 times the beam's third mode (5.9 Hz). Every switch time is rounded to the tick;
-equal open/close delays shift every edge alike, so pulse widths reach the hub unchanged.
+**Half couple and other fractions.** The valves are on/off (0 or +-T), with a 10 ms minimum
+on-time and equal opening and closing delays. The nearest they allow to a level of a fraction
+``duty`` in (0, 1) of T (T/2 in the two-level designs; also the levels of ``extra_zv_modes``)
+is pulse-width modulation: within a segment of n ticks at that level, round(duty x n) ticks of
+full couple (the segment's impulse, to half a tick) in pulses of at least the minimum on-time,
+about one per ``pwm_period_s`` (20 ms by default: at 50 % 10 ms pulses, the minimum on-time;
+at lower duties fewer, since no pulse is shorter than 10 ms), leftover on-ticks spread
+symmetrically over the pulses, and each pulse centred in its share of the segment, the shares
+in proportion to the pulses' widths, so the segment's time centroid is kept (to half a tick;
+until 2026-11-22 the shares were equal, which moved it by up to 0.8 tick at 50 % and by
+several ticks at low duties with two unequal pulses). At 50 % the ripple is at 50 Hz, 8.5
+times the beam's third mode (5.9 Hz). Every switch time is rounded to the tick; equal
+open/close delays shift every edge alike, so pulse widths reach the hub unchanged. A segment
+whose round(duty x n) is not zero but less than one minimum pulse cannot be made (ValueError).
+
+**``extra_zv_modes``** (default none): 1-based numbers of run-file modes (e.g. ``[3]``) for
+which the designed sequence is afterwards convolved with a damped ZV shaper (impulses
+1/(1+K), K/(1+K) half a damped period apart, K = exp(-zeta pi / sqrt(1 - zeta^2)); for the
+rig's mode 3 0.539 / 0.461, 0.085 s): every switch becomes two smaller ones, the profile
+gains intermediate levels (0.23 / 0.27 of T where a half step is split, 0.46 / 0.54 where a
+full one is, -0.04 where T/2 reverses to -T/2, 0.73 / 0.77 where the copies of two switches
+less than 0.085 s apart overlap), the angle and zero final rate are kept, the manoeuvre is
+0.085 s longer, V_d at that mode is zero for the continuous profile and at the other modes
+the design's times |a_1 exp(-s T_d/2) + a_2| < 1. Every intermediate level is made by PWM of
+its duty. A level can last too short for one pulse (LHHL: -0.73 of T for 10 ms; HLLH: -0.04
+for 85 ms); such a segment is modulated together with its neighbour of the same sign and a
+fractional level (the pulses at the centroids of their shares of the pair's impulse), else
+the schedule is refused (a ZV-shaped bang-bang: -0.08 of T for 0.085 s between two full
+segments). The valves do not keep the cancellation exactly: an 85 ms level of 0.23 T is two
+10 ms pulses 43 ms apart, only four times mode 3's frequency, which alone leaves about 4 % of
+the bang-bang's mode 3; the valve schedules leave 2-11 % of it (docs/shaped_rig.md, "ZV for
+mode 3 on the valves").
 
 The valve direction of every tick is computed when the controller is built (no state).
 """
@@ -41,7 +65,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Any
 
@@ -55,6 +79,7 @@ from harness.controllers.shaped_wheel_slew import (
     TickSchedule,
     parse_modes,
 )
+from harness.shaping.impulse_shapers import ImpulseSequence, convolve, zv
 from harness.shaping.two_amplitude import (
     ModeConstraint,
     design_two_amplitude,
@@ -118,6 +143,8 @@ class TwoLevelDesign:
     n_starts: int = 0
     n_feasible: int = 0
     n_agree: int = 0
+    # modes whose ZV shaper the sequence was convolved with afterwards (``with_extra_zv``)
+    zv_modes: tuple[Mode, ...] = ()
 
 
 def _finish(profile: str, design: str, times: Sequence[float], amps: Sequence[float],
@@ -299,15 +326,97 @@ def design_profile(profile: str, *, angle_rad: float, inertia_kg_m2: float, torq
                           float(min_full_s), float(min_half_s), int(n_starts), int(seed))
 
 
+def with_extra_zv(design: TwoLevelDesign, zv_modes: Sequence[Mode], *, angle_rad: float,
+                  inertia_kg_m2: float, torque_n_m: float) -> TwoLevelDesign:
+    """``design``'s step sequence convolved with a damped ZV shaper (two impulses 1/(1+K),
+    K/(1+K), half a damped period apart) for each of ``zv_modes`` (pure).
+
+    Every switch becomes two smaller ones, so the profile gains intermediate levels; the
+    angle and the zero final rate are kept (the shaper's gain is 1), the manoeuvre is longer
+    by the shapers' spans, and the residual at the design modes is the design's times
+    |a_1 exp(-s T_d/2) + a_2| < 1 each. V_d fields are recomputed for the longer sequence."""
+    if not zv_modes:
+        return design
+    seq = ImpulseSequence(np.asarray(design.times_s), np.asarray(design.amplitudes))
+    for m in zv_modes:
+        seq = convolve(seq, zv(m.omega_rad_s, m.damping_ratio))
+    out = _finish(design.profile, design.design, seq.times_s, seq.amplitudes, design.modes,
+                  design.vmax_percent, inertia_kg_m2, torque_n_m, angle_rad,
+                  (design.n_starts, design.n_feasible, design.n_agree))
+    return replace(out, zv_modes=tuple(zv_modes))
+
+
 # --------------------------------------------------------------------------- valves
 
 
+def _share_centres(k0: int, blocks: Sequence[tuple[int, float]],
+                   widths: np.ndarray) -> np.ndarray:
+    """Centre (in ticks) of each pulse of ``widths`` in a run of consecutive segments
+    ``blocks`` = [(ticks, duty), ...] from tick ``k0``: the run's wanted impulse is cut into
+    shares in proportion to the pulses' widths, and each pulse sits at the centroid of its
+    share (one segment: the middle of its share of the time), so that the pulses' centroid is
+    the run's, before rounding to ticks."""
+    frac = np.concatenate([[0.0], np.cumsum(widths)]) / float(np.sum(widths))
+    if len(blocks) == 1:
+        n = blocks[0][0]
+        return k0 + n * (frac[:-1] + frac[1:]) / 2
+    x = np.concatenate([[0.0], np.cumsum([b[0] for b in blocks])])
+    duty = np.array([b[1] for b in blocks])
+    f = np.concatenate([[0.0], np.cumsum(duty * np.diff(x))])  # wanted impulse up to x
+    out = np.empty(len(widths))
+    for j in range(len(widths)):
+        a, b = frac[j] * f[-1], frac[j + 1] * f[-1]
+        lo, hi = np.clip(a, f[:-1], f[1:]), np.clip(b, f[:-1], f[1:])
+        mass = hi - lo
+        mid = x[:-1] + ((lo + hi) / 2 - f[:-1]) / duty
+        out[j] = k0 + float(np.sum(mass * mid) / np.sum(mass))
+    return out
+
+
+def _pwm(out: np.ndarray, k0: int, blocks: Sequence[tuple[int, float]], sign: int,
+         min_on: int, dt_s: float, pwm_period_s: float) -> None:
+    """Pulse-width modulate consecutive segments ``blocks`` [(ticks, duty), ...] from tick k0:
+    round(sum duty x ticks) on-ticks in pulses of at least ``min_on`` ticks, about one per
+    ``pwm_period_s``, each centred in its share (``_share_centres``)."""
+    n = sum(b[0] for b in blocks)
+    n_on = int(round(sum(b[0] * b[1] for b in blocks)))
+    if n_on == 0:
+        return
+    n_pulses = min(max(1, int(round(n * dt_s / pwm_period_s))), n_on // min_on)
+    widths = np.full(n_pulses, n_on // n_pulses)
+    extra = n_on - int(widths.sum())
+    # the leftover ticks go to pulses spread symmetrically over the segment (all at the
+    # front would move its time centroid by up to half a pulse period)
+    widths[((np.arange(extra) + 0.5) * n_pulses / max(extra, 1)).astype(int)] += 1
+    starts = [int(math.floor(c - w / 2 + 0.5))
+              for c, w in zip(_share_centres(k0, blocks, widths), widths, strict=True)]
+    # a safety net: every share is at least as long as its pulse (duty <= 1), so only the
+    # rounding could make neighbours overlap or leave the run; it would push them apart,
+    # keeping every on-tick (it moves none in the run files' schedules)
+    for j in range(n_pulses):
+        starts[j] = max(starts[j], k0 if j == 0 else starts[j - 1] + int(widths[j - 1]))
+    for j in reversed(range(n_pulses)):
+        end = k0 + n if j == n_pulses - 1 else starts[j + 1]
+        starts[j] = min(starts[j], end - int(widths[j]))
+    for s, w in zip(starts, widths, strict=True):
+        out[s:s + w] = sign
+
+
 def valve_schedule(times_s: Sequence[float], amplitudes: Sequence[float], dt_s: float,
-                   min_on_s: float, pwm_period_s: float) -> np.ndarray:
+                   min_on_s: float, pwm_period_s: float,
+                   merge_short: bool = False) -> np.ndarray:
     """Valve direction (+1, -1, 0) of every tick from the first switch to the last.
 
-    Full-couple segments are on for every tick; half-couple segments are pulse-width
-    modulated (module docstring). Raises ValueError for a pulse the valves cannot make."""
+    Switch times are rounded to ticks. Full-couple segments are on for every tick; a segment
+    at a fraction ``duty`` in (0, 1) of the couple is pulse-width modulated (module
+    docstring): round(duty x n) of its n ticks on (its impulse to half a tick), in pulses of
+    at least the minimum on-time, about one per ``pwm_period_s``, each centred in its share
+    of the segment (its time centroid to about half a tick). A segment whose on-ticks are
+    fewer than one minimum pulse (but not zero) cannot be made: ValueError, or with
+    ``merge_short`` it is modulated together with its neighbour of the same sign and a
+    fractional level (the one with the larger impulse; each pulse then sits at the centroid
+    of its share of the pair's impulse, so impulse and centroid are still kept).
+    Raises ValueError for a pulse the valves cannot make."""
     if not dt_s > 0:
         raise ValueError(f"dt_s: expected > 0 s, got {dt_s}")
     if not pwm_period_s >= 2 * min_on_s:
@@ -318,11 +427,15 @@ def valve_schedule(times_s: Sequence[float], amplitudes: Sequence[float], dt_s: 
     levels = np.cumsum(np.asarray(amplitudes, dtype=float))[:-1]
     min_on = max(1, math.ceil(min_on_s / dt_s - 1e-9))
     out = np.zeros(int(ticks[-1]), dtype=np.int8)
+    # runs of modulated segments: [first tick, sign, [(ticks, duty), ...]]
+    runs: list[list[Any]] = []
     for k0, k1, level in zip(ticks[:-1], ticks[1:], levels, strict=True):
         n = int(k1 - k0)
         mag = abs(level)
         if mag < 1e-9 or n == 0:
             continue
+        if mag > 1.0 + 1e-9:
+            raise ValueError(f"amplitudes: torque level {level:g} exceeds the couple")
         sign = 1 if level > 0 else -1
         if abs(mag - 1.0) < 1e-9:
             if n < min_on:
@@ -330,23 +443,41 @@ def valve_schedule(times_s: Sequence[float], amplitudes: Sequence[float], dt_s: 
                                  f"the valves' minimum on-time {min_on_s} s")
             out[k0:k1] = sign
             continue
-        if abs(mag - 0.5) > 1e-9:
-            raise ValueError(f"amplitudes: torque level {level:g} is neither 0, 1/2 nor 1 "
-                             "couple")
-        n_on = int(round(n / 2))
-        n_pulses = min(max(1, int(round(n * dt_s / pwm_period_s))), n_on // min_on)
-        if n_pulses < 1:
-            raise ValueError(f"a half-couple segment of {n * dt_s:.4f} s is too short for "
-                             f"one {min_on_s} s valve pulse")
-        widths = np.full(n_pulses, n_on // n_pulses)
-        extra = n_on - int(widths.sum())
-        # the leftover ticks go to pulses spread symmetrically over the segment (all at the
-        # front would move its time centroid by up to half a pulse period)
-        widths[((np.arange(extra) + 0.5) * n_pulses / max(extra, 1)).astype(int)] += 1
-        for j, w in enumerate(widths):
-            centre = k0 + (j + 0.5) * n / n_pulses
-            start = int(math.floor(centre - w / 2 + 0.5))
-            out[start:start + w] = sign
+        runs.append([int(k0), sign, [(n, float(mag))]])
+
+    def on_ticks(r: list[Any]) -> int:
+        return int(round(sum(n * d for n, d in r[2])))
+
+    def short(r: list[Any]) -> bool:
+        return 0 < on_ticks(r) < min_on
+
+    def end(r: list[Any]) -> int:
+        return int(r[0] + sum(n for n, _ in r[2]))
+
+    while any(short(r) for r in runs):
+        i = next(i for i, r in enumerate(runs) if short(r))
+        r = runs[i]
+        n = sum(b[0] for b in r[2])
+        level = r[1] * sum(b[0] * b[1] for b in r[2]) / n
+        if not merge_short:
+            raise ValueError(
+                f"a segment at {level:.3g} of the couple over {n * dt_s:.4f} s (from "
+                f"{r[0] * dt_s:.4f} s) needs {on_ticks(r)} on-tick(s), fewer than one pulse "
+                f"of the valves' minimum on-time {min_on_s} s")
+        nb = [j for j in (i - 1, i + 1) if 0 <= j < len(runs) and runs[j][1] == r[1]
+              and (end(runs[j]) == r[0] if j < i else end(r) == runs[j][0])]
+        if not nb:
+            raise ValueError(
+                f"a segment at {level:.3g} of the couple over {n * dt_s:.4f} s (from "
+                f"{r[0] * dt_s:.4f} s) needs {on_ticks(r)} on-tick(s), fewer than one pulse "
+                f"of the valves' minimum on-time {min_on_s} s, and has no neighbouring "
+                "fractional segment of the same sign to be modulated with")
+        j = max(nb, key=lambda j: sum(n * d for n, d in runs[j][2]))
+        a, b = (runs[j], r) if j < i else (r, runs[j])
+        runs[min(i, j)] = [a[0], r[1], a[2] + b[2]]
+        del runs[max(i, j)]
+    for k0, sign, blocks in runs:
+        _pwm(out, k0, blocks, sign, min_on, dt_s, pwm_period_s)
     return out
 
 
@@ -368,11 +499,17 @@ class ThrusterTwoLevelSlew(ScheduledSlew):
             raise ValueError(f"start_s: expected a time >= 0 s, got {start_s}")
         self.design = design
         times = design.times_s
-        if design.profile == "bang_bang":  # both halves the same whole number of ticks
-            n = max(1, round(times[1] / dt_s))
+        if design.profile == "bang_bang" and not design.zv_modes:
+            n = max(1, round(times[1] / dt_s))  # both halves the same whole number of ticks
             times = (0.0, n * dt_s, 2 * n * dt_s)
-        self.directions = valve_schedule(times, design.amplitudes, dt_s, min_on_s,
-                                         pwm_period_s)
+        try:
+            self.directions = valve_schedule(times, design.amplitudes, dt_s, min_on_s,
+                                             pwm_period_s, merge_short=bool(design.zv_modes))
+        except ValueError as exc:
+            if not design.zv_modes:
+                raise
+            raise ValueError(f"extra_zv_modes: the valves cannot make the ZV-shaped profile: "
+                             f"{exc}") from exc
         self.usage = valve_usage(self.directions, dt_s, couple_n_m)
         self.schedule = TickSchedule(self.directions, round(start_s / dt_s), dt_s,
                                      inertia_kg_m2, couple_n_m)
@@ -391,9 +528,25 @@ THRUSTER_TWO_LEVEL_SCHEMA = {
     "design": Field("str", default="damped", choices=DESIGNS),
     "pwm_period_s": Field("number", "s", default=0.02, exclusive_minimum=0.0),
     "design_modes": Field("int", default=None, minimum=1),
+    "extra_zv_modes": Field("any", default=None),
     "n_starts": Field("int", default=128, minimum=1),
     "seed": Field("int", default=0, minimum=0),
 }
+
+
+def parse_extra_zv_modes(raw: Any, modes: Sequence[Mode]) -> tuple[Mode, ...]:
+    """The modes named by ``extra_zv_modes`` (1-based numbers into the run file's ``modes``)."""
+    if raw is None or (isinstance(raw, list) and not raw):
+        return ()
+    if not modes:
+        raise ValueError(f"extra_zv_modes: {raw!r} needs the run file's modes, none given")
+    ok = (isinstance(raw, list)
+          and all(isinstance(i, int) and not isinstance(i, bool) for i in raw)
+          and len(set(raw)) == len(raw) and all(1 <= i <= len(modes) for i in raw))
+    if not ok:
+        raise ValueError(f"extra_zv_modes: expected a list of distinct mode numbers in "
+                         f"1..{len(modes)} (the run file's modes, in their order), got {raw!r}")
+    return tuple(modes[i - 1] for i in raw)
 
 
 def build_thruster_two_level(c: dict[str, Any], rig: RigConfig,
@@ -402,6 +555,7 @@ def build_thruster_two_level(c: dict[str, Any], rig: RigConfig,
     modes: tuple[Mode, ...] = ()
     if c["profile"] != "bang_bang" or c["modes"] is not None:
         modes = parse_modes(c["modes"])
+    zv_modes = parse_extra_zv_modes(c["extra_zv_modes"], modes)
     if c["design_modes"] is not None:
         if c["design_modes"] > len(modes):
             raise ValueError(f"design_modes {c['design_modes']}: only {len(modes)} modes given")
@@ -412,6 +566,8 @@ def build_thruster_two_level(c: dict[str, Any], rig: RigConfig,
                             vmax_percent=c["vmax_percent"], design=c["design"],
                             min_full_s=tv["min_on_time_s"], min_half_s=2 * c["pwm_period_s"],
                             n_starts=c["n_starts"], seed=c["seed"])
+    design = with_extra_zv(design, zv_modes, angle_rad=math.radians(c["angle_deg"]),
+                           inertia_kg_m2=inertia, torque_n_m=tv["couple_n_m"])
     return ThrusterTwoLevelSlew(design, tv["couple_n_m"], inertia, c["start_s"], dt_s,
                                 tv["min_on_time_s"], c["pwm_period_s"])
 

@@ -6,7 +6,9 @@ virtual rig, recording). The shapers are designed with the modes in the run file
 were identified from a free decay with ``harness identify`` (``--identify`` repeats that now,
 the same way: ``free-decay``'s windows from its burst schedule, ``identify_windows``, and
 designs with the fresh numbers instead). The wheel shapers use all three identified modes;
-the thruster runs list all three but design for the first two (``design_modes``).
+the thruster runs list all three but design for the first two (``design_modes``); their
+``damped-zv3`` variants then convolve that design with a ZV shaper for mode 3
+(``extra_zv_modes``), every fractional level made by PWM.
 
 Residual vibration, one definition for every run: the tip acceleration over the window
 ``[end + 0.1 s, end + 0.1 s + W]``, ``end`` being the end of that run's own manoeuvre (every
@@ -81,6 +83,10 @@ THRUSTER_SLEWS = (
     Slew("hllh-paper", "slew-thruster-hllh", "paper", "HLLH, paper's design (undamped)"),
     Slew("lhhl-damped", "slew-thruster-lhhl", "damped", "LHHL, damped design"),
     Slew("hllh-damped", "slew-thruster-hllh", "damped", "HLLH, damped design"),
+    Slew("lhhl-damped-zv3", "slew-thruster-lhhl", "damped-zv3",
+         "LHHL, damped design * ZV mode 3"),
+    Slew("hllh-damped-zv3", "slew-thruster-hllh", "damped-zv3",
+         "HLLH, damped design * ZV mode 3"),
 )
 
 
@@ -224,9 +230,11 @@ def measure(slew: Slew, out_dir: Path, modes: Sequence[Mode] | None = None,
         tau = d.bang_bang_duration_s / 2
         steps = np.diff(np.r_[0.0, controller.directions.astype(float), 0.0])
         k = np.flatnonzero(steps)
+        ticks = np.rint(np.asarray(d.times_s) / run.dt_s) * run.dt_s
         row.update({
             "design": d.design,
             "design_modes": [[m.omega_rad_s, m.damping_ratio] for m in d.modes],
+            "extra_zv_modes": list(run.controller.get("extra_zv_modes") or []),
             "design_residual_percent": list(d.damped_residual_percent),
             # V_d at every mode of the analysis (designed for or not), of the design's switch
             # times and of the valve schedule actually sent (ticks, PWM half couple)
@@ -234,6 +242,10 @@ def measure(slew: Slew, out_dir: Path, modes: Sequence[Mode] | None = None,
                 d.times_s, d.amplitudes, analysis_modes, tau).tolist(),
             "realised_residual_percent": damped_residual_percent(
                 k * run.dt_s, steps[k], analysis_modes, tau).tolist(),
+            # the design's levels exactly, its switch times rounded to ticks: the ticks' share
+            # of the difference between the two above (the rest is the PWM's)
+            "ticks_residual_percent": damped_residual_percent(
+                ticks, d.amplitudes, analysis_modes, tau).tolist(),
             "design_undamped_residual_percent": list(d.undamped_residual_percent),
             "design_t8_s": d.t8_s,
             "design_search": {"starts": d.n_starts, "feasible": d.n_feasible,
@@ -381,7 +393,7 @@ def format_tables(results: dict[str, Any]) -> str:
         lines.append("")
     th = results.get("thruster")
     if th:
-        lines.append("Thruster slews, 5 deg, couple 0.1 N m, half couple by 50 % PWM (issue 5)")
+        lines.append("Thruster slews, 5 deg, couple 0.1 N m, fractional levels by PWM (issue 5)")
         lines.append("")
         lines.append(head.format("slew"))
         lines.append("|---|---|---|---|---|---|---|---|")
@@ -405,6 +417,8 @@ def format_tables(results: dict[str, Any]) -> str:
             vd = " / ".join(f"{v:.3g}" for v in r["analysis_residual_percent"])
             vr = " / ".join(f"{v:.3g}" for v in r["realised_residual_percent"])
             designed = len(r["design_modes"]) if r["design"] != "bang-bang" else "-"
+            if r["extra_zv_modes"]:
+                designed = f"{designed} + ZV " + ", ".join(map(str, r["extra_zv_modes"]))
             lines.append(
                 f"| {r['label']} | {designed} | {vd} | {vr} | {r['firings']} | "
                 f"{r['valve_on_time_s']:.3f} | "
