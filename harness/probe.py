@@ -5,7 +5,9 @@ is sent (a ``RigInterface`` in dry-run mode), so the devices stay in their safe 
 it listens. Each tick it sends SYNC and reads the telemetry through the harness's own
 drivers, then counts per device: frames received, SYNCs due (its ``sync_divider``), SYNCs
 it did not answer within the tick, malformed frames and sequence errors, and keeps the last
-decoded values. Unknown ids and error frames on the bus are counted too.
+decoded values. Unknown ids and error frames on the bus are counted too. SYNCs of the first
+``settle_s`` (default 0.5 s, the fault monitor's start-up allowance) go out and their answers
+are read, but not counted: a socketcand server, for one, settles its connection first.
 
 Pure logic, no printing: ``harness probe`` is the command.
 """
@@ -32,8 +34,9 @@ class DeviceReport:
     frame_id: int
     sync_divider: int
     due: int
-    """SYNCs this device should have answered."""
+    """SYNCs this device should have answered (after the settling time)."""
     received: int
+    """Of those, the ones it answered within their tick."""
     missing: int
     """Due SYNCs not answered within their tick (late or lost)."""
     malformed: int
@@ -78,7 +81,8 @@ class ProbeResult:
 
 def probe(bus: can.BusABC, rig: RigConfig, rate_hz: float, duration_s: float, *,
           bus_name: str = "", pump: Callable[[], object] | None = None,
-          realtime: bool = True, receive_timeout_s: float = 0.005) -> ProbeResult:
+          realtime: bool = True, receive_timeout_s: float = 0.005,
+          settle_s: float = 0.5) -> ProbeResult:
     """Send ``duration_s`` of SYNCs at ``rate_hz`` (disarmed heartbeat, no commands) and
     report how each device answered. ``pump`` lets an in-process virtual rig answer after
     each SYNC (then ``realtime=False`` runs as fast as it can)."""
@@ -86,14 +90,17 @@ def probe(bus: can.BusABC, rig: RigConfig, rate_hz: float, duration_s: float, *,
         raise ValueError(f"rate_hz: expected a number > 0 (Hz), got {rate_hz}")
     if not duration_s > 0:
         raise ValueError(f"duration_s: expected a number > 0 (s), got {duration_s}")
+    if not settle_s >= 0:
+        raise ValueError(f"settle_s: expected a number >= 0 (s), got {settle_s}")
     protocol = load_protocol()
     iface = RigInterface(bus, protocol, rig, None, (), dry_run=True)
     dt_s = 1.0 / rate_hz
     clock: LockstepClock | RealTimeClock = RealTimeClock(dt_s) if realtime else LockstepClock(dt_s)
-    n_ticks = max(1, round(duration_s * rate_hz))
+    n_settle = round(settle_s * rate_hz)
+    n_ticks = n_settle + max(1, round(duration_s * rate_hz))
     heartbeat_every = max(1, round(rate_hz / HEARTBEAT_HZ))
     due = dict.fromkeys(iface.drivers, 0)
-    missing = dict.fromkeys(iface.drivers, 0)
+    answered = dict.fromkeys(iface.drivers, 0)
     lockstep = pump is not None and not realtime
     clock.start()
     for tick in range(n_ticks):
@@ -107,22 +114,23 @@ def probe(bus: can.BusABC, rig: RigConfig, rate_hz: float, duration_s: float, *,
         if realtime:
             timeout = min(receive_timeout_s, max(0.0, clock.time_left(tick) - 0.3 * dt_s))
         iface.receive(tick, timeout, lockstep=lockstep)
+        if tick < n_settle:
+            continue
         for name, drv in iface.drivers.items():
             if tick % iface.divider[name] == 0:
                 due[name] += 1
-                if drv.last_tick != tick:
-                    missing[name] += 1
+                answered[name] += drv.last_tick == tick
     devices = [
         DeviceReport(
             device=name, frame=drv.telemetry_frame,
             frame_id=protocol[drv.telemetry_frame].frame_id,
-            sync_divider=iface.divider[name], due=due[name], received=drv.counters.received,
-            missing=missing[name], malformed=drv.counters.malformed,
+            sync_divider=iface.divider[name], due=due[name], received=answered[name],
+            missing=due[name] - answered[name], malformed=drv.counters.malformed,
             sequence_errors=drv.counters.sequence_errors, last_values=dict(drv.values),
             last_error=drv.counters.last_error)
         for name, drv in iface.drivers.items()
     ]
     c = iface.counters
-    return ProbeResult(bus=bus_name, rate_hz=rate_hz, ticks=n_ticks, devices=devices,
+    return ProbeResult(bus=bus_name, rate_hz=rate_hz, ticks=n_ticks - n_settle, devices=devices,
                        unknown=c.unknown, last_unknown_id=c.last_unknown_id,
                        error_frames=c.error_frames, bus_off=c.bus_off)

@@ -11,26 +11,28 @@ from drivers.dbc import load_protocol
 from harness.bus import open_bus, parse_bus
 from harness.cli import main
 from harness.probe import probe
-from rig_models.faults import parse_fault
+from rig_models.faults import make_fault, parse_fault
 from rig_models.rig_file import load_rig
 from rig_models.virtual_rig import VirtualRig
 
 
-def _probe_in_process(channel: str, faults=(), rate_hz: float = 100.0, duration_s: float = 1.0):
+def _probe_in_process(channel: str, faults=(), rate_hz: float = 100.0, duration_s: float = 1.0,
+                      settle_s: float = 0.0):
     spec = parse_bus(f"virtual:{channel}")
     rig_cfg = load_rig("sgsrt")
     bus, rig_bus = open_bus(spec), open_bus(spec)
     try:
-        rig = VirtualRig(rig_cfg, rig_bus, 1.0 / rate_hz, faults=[parse_fault(f) for f in faults])
+        rig = VirtualRig(rig_cfg, rig_bus, 1.0 / rate_hz,
+                         faults=[parse_fault(f) if isinstance(f, str) else f for f in faults])
         return probe(bus, rig_cfg, rate_hz, duration_s, bus_name=str(spec), pump=rig.service,
-                     realtime=False)
+                     realtime=False, settle_s=settle_s)
     finally:
         bus.shutdown()
         rig_bus.shutdown()
 
 
 def test_healthy_virtual_rig_answers_every_sync():
-    r = _probe_in_process("probe-ok")
+    r = _probe_in_process("probe-ok", settle_s=0.5)  # 50 SYNCs first, not counted
     assert r.ok and r.ticks == 100
     by = {d.device: d for d in r.devices}
     assert set(by) == {"hub_sensor", "accelerometer", "reaction_wheel", "thruster_valves",
@@ -59,6 +61,22 @@ def test_probe_sends_no_command_and_a_disarmed_heartbeat():
                                                 "ROTOR_CMD")}
     assert ids and not commands & set(ids)
     assert protocol["SYNC"].frame_id in ids and protocol["HUB_TLM"].frame_id in ids
+
+
+def test_settling_time_is_not_counted():
+    # silent for the first 0.3 s only: inside the 0.5 s settle, not counted
+    brief = make_fault({"kind": "silent_sensor", "at_s": 0.0, "duration_s": 0.3,
+                        "device": "hub_sensor"}, "test")
+    r = _probe_in_process("probe-settle", faults=[brief], duration_s=0.5, settle_s=0.5)
+    hub = next(d for d in r.devices if d.device == "hub_sensor")
+    assert r.ok and hub.due == 50 and hub.missing == 0
+    # silent throughout: still caught after the settle
+    r = _probe_in_process("probe-settle2", faults=["silent_sensor@0.0:hub_sensor"],
+                          duration_s=0.5, settle_s=0.5)
+    hub = next(d for d in r.devices if d.device == "hub_sensor")
+    assert hub.due == 50 and hub.missing == 50 and hub.status == "silent"
+    with pytest.raises(ValueError, match="settle_s"):
+        _probe_in_process("probe-settle-bad", settle_s=-1.0)
 
 
 def test_silent_and_malformed_devices_and_unknown_ids_are_named():

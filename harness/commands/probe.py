@@ -1,8 +1,9 @@
 """`harness probe [--bus I:C] [--rig R] [--rate-hz F] [--duration-s S] [--json]`: pre-flight
 check that every device of the rig answers on the bus, without arming anything.
 
-Sends SYNC at ``--rate-hz`` (default 100 Hz) for ``--duration-s`` (default 2 s) with the
-heartbeat disarmed and no command frame, reads the telemetry through the harness's drivers
+Sends SYNC at ``--rate-hz`` (default 100 Hz) for ``--settle-s`` (default 0.5 s, not counted:
+a socketcand server settles its connection first) and then ``--duration-s`` (default 2 s) with
+the heartbeat disarmed and no command frame, reads the telemetry through the harness's drivers
 and prints one line per device: its frame, SYNC divider, frames received, SYNCs it did not
 answer within the tick, malformed frames, sequence errors, status, and its last values (so
 a wheel that reports a fault flag or a hub angle that makes no sense shows up before a run).
@@ -44,6 +45,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rig", default="sgsrt", help="rig name or YAML path (default sgsrt)")
     p.add_argument("--rate-hz", type=float, default=100.0, help="SYNC rate (default 100 Hz)")
     p.add_argument("--duration-s", type=float, default=2.0, help="how long (default 2 s)")
+    p.add_argument("--settle-s", type=float, default=0.5,
+                   help="SYNCs sent first and not counted (default 0.5 s)")
     p.add_argument("--receive-timeout-ms", type=float, default=5.0,
                    help="real time: how long to wait for a tick's telemetry (default 5 ms; "
                    "never more than 70 %% of the period)")
@@ -61,6 +64,8 @@ def cmd_probe(args: argparse.Namespace) -> int:
             raise ValueError(f"--rate-hz: expected a number > 0 (Hz), got {args.rate_hz}")
         if not args.duration_s > 0:
             raise ValueError(f"--duration-s: expected a number > 0 (s), got {args.duration_s}")
+        if not args.settle_s >= 0:
+            raise ValueError(f"--settle-s: expected a number >= 0 (s), got {args.settle_s}")
         if not args.receive_timeout_ms > 0:
             raise ValueError("--receive-timeout-ms: expected a number > 0 (ms), got "
                              f"{args.receive_timeout_ms}")
@@ -82,7 +87,7 @@ def cmd_probe(args: argparse.Namespace) -> int:
               "(heartbeat disarmed, no commands) ...", file=sys.stderr, flush=True)
         result = probe(bus, rig_cfg, args.rate_hz, args.duration_s, bus_name=str(spec),
                        pump=pump, realtime=pump is None,
-                       receive_timeout_s=args.receive_timeout_ms / 1e3)
+                       receive_timeout_s=args.receive_timeout_ms / 1e3, settle_s=args.settle_s)
     except (ConfigError, BusSpecError, ValueError, OSError) as exc:
         print(f"harness probe: {exc}", file=sys.stderr)
         return 2
@@ -111,7 +116,7 @@ def _values(values: dict[str, float]) -> str:
 
 
 def print_report(r: ProbeResult) -> None:
-    print(f"{r.bus}: {r.ticks} SYNCs at {r.rate_hz:g} Hz")
+    print(f"{r.bus}: {r.ticks} SYNCs counted at {r.rate_hz:g} Hz")
     print(f"{'device':<18} {'frame':<10} {'id':>5} {'div':>3} {'due':>5} {'got':>5} "
           f"{'missed':>6} {'bad':>4} {'seq':>4}  status")
     for d in r.devices:
