@@ -41,12 +41,14 @@ class DeviceReport:
     """Due SYNCs not answered within their tick (late or lost)."""
     malformed: int
     sequence_errors: int
+    frames: int = 0
+    """Every well-formed frame of this device, settling time and late ones included."""
     last_values: dict[str, float] = field(default_factory=dict)
     last_error: str = ""
 
     @property
     def status(self) -> str:
-        if self.received == 0 and self.malformed == 0:
+        if self.frames == 0 and self.malformed == 0:
             return "silent"
         problems = []
         if self.malformed:
@@ -126,7 +128,8 @@ def probe(bus: can.BusABC, rig: RigConfig, rate_hz: float, duration_s: float, *,
             frame_id=protocol[drv.telemetry_frame].frame_id,
             sync_divider=iface.divider[name], due=due[name], received=answered[name],
             missing=due[name] - answered[name], malformed=drv.counters.malformed,
-            sequence_errors=drv.counters.sequence_errors, last_values=dict(drv.values),
+            sequence_errors=drv.counters.sequence_errors, frames=drv.counters.received,
+            last_values=dict(drv.values),
             last_error=drv.counters.last_error)
         for name, drv in iface.drivers.items()
     ]

@@ -39,6 +39,7 @@ def test_healthy_virtual_rig_answers_every_sync():
                        "piezo_amplifier", "disturbance_rotor"}
     for d in r.devices:
         assert d.due == 100 // d.sync_divider and d.received == d.due and d.missing == 0
+        assert d.frames == 150 // d.sync_divider  # settling time included
         assert d.status == "ok"
     assert by["reaction_wheel"].last_values["enabled"] == 0  # never armed
     assert "angle" in by["hub_sensor"].last_values

@@ -118,11 +118,13 @@ def _values(values: dict[str, float]) -> str:
 def print_report(r: ProbeResult) -> None:
     print(f"{r.bus}: {r.ticks} SYNCs counted at {r.rate_hz:g} Hz")
     print(f"{'device':<18} {'frame':<10} {'id':>5} {'div':>3} {'due':>5} {'got':>5} "
-          f"{'missed':>6} {'bad':>4} {'seq':>4}  status")
+          f"{'missed':>6} {'frames':>6} {'bad':>4} {'seq':>4}  status")
     for d in r.devices:
         print(f"{d.device:<18} {d.frame:<10} 0x{d.frame_id:03X} {d.sync_divider:>3} "
-              f"{d.due:>5} {d.received:>5} {d.missing:>6} {d.malformed:>4} "
+              f"{d.due:>5} {d.received:>5} {d.missing:>6} {d.frames:>6} {d.malformed:>4} "
               f"{d.sequence_errors:>4}  {d.status}")
+    print("(due: SYNCs counted; got: answered within the tick; frames: all, settling and late "
+          "ones included)")
     print("last values:")
     for d in r.devices:
         print(f"  {d.device:<18} {_values(d.last_values)}")
