@@ -21,6 +21,11 @@ tick's own commands. That group is recognised (``split_commands``) and not compa
 controller. A last tick without controller commands (the run was interrupted, or the
 controller raised, before its commands went out; or the log stops there) is skipped with the
 reason; anywhere else a missing command is a mismatch.
+
+:class:`MonitorReplay` re-runs the run's fault monitor (built as ``execute_run`` builds it) on
+the replayed ticks, through the replay's ``on_tick`` hook, so it sees the drivers' counters
+and values as they were at each tick; its first event is compared with summary.json's first
+fault (tick, device, kind).
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ import copy
 import json
 import math
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -38,10 +43,11 @@ import can
 import yaml
 
 from drivers.dbc import FrameCodec, FrameError, Protocol, load_protocol
+from harness.monitor import FaultEvent
 from harness.recording import Recorder
 from harness.rig_interface import RigInterface
 from harness.runs import RunConfig, build_controller, run_from_dict
-from harness.state import RigState
+from harness.state import RigCommand, RigState
 from rig_models.rig_file import RigConfig, rig_from_dict
 from rig_models.schema import ConfigError
 
@@ -135,10 +141,16 @@ class CheckResult:
     stopped_by: str | None = None
     """From summary.json, if there."""
     summary_ticks: int | None = None
+    monitor_event: FaultEvent | None = None
+    """The first event of the run's fault monitor re-run on the replay (``check_run``)."""
+    logged_fault: dict[str, Any] | None = None
+    """summary.json's first fault."""
+    monitor_consistent: bool = True
 
     @property
     def consistent(self) -> bool:
-        return self.first_mismatch is None and self.ticks_matching == self.ticks_compared
+        return (self.first_mismatch is None and self.ticks_matching == self.ticks_compared
+                and self.monitor_consistent)
 
 
 class _LogBus:
@@ -188,8 +200,12 @@ def _decode(codec: FrameCodec, data: bytes) -> dict[str, float]:
 
 
 def replay_messages(messages: Iterable[can.Message], rig: RigConfig, dt_s: float,
-                    source: Path = Path("-"), protocol: Protocol | None = None) -> Replay:
-    """Split ``messages`` into ticks at each SYNC and decode them with the harness's drivers."""
+                    source: Path = Path("-"), protocol: Protocol | None = None,
+                    on_tick: Callable[[RigInterface, ReplayTick], None] | None = None
+                    ) -> Replay:
+    """Split ``messages`` into ticks at each SYNC and decode them with the harness's drivers.
+    ``on_tick(interface, tick)`` is called after each tick's frames went through the drivers
+    (the fault monitor's re-run uses it)."""
     protocol = protocol or load_protocol()
     iface, bus = _interface(protocol, rig)
     tx_ids = harness_frame_ids(protocol)
@@ -209,6 +225,8 @@ def replay_messages(messages: Iterable[can.Message], rig: RigConfig, dt_s: float
         state = copy.copy(iface.snapshot(tick, tick * dt_s))
         ticks.append(ReplayTick(tick, tick * dt_s, state, list(cmds), got,
                                 max(0, iface.expected_frames(tick) - got)))
+        if on_tick is not None:
+            on_tick(iface, ticks[-1])
 
     for msg in messages:
         if not msg.is_error_frame:
@@ -248,8 +266,9 @@ def replay_messages(messages: Iterable[can.Message], rig: RigConfig, dt_s: float
         sync_gaps=sync_gaps, before_first_sync=before)
 
 
-def replay_log(path: Path, rig: RigConfig, dt_s: float) -> Replay:
-    return replay_messages(read_log(path), rig, dt_s, source=path)
+def replay_log(path: Path, rig: RigConfig, dt_s: float,
+               on_tick: Callable[[RigInterface, ReplayTick], None] | None = None) -> Replay:
+    return replay_messages(read_log(path), rig, dt_s, source=path, on_tick=on_tick)
 
 
 # ----------------------------------------------------------------------- run directories
@@ -386,14 +405,62 @@ def _mismatch(out: CheckResult, m: Mismatch) -> None:
         out.first_mismatch = m
 
 
+class MonitorReplay:
+    """The run's fault monitor re-run on the replayed ticks (``on_tick`` of the replay): the
+    same checks on the same driver state as in the run, with the valve direction the logged
+    VALVE_CMD carried. Its first event is compared with summary.json's first fault."""
+
+    def __init__(self, run: RunConfig, realtime: bool, dry_run: bool) -> None:
+        self.run = run
+        self.realtime = realtime
+        self.dry_run = dry_run
+        self.monitor: Any = None
+        self.first: FaultEvent | None = None
+
+    def __call__(self, iface: RigInterface, t: ReplayTick) -> None:
+        if self.first is not None:
+            return  # the run stopped at its first fault
+        if self.monitor is None:
+            from harness.session import make_monitor  # the run's own construction
+
+            self.monitor = make_monitor(self.run, iface, realtime=self.realtime)
+        sent = RigCommand()
+        logged, _ = split_commands(t.commands)
+        valve = next((c.values for c in logged if c.name == "VALVE_CMD" and c.values), None)
+        if valve is not None and not self.dry_run:
+            sent.valve_direction = int(valve["valve_pos"]) - int(valve["valve_neg"])
+        self.first = self.monitor.check(t.tick, t.state, sent)
+
+
+def _same_event(replayed: FaultEvent | None, logged: dict[str, Any] | None) -> bool:
+    if replayed is None or logged is None:
+        return replayed is None and logged is None
+    return (replayed.tick == logged.get("tick") and replayed.device == logged.get("device")
+            and replayed.kind == logged.get("kind"))
+
+
+def apply_monitor(result: CheckResult, monitor: MonitorReplay | None,
+                  summary: dict[str, Any]) -> None:
+    """Put the monitor's re-run beside summary.json's first fault in ``result``."""
+    if monitor is None:
+        return
+    faults = summary.get("faults") or []
+    result.monitor_event = monitor.first
+    result.logged_fault = faults[0] if faults else None
+    result.monitor_consistent = _same_event(monitor.first, result.logged_fault)
+
+
 def check_run(run_dir: Path, log: Path | None = None) -> tuple[Replay, CheckResult]:
-    """Replay a run directory's CAN log (or ``log``, e.g. a copy) with its rig and rate, and
-    check its controller's commands against the logged ones."""
+    """Replay a run directory's CAN log (or ``log``, e.g. a copy) with its rig and rate,
+    check its controller's commands against the logged ones, and re-run its fault monitor."""
     run, summary = load_run_dir(run_dir)
-    replay = replay_log(log or run_dir / "can.blf", run.rig, run.dt_s)
-    result = check_replay(replay, run, dry_run=bool(summary.get("dry_run", False)))
+    dry_run = bool(summary.get("dry_run", False))
+    monitor = MonitorReplay(run, realtime=summary.get("clock") == "realtime", dry_run=dry_run)
+    replay = replay_log(log or run_dir / "can.blf", run.rig, run.dt_s, on_tick=monitor)
+    result = check_replay(replay, run, dry_run=dry_run)
     result.stopped_by = summary.get("stopped_by")
     result.summary_ticks = summary.get("ticks")
+    apply_monitor(result, monitor, summary)
     return replay, result
 
 

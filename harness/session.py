@@ -119,6 +119,15 @@ def execute_run(
                         show_progress, dry_run, faults, should_stop)
 
 
+def make_monitor(run: RunConfig, interface: RigInterface, realtime: bool) -> FaultMonitor:
+    """The run's fault monitor on ``interface`` (also used by ``harness replay --check``)."""
+    return FaultMonitor(
+        interface, run.data["monitor"], run.data["limits"],
+        run.rig.section("reaction_wheel")["max_speed_rad_s"], run.rig.accel_range_m_s2,
+        run.rig.section("thruster_valves")["close_delay_s"], run.dt_s, realtime=realtime,
+        valve_min_on_s=run.rig.section("thruster_valves")["min_on_time_s"])
+
+
 def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
              load: Any, run_dir: Path, live_view_url: str | None, show_progress: bool,
              dry_run: bool, faults: list[FaultSpec] | None,
@@ -156,12 +165,7 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
         interface = RigInterface(harness_bus, protocol, run.rig, can_log, run.actuators,
                                  dry_run=dry_run)
         heartbeat_every = max(1, round(run.data["rate_hz"] / run.data["heartbeat_hz"]))
-        monitor = FaultMonitor(
-            interface, run.data["monitor"], run.data["limits"],
-            run.rig.section("reaction_wheel")["max_speed_rad_s"], run.rig.accel_range_m_s2,
-            run.rig.section("thruster_valves")["close_delay_s"], dt_s,
-            realtime=clock_name == "realtime",
-            valve_min_on_s=run.rig.section("thruster_valves")["min_on_time_s"])
+        monitor = make_monitor(run, interface, realtime=clock_name == "realtime")
         reference = getattr(controller, "reference", None)
         recorder.log_static_text("/run/config", "```yaml\n" + yaml.safe_dump(
             run.resolved(), sort_keys=False) + "```")

@@ -95,6 +95,7 @@ def test_check_all_ticks_match(run_dir):
     assert res.ticks_compared == res.ticks_matching == res.ticks_identical == 1001
     assert res.first_mismatch is None and res.skipped == []
     assert res.safe_tick == 1000 and res.stopped_by == "completed"
+    assert res.monitor_event is None and res.logged_fault is None and res.monitor_consistent
 
 
 def test_check_finds_a_tampered_command(run_dir, tmp_path):
@@ -143,6 +144,26 @@ def test_fault_run_replays(tmp_path):
     # the fault tick: the controller's command, then the safe commands; all consistent
     assert chk.consistent and chk.ticks_compared == s["ticks"]
     assert chk.safe_tick == rep.ticks[-1].tick == s["faults"][0]["tick"]
+    # the fault monitor, re-run on the replay, raises the same fault at the same tick
+    assert chk.monitor_event is not None and chk.monitor_consistent
+    assert (chk.monitor_event.tick, chk.monitor_event.device, chk.monitor_event.kind) == (
+        s["faults"][0]["tick"], "reaction_wheel", "malformed frame")
+
+
+def test_monitor_rerun_catches_a_summary_that_disagrees(tmp_path, capsys):
+    res = execute_run(load_run("slew-rw", {"duration_s": 2.0}), out_dir=tmp_path,
+                      show_progress=False, faults=[parse_fault("silent_sensor@0.5:hub_sensor")])
+    s = res.summary
+    assert s["stopped_by"] == "fault"
+    _, chk = check_run(res.run_dir)
+    assert chk.consistent and chk.monitor_event.kind == "silent"
+    # a summary claiming the fault came a tick earlier no longer agrees with the log
+    s["faults"][0]["tick"] -= 1
+    (res.run_dir / "summary.json").write_text(json.dumps(s))
+    _, chk = check_run(res.run_dir)
+    assert not chk.monitor_consistent and not chk.consistent
+    assert main(["replay", str(res.run_dir), "--check"]) == 1
+    assert "MISMATCH" in capsys.readouterr().out
 
 
 def test_interrupted_run_replays(tmp_path):

@@ -16,11 +16,14 @@ errors (a frame counter that did not advance by one) and missing telemetry.
 drivers' clamping and encoding, with the logged command frames tick by tick (integer signals
 exactly, scaled signals within one quantisation step). The safe commands the harness sends
 when a run ends (completed, fault, interrupted) are recognised and not compared; a last tick
-whose commands never went out is skipped with the reason. ``--rrd OUT.rrd`` writes the replayed
+whose commands never went out is skipped with the reason. The run's fault monitor is re-run
+on the replayed ticks (the same checks on the same driver state) and its first fault, if any,
+is compared with summary.json's (tick, device, kind). ``--rrd OUT.rrd`` writes the replayed
 telemetry and the logged commands as scalar channels on the ``time`` timeline (tick x dt).
 
-Exit status: 0 replayed (and, with --check, every compared tick matches), 1 the commands
-differ, 2 bad input (missing or unreadable file, --check without a run directory).
+Exit status: 0 replayed (and, with --check, every compared tick matches and the monitor
+agrees), 1 the commands or the monitor's fault differ, 2 bad input (missing or unreadable
+file, --check without a run directory).
 """
 
 from __future__ import annotations
@@ -34,8 +37,10 @@ from typing import Any
 from drivers.dbc import load_protocol
 from harness.replay import (
     CheckResult,
+    MonitorReplay,
     Replay,
     ReplayError,
+    apply_monitor,
     check_replay,
     load_run_dir,
     replay_log,
@@ -77,8 +82,12 @@ def cmd_replay(args: argparse.Namespace) -> int:
             if args.rig or args.rate_hz:
                 print("harness replay: --rig/--rate-hz ignored: the run directory's "
                       "config.yaml gives its rig and rate", file=sys.stderr)
+            monitor = None
+            if args.check:
+                monitor = MonitorReplay(run, realtime=summary.get("clock") == "realtime",
+                                        dry_run=bool(summary.get("dry_run", False)))
             _stage(f"reading and replaying {path / 'can.blf'}")
-            replay = replay_log(path / "can.blf", run.rig, run.dt_s)
+            replay = replay_log(path / "can.blf", run.rig, run.dt_s, on_tick=monitor)
             rig_name = run.rig.name
         else:
             if args.check:
@@ -98,6 +107,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             result = check_replay(replay, run, dry_run=bool(summary.get("dry_run", False)))
             result.stopped_by = summary.get("stopped_by")
             result.summary_ticks = summary.get("ticks")
+            apply_monitor(result, monitor, summary)
         if args.rrd is not None:
             _stage(f"writing {args.rrd}")
             write_rrd(replay, args.rrd)
@@ -147,6 +157,11 @@ def to_dict(replay: Replay, rig_name: str, result: CheckResult | None) -> dict[s
             "skipped": [{"tick": k, "reason": r} for k, r in result.skipped],
             "safe_commands_tick": result.safe_tick, "stopped_by": result.stopped_by,
             "summary_ticks": result.summary_ticks,
+            "monitor": {
+                "consistent": result.monitor_consistent,
+                "replayed_first_fault": None if result.monitor_event is None
+                else result.monitor_event.to_dict(),
+                "logged_first_fault": result.logged_fault},
         }
     return out
 
@@ -183,9 +198,19 @@ def print_report(r: dict[str, Any]) -> None:
               f"{c['summary_ticks']}: is this log the run's?")
     for s in c["skipped"]:
         print(f"check: tick {s['tick']} not compared: {s['reason']}")
+    mon = c["monitor"]
+    rep, logd = mon["replayed_first_fault"], mon["logged_first_fault"]
+
+    def fault(f: dict[str, Any] | None) -> str:
+        return "none" if f is None else f"{f['device']}: {f['kind']} at tick {f['tick']}"
+
+    print(f"check: fault monitor re-run: {fault(rep)}; summary.json: {fault(logd)}"
+          f"{'' if mon['consistent'] else '  <- MISMATCH'}")
     m = c["first_mismatch"]
     if m is None:
-        print("check: consistent: the controller gives the logged commands")
+        if mon["consistent"]:
+            print("check: consistent: the controller gives the logged commands and the "
+                  "monitor the logged fault")
         return
     print(f"check: MISMATCH: first at tick {m['tick']} (t = {m['time_s']:.3f} s), "
           f"{m['frame']}: {m['detail']}")
