@@ -381,24 +381,21 @@ def format_tables(results: dict[str, Any]) -> str:
     head = ("| {} | manoeuvre (s) | measured peak / rms (m/s^2) | fitted peak +- 1 sigma "
             "(m/s^2) | truth peak (m/s^2) | ref / this: fitted | truth | final angle error "
             "(deg) |")
+
+    def residual_table(title: str, rows: dict[str, Any]) -> None:
+        lines.extend([title, "", head.format("slew"), "|---|---|---|---|---|---|---|---|"])
+        lines.extend(_residual_row(r) for r in rows.values())
+        lines.append("")
+
     w = results.get("wheel")
     if w:
-        lines.append("Reaction-wheel slews, 20 deg, bang-bang 0.06 N m (issue 6)")
-        lines.append("")
-        lines.append(head.format("slew"))
-        lines.append("|---|---|---|---|---|---|---|---|")
-        lines.extend(_residual_row(r) for r in w.values())
-        lines.append("")
+        residual_table("Reaction-wheel slews, 20 deg, bang-bang 0.06 N m (issue 6)", w)
         lines.append(f"Paper 004 (Wang 2022): {PAPER_WANG2022}.")
         lines.append("")
     th = results.get("thruster")
     if th:
-        lines.append("Thruster slews, 5 deg, couple 0.1 N m, fractional levels by PWM (issue 5)")
-        lines.append("")
-        lines.append(head.format("slew"))
-        lines.append("|---|---|---|---|---|---|---|---|")
-        lines.extend(_residual_row(r) for r in th.values())
-        lines.append("")
+        residual_table("Thruster slews, 5 deg, couple 0.1 N m, fractional levels by PWM "
+                       "(issue 5)", th)
         bb = th["bang-bang"]
         rel = results["paper_parman2022_relative"]
         n_modes = len(bb["analysis_residual_percent"])
