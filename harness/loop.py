@@ -8,6 +8,7 @@ disarmed; the caller then closes the recording and the CAN log.
 
 from __future__ import annotations
 
+import gc
 import math
 import sys
 import time
@@ -106,6 +107,9 @@ def run_loop(
     cmd = RigCommand()
     sent = RigCommand()
     progress_every = max(1, n_ticks // 20)
+    collect_young = realtime and not gc.isenabled()
+    collect_every = max(1, round(1.0 / dt_s))
+    next_collect = collect_every
     wall0 = perf()
     clock.start()
     tick = 0
@@ -167,6 +171,12 @@ def run_loop(
                     recorder.drain(1)
                     if can_log is not None:
                         can_log.drain()
+                    if collect_young and tick >= next_collect:
+                        # the collector is off during a real-time run (RealTimeSetup): its
+                        # young generations are collected here, in the slack, about once a
+                        # second, so cyclic garbage cannot accumulate over a long run
+                        gc.collect(1)
+                        next_collect = tick + collect_every
                 elif can_log is not None and can_log.pending > CAN_LOG_MAX_PENDING:
                     can_log.drain()  # a loop that never has time left still bounds memory
             else:

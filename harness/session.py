@@ -25,7 +25,7 @@ from drivers.dbc import load_protocol
 from harness.bus import BusSpec, open_bus, parse_bus
 from harness.busload import compute_bus_load
 from harness.can_log import CanLog
-from harness.clock import LockstepClock, RealTimeClock, RealTimeSetup
+from harness.clock import LockstepClock, RealTimeClock, RealTimeSetup, choose_cpus
 from harness.loop import CHANNELS, LoopStats, run_loop
 from harness.monitor import FaultMonitor
 from harness.paths import safe_child, safe_name
@@ -121,15 +121,57 @@ def execute_run(
     controller = build_controller(run)
     run_dir = make_run_dir(out_dir, run.name)
     (run_dir / "config.yaml").write_text(yaml.safe_dump(run.resolved(), sort_keys=False))
+    rig_mode = virtual_rig_mode(run, spec, clock_name, rig_process,
+                                run.faults + list(faults or []))
     with contextlib.ExitStack() as stack:
-        if rig_process:
-            where = stack.enter_context(RigProcess(
-                run.rig, run.data["rate_hz"], run_dir, run.faults + list(faults or []),
-                lifetime_s=run.data["duration_s"] + 60.0))
+        rig_measures: dict[str, list[str]] = {}
+        if rig_mode.startswith("process"):
+            rt = run.data["realtime"]
+            rig_cpu = (rt["rig_cpu"] if rt["rig_cpu"] >= 0 else choose_cpus(rt["cpu"])[1]) \
+                if rt["pin_cpu"] else None
+            proc = RigProcess(run.rig, run.data["rate_hz"], run_dir,
+                              run.faults + list(faults or []),
+                              lifetime_s=run.data["duration_s"] + 60.0,
+                              transport="tcp" if rig_mode == "process-tcp" else "unix",
+                              cpu=rig_cpu,
+                              priority=rt["rig_priority"] if rt["sched_fifo"] else 0)
+            where = stack.enter_context(proc)
+            rig_measures = proc.measures
             spec = parse_bus(where)
             faults = []
-        return _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
-                        show_progress, dry_run, faults, should_stop)
+        result = _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
+                          show_progress, dry_run, faults, should_stop)
+        result.summary["virtual_rig_mode"] = rig_mode
+        if rig_measures:
+            m = result.summary["realtime_measures"]
+            m["applied"] += rig_measures["applied"]
+            m["refused"] += rig_measures["refused"]
+            (run_dir / "summary.json").write_text(json.dumps(result.summary, indent=2))
+        return result
+
+
+REALTIME_RIG_DEFAULT = "process-unix"
+"""How a real-time run on the virtual bus runs the virtual rig unless its run file says
+(``realtime.virtual_rig``): chosen by benchmarks/bench_rig_options.py (docs/realtime.md)."""
+
+
+def virtual_rig_mode(run: RunConfig, spec: BusSpec, clock_name: str,
+                     rig_process: bool = False, faults: list[FaultSpec] | None = None) -> str:
+    """"lockstep" (pumped in the loop), "thread", "process-unix", "process-tcp", or
+    "external" (the bus is not the in-process virtual bus: the rig is elsewhere). "auto"
+    falls back to "thread" for a fault with a duration (a rig process cannot take one)."""
+    if not spec.in_process:
+        return "external"
+    if clock_name != "realtime":
+        return "lockstep"
+    if rig_process:
+        return "process-tcp"
+    mode = run.data["realtime"]["virtual_rig"]
+    if mode == "auto":
+        timed = any(f.duration_s > 0 for f in faults or [])
+        return "thread" if timed and REALTIME_RIG_DEFAULT.startswith("process") \
+            else REALTIME_RIG_DEFAULT
+    return mode
 
 
 def make_monitor(run: RunConfig, interface: RigInterface, realtime: bool) -> FaultMonitor:
@@ -173,7 +215,10 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
         if clock_name == "realtime":
             rt = run.data["realtime"]
             setup = RealTimeSetup().apply(rt["sched_fifo"], rt["priority"], rt["cpu"],
-                                          rt["lock_memory"], rt["gc_freeze"])
+                                          rt["lock_memory"], rt["gc_freeze"], rt["pin_cpu"])
+            for line in setup.refused:
+                recorder.log_event(0.0, "/events/harness",
+                                   f"real-time measure not granted: {line}", "WARN")
             loop_clock: LockstepClock | RealTimeClock = RealTimeClock(dt_s)
         else:
             loop_clock = LockstepClock(dt_s)
@@ -304,7 +349,7 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
         "wall_time_s": round(stats.wall_s, 3),
         "simulated_time_s": round(sim_time, 6),
         "real_time_factor": round(sim_time / stats.wall_s, 2) if stats.wall_s > 0 else None,
-        "realtime_measures": {"applied": setup.applied, "refused": setup.refused},
+        "realtime_measures": setup.to_dict(),
         "virtual_rig": None if rig is None else {
             "watchdog_trips": rig.counters.watchdog_trips,
             "steps": rig.counters.steps,
