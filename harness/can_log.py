@@ -59,7 +59,9 @@ class CanLog:
             if channel is not None:
                 numbered = numbered_of.get(channel)
                 if numbered is None:
-                    numbered = numbered_of[channel] = channel2int(channel) is not None
+                    number = channel2int(channel)
+                    # BLF keeps a channel number in 16 bits
+                    numbered = numbered_of[channel] = number is not None and 0 <= number < 65535
                 if not numbered:
                     # a channel name without a number ("sgsrt") is written as the writer's
                     # default channel either way; dropping it skips python-can's regex

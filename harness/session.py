@@ -198,7 +198,10 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
     running = running_summary_for(run)
     recorder = Recorder(run_dir / "run.rrd", CHANNELS, run.n_ticks, f"{run_dir.name}",
                         live_view_url=live_view_url, retain_rows=retain_rows_for(run),
-                        observers=[running.update])
+                        observers=[running.update],
+                        # lockstep outruns the file sink: wait for it every 10 blocks so its
+                        # queue stays bounded; real time never waits (the sink keeps up)
+                        flush_every_blocks=0 if clock_name == "realtime" else 10)
     pump = None
     stats = LoopStats()
     setup = RealTimeSetup()

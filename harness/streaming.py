@@ -49,6 +49,12 @@ class LatencyHistogram:
     def __len__(self) -> int:
         return self.n
 
+    def merge(self, other: LatencyHistogram) -> None:
+        """Add another histogram's samples to this one."""
+        self.counts = [a + b for a, b in zip(self.counts, other.counts, strict=True)]
+        self.n += other.n
+        self.max_s = max(self.max_s, other.max_s)
+
     def _bin_value(self, i: int) -> float:
         if i < LINEAR_BINS:
             return (i + 0.5) * LINEAR_STEP_S

@@ -72,7 +72,7 @@ class _SeqpacketBus(can.BusABC):
         if not raw:  # the peer closed
             self._peer_closed()
             return None
-        return unpack(raw, self.channel_info)
+        return unpack(raw, "unix")  # no digits: logs write it as their default channel
 
     def _peer_closed(self) -> None:
         raise can.CanOperationError(f"{self.channel_info}: the other end closed the bus")

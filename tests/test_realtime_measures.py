@@ -28,7 +28,8 @@ def test_measures_requested_by_default_and_recorded(tmp_path):
     assert any(r.startswith("SCHED_FIFO priority 50") for r in m["requested"])
     assert "mlockall" in m["requested"]
     assert any(r.startswith("cpu affinity") for r in m["requested"])
-    assert set(m["applied"]) | {r.split(":")[0] for r in m["refused"]} >= set(m["requested"])
+    for r in m["requested"]:  # each one granted or refused, never lost
+        assert any(x.startswith(r) for x in m["applied"] + m["refused"]), r
     assert s["virtual_rig_mode"] == REALTIME_RIG_DEFAULT
     assert s["stopped_by"] == "completed"
     assert s["frames"]["received"] > 0.8 * 5 * s["ticks"]
