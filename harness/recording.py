@@ -17,7 +17,6 @@ only every ``flush_every_blocks`` blocks when that is set (0, the default: only 
 
 from __future__ import annotations
 
-import os
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
@@ -27,10 +26,6 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 APPLICATION_ID = "sgsrt-harness"
-
-# Rerun warns on every file written without a footer (see Recorder); that is our choice, not
-# a problem to report on each run. Only that module's warnings, only if RUST_LOG is unset.
-os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd::file_sink=error")
 
 
 def default_blueprint(extra_views: list[rrb.View] | None = None) -> rrb.Blueprint:
