@@ -13,6 +13,7 @@ from harness.clock import RealTimeClock, RealTimeSetup
 from harness.runs import load_run
 from harness.session import REALTIME_RIG_DEFAULT, execute_run, virtual_rig_mode
 from harness.unixbus import UnixCanBus, UnixCanServerBus
+from rig_models.faults import make_fault
 
 
 def _rt_run(tmp_path, over=None, **kw):
@@ -66,6 +67,10 @@ def test_rig_mode_choice():
     assert virtual_rig_mode(run, virt, "realtime") == REALTIME_RIG_DEFAULT
     assert virtual_rig_mode(run, virt, "realtime", rig_process=True) == "process-tcp"
     assert virtual_rig_mode(run, parse_bus("socketcan:vcan0"), "realtime") == "external"
+    # a fault with a duration cannot be passed to a rig process: the rig stays a thread
+    timed = make_fault({"kind": "silent_sensor", "at_s": 0.5, "device": "hub_sensor",
+                        "duration_s": 0.2}, "test")
+    assert virtual_rig_mode(run, virt, "realtime", faults=[timed]) == "thread"
 
 
 def test_clock_never_spins_a_whole_period(monkeypatch):
