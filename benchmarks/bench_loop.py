@@ -3,13 +3,11 @@
 1. Lockstep real-time factor of `slew-rw` through the full CAN path at 500 Hz (codecs,
    python-can virtual bus, drivers, virtual rig, BLF log, Rerun recording).
 1b. The same lockstep run on python-can's stock VirtualBus, interleaved with ours.
-2. Real-time mode at 500 Hz for 30 s with the virtual rig in its own process (socketcand on
-   127.0.0.1, ``--rig-process``) and then as a thread of the harness: lateness p50/p99/max,
-   overruns and telemetry frames that missed their tick.
+2. (Real time moved to benchmarks/bench_realtime.py and bench_rig_options.py.)
 3. The plant step (exact ZOH, one matrix-vector product) against scipy.signal.lsim and
    solve_ivp on the same model, the same piecewise-constant input and comparable accuracy.
 
-    .venv/bin/python benchmarks/bench_loop.py [--realtime-s 30] [--repeats 3] [--json]
+    .venv/bin/python benchmarks/bench_loop.py [--repeats 3] [--json]
 """
 
 from __future__ import annotations
@@ -59,23 +57,6 @@ def bench_lockstep(repeats: int, out: Path) -> dict[str, float]:
             "ours_over_stock": float(np.median(np.array(ours) / np.array(stock)))}
 
 
-def _realtime_run(seconds: float, out: Path, rig_process: bool) -> dict[str, object]:
-    # measure timing, do not abort on a late frame: relaxed monitor grace
-    run = load_run("slew-rw", {"duration_s": seconds, "monitor": {"realtime_grace_s": 1.0}})
-    s = execute_run(run, out_dir=out, clock="realtime", show_progress=False,
-                    rig_process=rig_process).summary
-    return {"lateness_ms": s["lateness_ms"], "work_ms": s["work_ms"], "overruns": s["overruns"],
-            "ticks": s["ticks"], "missing_frames": s["frames"]["missing"],
-            "stopped_by": s["stopped_by"], "faults": s["faults"], "bus": s["bus"]}
-
-
-def bench_realtime(seconds: float, out: Path) -> dict[str, dict[str, object]]:
-    """500 Hz real time with the virtual rig in its own process (socketcand on 127.0.0.1,
-    ``--rig-process``) and, right after, as a thread of the harness's process."""
-    return {"process": _realtime_run(seconds, out, True),
-            "thread": _realtime_run(seconds, out, False)}
-
-
 def bench_plant(n_steps: int = 20000) -> dict[str, float]:
     plant = load_rig("sgsrt").plant
     dt = 0.002
@@ -115,7 +96,6 @@ def bench_plant(n_steps: int = 20000) -> dict[str, float]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--realtime-s", type=float, default=30.0)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
@@ -123,13 +103,11 @@ def main() -> int:
         out = Path(tmp)
         print("benchmark: lockstep ...", file=sys.stderr)
         lock = bench_lockstep(args.repeats, out)
-        print(f"benchmark: real time, {args.realtime_s:g} s ...", file=sys.stderr)
-        rt = bench_realtime(args.realtime_s, out)
     print("benchmark: plant step ...", file=sys.stderr)
     plant = bench_plant()
     result = {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
               "python": platform.python_version(), "date": time.strftime("%Y-%m-%d"),
-              "lockstep_real_time_factor": lock, "realtime_500hz": rt, "plant": plant}
+              "lockstep_real_time_factor": lock, "plant": plant}
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
@@ -140,14 +118,6 @@ def main() -> int:
           f"{lock['max']:.1f}) |")
     print(f"| same, on python-can's stock VirtualBus (interleaved runs) | "
           f"{lock['stock_median']:.1f}x; ours / stock {lock['ours_over_stock']:.2f} |")
-    for where, label in (("process", "rig in its own process (--rig-process)"),
-                         ("thread", "rig as a thread of the harness")):
-        r = rt[where]
-        lat = r["lateness_ms"]
-        print(f"| real time 500 Hz, {args.realtime_s:g} s, {label}: lateness p50 / p99 / max; "
-              f"overruns / ticks; late telemetry frames | {lat['p50']:.3f} / {lat['p99']:.3f} / "
-              f"{lat['max']:.3f} ms; {r['overruns']} / {r['ticks']}; {r['missing_frames']} "
-              f"({r['stopped_by']}) |")
     print(f"| plant step, exact ZOH (matrix-vector) | {plant['zoh_us_per_step']:.2f} us |")
     print(f"| scipy.signal.lsim, same input | {plant['lsim_us_per_step']:.2f} us/step "
           f"({plant['lsim_over_zoh']:.2f}x ZOH; max state diff "
