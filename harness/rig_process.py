@@ -68,7 +68,7 @@ class RigProcess:
         self.transport = transport
         self.cpu = cpu
         self.priority = priority
-        self.measures: dict[str, list[str]] = {"applied": [], "refused": []}
+        self.measures: dict[str, list[str]] = {"requested": [], "applied": [], "refused": []}
         self.rig_file = run_dir / "rig.yaml"
         self.log_path = run_dir / "rig.log"
         self.rate_hz = rate_hz
@@ -118,6 +118,7 @@ class RigProcess:
         with contextlib.suppress(OSError):  # every thread of the rig process
             tasks = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
         if self.cpu is not None:
+            self.measures["requested"].append(f"rig process cpu affinity {self.cpu}")
             try:
                 for task in tasks:
                     os.sched_setaffinity(task, {self.cpu})
@@ -125,6 +126,8 @@ class RigProcess:
             except OSError as exc:
                 self.measures["refused"].append(f"rig process cpu affinity {self.cpu}: {exc}")
         if self.priority > 0:
+            self.measures["requested"].append(f"rig process SCHED_FIFO priority "
+                                              f"{self.priority}")
             try:  # the rig's main thread (the one serving the bus)
                 os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(self.priority))
                 self.measures["applied"].append(f"rig process SCHED_FIFO priority "

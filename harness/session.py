@@ -144,8 +144,8 @@ def execute_run(
         result.summary["virtual_rig_mode"] = rig_mode
         if rig_measures:
             m = result.summary["realtime_measures"]
-            m["applied"] += rig_measures["applied"]
-            m["refused"] += rig_measures["refused"]
+            for key in ("requested", "applied", "refused"):
+                m[key] += rig_measures[key]
             (run_dir / "summary.json").write_text(json.dumps(result.summary, indent=2))
         return result
 
