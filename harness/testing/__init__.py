@@ -1,0 +1,1 @@
+"""The verdict layer and suites (``harness test``); see branch ``verdict`` for judging."""
