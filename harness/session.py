@@ -117,8 +117,12 @@ def execute_run(
                 lifetime_s=run.data["duration_s"] + 60.0))
             spec = parse_bus(where)
             faults = []
-        return _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
-                        show_progress, dry_run, faults, should_stop)
+        try:
+            return _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
+                            show_progress, dry_run, faults, should_stop)
+        except Exception as exc:  # the run raised: its directory can still be judged (ERROR)
+            exc.run_dir = run_dir  # type: ignore[attr-defined]
+            raise
 
 
 def make_monitor(run: RunConfig, interface: RigInterface, realtime: bool) -> FaultMonitor:
