@@ -41,8 +41,6 @@ from harness.testing.checks import combine, judge_compare
 from harness.testing.suite import Case, Compare, Suite
 from harness.testing.work import EXIT, item_result, probe_verdict, run_case, run_probe
 
-_EXIT_ERROR = {"ERROR": 4}
-
 
 class SuiteFailure(Exception):
     """A test's verdict is FAIL."""
@@ -355,19 +353,15 @@ class SuiteItem(pytest.Item):
         return self.path, None, f"{self.suite.name}::{self.name}"
 
 
+EXIT_ORDER = (130, 2, 3, 4, 1, 5, 0)
+"""Most severe first (as ``harness run``'s variants, with 2: refused before anything was
+sent, e.g. the pre-flight probe failed)."""
+
+
 def exit_code(records: list[dict[str, Any]]) -> int:
-    """The contract's code for the worst verdict: ERROR 3/4 (refused 2), FAIL 1,
-    MARGINAL 5, PASS 0."""
-    verdicts = [r["verdict"] for r in records if r["verdict"] != "SKIPPED"]
-    if any(v == "ERROR" for v in verdicts):
-        codes = [r.get("exit_code") or 4 for r in records if r["verdict"] == "ERROR"]
-        if 130 in codes:
-            return 130
-        if 2 in codes:
-            return 2
-        return 3 if 3 in codes and 4 not in codes else 4
-    if "FAIL" in verdicts:
-        return EXIT["FAIL"]
-    if "MARGINAL" in verdicts:
-        return EXIT["MARGINAL"]
-    return 0
+    """The exit code of the most severe test: interrupted 130, refused 2, ERROR by a fault
+    nobody expected 3, ERROR 4, FAIL 1, MARGINAL 5, PASS 0."""
+    codes = [r.get("exit_code") if r.get("exit_code") is not None else EXIT[r["verdict"]]
+             for r in records if r["verdict"] != "SKIPPED"]
+    return min(codes, key=lambda c: EXIT_ORDER.index(c) if c in EXIT_ORDER else 3,
+               default=0)

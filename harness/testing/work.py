@@ -55,9 +55,11 @@ def _with_checks(base: dict[str, Any], checks: list[dict[str, Any]]) -> dict[str
 
 
 def _judge(run_dir: Path) -> dict[str, Any]:
-    from harness.testing import judge_run
+    """The verdict layer's judgement of the run (writes verdict.json and verdict.rrd)."""
+    from harness.testing.judge import judge_run, write_verdict
 
     v = judge_run(run_dir)
+    write_verdict(v, run_dir)
     return {**v.to_dict(), "exit_code": v.exit_code}
 
 
@@ -79,14 +81,15 @@ def _run(case: Case, out_dir: Path, bus: str | None) -> tuple[dict[str, Any], Pa
     except (ConfigError, BusSpecError, RunRefused, RigProcessError) as exc:
         items[case.id] = _error(f"run refused: {exc}", exit_code=2)
         return items, None
+    except Exception as exc:  # the run raised (controller, driver): judged ERROR if it left
+        run_dir = getattr(exc, "run_dir", None)  # a run directory, else reported as is
+        if run_dir is None:
+            raise
+        items[case.id] = _judge_or_error(Path(run_dir), f"{type(exc).__name__}: {exc}")
+        return items, Path(run_dir)
     run_dir = result.run_dir
     summary = result.summary
-    try:
-        judged = _judge(run_dir)
-    except Exception as exc:  # noqa: BLE001 - reported as the test's ERROR
-        judged = _error(f"judge: {type(exc).__name__}: {exc}")
-    if summary.get("stopped_by") == "interrupted":
-        judged = _error(f"interrupted ({summary.get('error') or 'stopped'})", exit_code=130)
+    judged = _judge_or_error(run_dir)
     checks = [judge_check(c, summary) for c in case.checks]
     items[case.id] = _with_checks(judged, checks)
     if case.identify is not None:
@@ -107,6 +110,17 @@ def _run(case: Case, out_dir: Path, bus: str | None) -> tuple[dict[str, Any], Pa
             except Exception as exc:  # noqa: BLE001
                 items[name] = _error(f"identify: {type(exc).__name__}: {exc}")
     return items, run_dir
+
+
+def _judge_or_error(run_dir: Path, raised: str = "") -> dict[str, Any]:
+    try:
+        judged = _judge(run_dir)
+    except Exception as exc:  # noqa: BLE001 - reported as the test's ERROR
+        judged = _error(f"judge: {type(exc).__name__}: {exc}")
+    if raised and judged["verdict"] != "ERROR":
+        judged = {**judged, "verdict": "ERROR", "reason": f"the run raised {raised}",
+                  "exit_code": 4}
+    return judged
 
 
 def _modes_table(ident: dict[str, Any]) -> list[dict[str, Any]]:
