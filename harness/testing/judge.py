@@ -346,6 +346,8 @@ def format_block(v: Verdict, path: Path | None = None) -> str:
         at = "" if c.worst_time_s is None else f"  worst at t = {c.worst_time_s:.3f} s"
         lines.append(f"  {c.verdict:<8} {c.name:<{w}}  {val} {c.unit}".rstrip()
                      + (f"  limit {lim}" if lim else "") + margin + at)
+        if c.verdict != "PASS":
+            lines.append(f"  {'':<8} {'':<{w}}  {c.message}")
     if path is not None:
         lines.append(f"  verdict in {path}")
     return "\n".join(lines)
