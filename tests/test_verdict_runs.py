@@ -266,3 +266,30 @@ def test_logs_shows_verdicts_and_lists_failures(judged_run, tmp_path, capsys):
     out = capsys.readouterr().out
     assert bad.name in out and killed.name in out
     assert ok.name not in out and nov.name not in out
+
+
+def test_dry_run_judges_only_the_safe_state(tmp_path):
+    """A dry run commands nothing: the run's criteria would judge a slew that never
+    happened, so only left_safe and the run's own checks are judged."""
+    expect = {"moved": {"measure": "final_angle_deg", "min_deg": 0.1},
+              "safe": {"left_safe": True}}
+    code, d = run(run_file(tmp_path, expect, "dry"), tmp_path / "logs", "--dry-run")
+    v = verdict_of(d)
+    assert code == 0 and [c["name"] for c in v["criteria"]] == ["safe"]
+    assert v["reason"].startswith("dry run")
+    assert main(["judge", str(d), "--expect", str(_expect_file(tmp_path, expect))]) == 0
+
+
+def test_every_built_in_run_states_its_criteria():
+    """Every built-in run file (and variant) has an expect: section, checked, with a why."""
+    from harness.runs import list_runs
+    from harness.testing import parse_criteria
+
+    for name, _ in list_runs():
+        r = load_run(name)
+        runs = [r] + [load_run(name, dict(v)) for v in (r.data["variants"] or {}).values()]
+        for x in runs:
+            crits = parse_criteria(x.data["expect"], name)
+            assert len(crits) >= 4, name
+            assert all(c.why for c in crits), name
+            assert any(c.kind == "left_safe" for c in crits), name

@@ -284,9 +284,16 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
             results.append(_missing(name, f"no {name} in the run directory"))
     facts = Facts(summary, ChannelCache(run_dir / "run.rrd"), BaselineCache(),
                   lambda: left_safe_problems(run_dir / "can.blf"))
+    dry = bool(summary.get("dry_run"))
+    if dry:  # nothing was commanded: only the rig left safe and the run's own checks
+        criteria = [c for c in criteria if c.kind == "left_safe"]
     results = evaluate(criteria, facts) + results + (run_checks(criteria, summary)
                                                      if summary else [])
-    return make_verdict(results, identity_of(run_dir, cfg, summary, expect_file), run_dir)
+    verdict = make_verdict(results, identity_of(run_dir, cfg, summary, expect_file), run_dir)
+    if dry and verdict.verdict == "PASS":
+        verdict.reason = "dry run (nothing commanded): only left_safe and the run's own " \
+                         "checks judged; " + verdict.reason
+    return verdict
 
 
 def _missing(what: str, message: str) -> CriterionResult:
