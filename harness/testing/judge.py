@@ -284,9 +284,16 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
             results.append(_missing(name, f"no {name} in the run directory"))
     facts = Facts(summary, ChannelCache(run_dir / "run.rrd"), BaselineCache(),
                   lambda: left_safe_problems(run_dir / "can.blf"))
+    dry = bool(summary.get("dry_run"))
+    if dry:  # nothing was commanded: only the rig left safe and the run's own checks
+        criteria = [c for c in criteria if c.kind == "left_safe"]
     results = evaluate(criteria, facts) + results + (run_checks(criteria, summary)
                                                      if summary else [])
-    return make_verdict(results, identity_of(run_dir, cfg, summary, expect_file), run_dir)
+    verdict = make_verdict(results, identity_of(run_dir, cfg, summary, expect_file), run_dir)
+    if dry and verdict.verdict == "PASS":
+        verdict.reason = "dry run (nothing commanded): only left_safe and the run's own " \
+                         "checks judged; " + verdict.reason
+    return verdict
 
 
 def _missing(what: str, message: str) -> CriterionResult:
@@ -346,6 +353,8 @@ def format_block(v: Verdict, path: Path | None = None) -> str:
         at = "" if c.worst_time_s is None else f"  worst at t = {c.worst_time_s:.3f} s"
         lines.append(f"  {c.verdict:<8} {c.name:<{w}}  {val} {c.unit}".rstrip()
                      + (f"  limit {lim}" if lim else "") + margin + at)
+        if c.verdict != "PASS":
+            lines.append(f"  {'':<8} {'':<{w}}  {c.message}")
     if path is not None:
         lines.append(f"  verdict in {path}")
     return "\n".join(lines)
