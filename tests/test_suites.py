@@ -52,11 +52,11 @@ def write_suite(tmp: Path) -> Path:
         "name": "mini",
         "tests": [
             {"probe": {"duration_s": 0.3}},
-            {"run": "slew-rw", "duration_s": 4,
+            {"run": "slew-rw", "duration_s": 4, "own_expect": False,
              "expect": {"tracking": {"channel": "/attitude/error_deg", "max_abs_deg": 0.1}}},
             {"run": str(tight)},
             {"run": "case-a", "duration_s": 6, "variants": ["beta-0.6", "beta-1.0"],
-             "set": {"steady_window_s": 3},
+             "set": {"steady_window_s": 3}, "own_expect": False,
              "compare": [{"measure": "compensation_amplitude_n_m", "largest": "beta-1.0"}]},
         ],
     }
