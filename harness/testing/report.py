@@ -203,7 +203,8 @@ def write_reports(out_dir: Path, records: list[dict[str, Any]], *, not_run: list
     from harness.testing.plugin import exit_code
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    verdicts = [r["verdict"] for r in records if r["verdict"] != "SKIPPED"]
+    verdicts = [r["verdict"] for r in records
+                if r["verdict"] != "SKIPPED" and r.get("reported", True)]
     doc = {
         "suites": [{"name": s.name, "description": s.description, "source": str(s.source)}
                    for s in suites],
@@ -255,7 +256,8 @@ def _markdown(doc: dict[str, Any]) -> str:
     out += [_md_table([[r["item"], r["verdict"], _fmt(r["wall_s"]), r["reason"]]
                        for r in doc["tests"]], ["test", "verdict", "time (s)", "reason"]), ""]
     if doc["not_run"]:
-        out += ["Not run (stopped early): " + ", ".join(doc["not_run"]), ""]
+        out += ["Not reported (the suite stopped early; finished ones are listed with "
+                "reported false): " + ", ".join(doc["not_run"]), ""]
     for r in doc["tests"]:
         out += [f"## {r['item']}: {r['verdict']}", "", r["reason"], ""]
         if r.get("run_dir"):
@@ -324,8 +326,8 @@ def _html(doc: dict[str, Any], out_dir: Path) -> str:
                      "<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in rows)
                  + "</table>")
     if doc["not_run"]:
-        parts.append("<p>Not run (stopped early): " + html.escape(", ".join(doc["not_run"]))
-                     + "</p>")
+        parts.append("<p>Not reported (the suite stopped early): "
+                     + html.escape(", ".join(doc["not_run"])) + "</p>")
     for r in doc["tests"]:
         parts.append(f"<section id='{_anchor(r['item'])}'><h2>{html.escape(r['item'])} "
                      f"{_badge(r['verdict'])}</h2>")
