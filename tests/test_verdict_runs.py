@@ -57,6 +57,7 @@ def test_tightened_limits_fail_marginal_and_pass_with_exit_codes(tmp_path, capsy
     [c] = v["criteria"]
     assert c["name"] == "torque" and c["limit"] == {"max_n_m": 0.03}
     assert 0.03 < c["value"] < 0.065 and c["margin"] < 0 and c["unit"] == "n_m"
+    assert 1.0 < c["worst_time_s"] <= DURATION_S  # the commanded peak's sample, from run.rrd
     err = capsys.readouterr().err
     assert "VERDICT FAIL (exit 1)" in err and "torque" in err
     assert f"{c['value']:.4g} n_m" in err and "max_n_m 0.03" in err
