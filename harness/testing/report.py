@@ -135,7 +135,6 @@ def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dic
     rrd = run_dir / "run.rrd"
     if not rrd.is_file():
         return []
-    data = read_channels(rrd)
     try:
         specs = channel_specs(run_dir, criteria_results)
     except (OSError, ValueError, KeyError) as exc:
@@ -143,6 +142,7 @@ def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dic
         note = f"criteria not readable: {exc}"
     else:
         note = ""
+    data = read_channels(rrd, {s["channel"] for s in specs} | set(OVERVIEW))
     plots = []
     for s in specs:
         if s["channel"] not in data:
