@@ -277,6 +277,37 @@ def test_real_bus_refuses_when_the_probe_fails(tmp_path):
                                     for e in errors)
 
 
+def test_real_bus_runs_one_at_a_time_after_a_good_probe(tmp_path):
+    """A healthy rig in its own process (socketcand on 127.0.0.1) as the 'real' bus: the
+    probe passes, the runs go over that bus on the real-time clock, inline, and the
+    fault-injection test is skipped."""
+    from harness.rig_process import RigProcess
+    from rig_models.rig_file import load_rig
+
+    suite = tmp_path / "on-rig.yaml"
+    suite.write_text(yaml.safe_dump({"name": "rig", "tests": [
+        {"run": "slew-rw", "name": "hold", "duration_s": 1.0, "own_expect": False,
+         "set": {"rate_hz": 100, "monitor": {"realtime_grace_s": 0.5}},
+         "expect": {"safe": {"left_safe": True}}},
+        {"run": "slew-rw", "name": "fault", "duration_s": 1.0, "own_expect": False,
+         "set": {"rate_hz": 100},
+         "faults": [{"kind": "silent_sensor", "at_s": 0.5, "device": "hub_sensor"}]}]}))
+    out = tmp_path / "out"
+    with RigProcess(load_rig("sgsrt"), 100.0, tmp_path, [], lifetime_s=120) as where:
+        proc = harness_test(str(suite), "--bus", where, "--out", str(out),
+                            "--junit", str(tmp_path / "j.xml"))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "pre-flight probe OK" in proc.stderr and "on inline" in proc.stderr
+    results = json.loads((suite_dir_of(out, "rig") / "results.json").read_text())
+    by_item = {t["item"]: t for t in results["tests"]}
+    assert by_item["hold"]["verdict"] == "PASS" and by_item["fault"]["verdict"] == "SKIPPED"
+    summary = json.loads((suite_dir_of(out, "rig") / by_item["hold"]["run_dir"]
+                          / "summary.json").read_text())
+    assert summary["clock"] == "realtime" and summary["bus"].startswith("socketcand:")
+    cases = {c.get("name"): c for c in ET.parse(tmp_path / "j.xml").iter("testcase")}
+    assert cases["fault"].find("skipped") is not None
+
+
 def test_builtin_suites_load_and_list():
     proc = harness_test("--list")
     assert proc.returncode == 0 and "acceptance" in proc.stdout
