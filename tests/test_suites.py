@@ -240,7 +240,6 @@ def test_interrupt_stops_the_runs_at_a_tick_and_exits_130(tmp_path):
     deadline = time.monotonic() + 120
     while not list(out.glob("*-long/*-slew-rw-*/run.rrd")) and time.monotonic() < deadline:
         time.sleep(0.2)
-    time.sleep(1.0)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err[-2000:]
@@ -249,6 +248,7 @@ def test_interrupt_stops_the_runs_at_a_tick_and_exits_130(tmp_path):
     assert summaries and all(s["stopped_by"] == "interrupted" for s in summaries)
     assert all(s["ticks"] < 25001 for s in summaries)
     results = json.loads((folder / "results.json").read_text())
+    assert results["exit_code"] == 130 and results["interrupted"]
     assert results["tests"] and all(t["reported"] is False for t in results["tests"])
 
 

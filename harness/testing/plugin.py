@@ -206,9 +206,10 @@ class SuitePlugin:
             "worker": out.get("worker") if out else None,
             "run_dir": out.get("run_dir") if out else None,
         }
-        for k in ("modes", "document"):
-            if k in res and k != "document":
-                rec[k] = res[k]
+        if "modes" in res:
+            rec["modes"] = res["modes"]
+        if "document" in res and item.item_kind in ("probe", "study"):
+            rec["document"] = res["document"]
         if out and out.get("summary") and item.item_kind == "run":
             s = out["summary"]
             rec["summary"] = {k: s.get(k) for k in (
@@ -243,7 +244,8 @@ class SuitePlugin:
         write_reports(self.out_dir, self.records, not_run=not_run, suites=list(
             self.suites.values()), engine=self.engine_name, bus=self.bus,
             preflight=self.preflight, refused=self.refused,
-            wall_s=time.perf_counter() - self.t0)
+            wall_s=time.perf_counter() - self.t0,
+            interrupted=exitstatus == pytest.ExitCode.INTERRUPTED)
 
 
 class SuiteFile(pytest.File):
@@ -298,11 +300,13 @@ class SuiteItem(pytest.Item):
             res = item_result("ERROR", plugin.refused, exit_code=2)
             self.result = res
             plugin.record(self, res, None)
+            plugin._count(f"ERROR    {self.suite.name}::{self.name}: refused")
             raise SuiteError(plugin.refused)
         if plugin.real_bus and any(c.virtual_only for c in self.cases()):
             res = item_result("PASS", "skipped: injects faults, needs the virtual rig",
                               skipped=True)
             plugin.record(self, {**res, "verdict": "SKIPPED"}, None)
+            plugin._count(f"SKIPPED  {self.suite.name}::{self.name}: needs the virtual rig")
             pytest.skip("injects faults in the virtual rig; not on a real bus "
                         f"({plugin.bus})")
         if self.compare is not None:

@@ -199,7 +199,7 @@ def _counts(records: list[dict[str, Any]]) -> dict[str, int]:
 def write_reports(out_dir: Path, records: list[dict[str, Any]], *, not_run: list[str],
                   suites: list[Any], engine: str, bus: str | None,
                   preflight: dict[str, Any] | None, refused: str | None,
-                  wall_s: float) -> dict[str, Any]:
+                  wall_s: float, interrupted: bool = False) -> dict[str, Any]:
     from harness.testing.plugin import exit_code
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -212,7 +212,9 @@ def write_reports(out_dir: Path, records: list[dict[str, Any]], *, not_run: list
         "engine": engine, "bus": bus or "virtual (each run's own)",
         "wall_time_s": round(wall_s, 2),
         "verdict": worst(verdicts) if verdicts else ("ERROR" if refused else "PASS"),
-        "exit_code": exit_code(records) if records else (2 if refused else 0),
+        "exit_code": 130 if interrupted else (
+            exit_code(records) if records else (2 if refused else 0)),
+        "interrupted": interrupted,
         "counts": _counts(records), "refused": refused, "preflight": preflight,
         "not_run": not_run, "tests": records,
     }
@@ -336,9 +338,12 @@ def _html(doc: dict[str, Any], out_dir: Path) -> str:
         parts.append(f"<p class='reason'>{html.escape(r['reason'])}</p>")
         if r.get("run_dir"):
             d = html.escape(r["run_dir"])
+            extra = (f" &middot; <a href='{d}/identify.json'>identify.json</a> &middot; "
+                     f"<a href='{d}/identify.rrd'>identify.rrd</a>"
+                     if r["kind"] == "identify" else "")
             parts.append(f"<p><a href='{d}/run.rrd'>run.rrd</a> &middot; <a href='{d}/can.blf'>"
-                         f"can.blf</a> &middot; <a href='{d}/verdict.json'>verdict.json</a> "
-                         f"&middot; <a href='{d}/'>{d}/</a></p>")
+                         f"can.blf</a> &middot; <a href='{d}/verdict.json'>verdict.json</a>"
+                         f"{extra} &middot; <a href='{d}/'>{d}/</a></p>")
         if r["criteria"]:
             parts.append(_html_table(_criteria_rows(r["criteria"]), HEADER, verdict_col=6))
         if r.get("modes"):
