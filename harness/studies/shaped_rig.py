@@ -197,7 +197,7 @@ def measure(slew: Slew, out_dir: Path, modes: Sequence[Mode] | None = None,
     if s["stopped_by"] != "completed":
         raise RuntimeError(f"{run.name}: stopped by {s['stopped_by']}: {s['error']} "
                            f"{s['faults']}")
-    rec = result.recorder
+    rec = result.columns()
     t = rec.time_s[: rec.rows]
     accel = rec.column("/tip/accel_m_s2")
     analysis_modes = parse_modes(run.controller["modes"])
