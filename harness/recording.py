@@ -96,8 +96,29 @@ class Recorder:
         self.rec.log(entity, rr.TextDocument(text, media_type="text/markdown"), static=True)
 
     def log_event(self, time_s: float, entity: str, text: str, level: str = "WARN") -> None:
-        self.rec.set_time("time", duration=time_s)
-        self.rec.log(entity, rr.TextLog(text, level=level))
+        """A TextLog under ``/events/...`` and a marker on every plot at ``time_s``, on the
+        plot's signal at the last recorded row (harness.review.events)."""
+        from harness.review.events import log_event
+
+        log_event(self.rec, time_s, entity, text, level, self.latest_values())
+
+    def latest_values(self) -> dict[str, float]:
+        """Every channel's value in the last committed row (empty before the first)."""
+        if self.rows == 0:
+            return {}
+        row = self.data[self.rows - 1]
+        return {c: float(row[i]) for i, c in enumerate(self.channels)}
+
+    def send_layout(self, blueprint: rrb.Blueprint) -> None:
+        """Replace the recording's layout (made default and active), e.g. at the end of a
+        run when the plots' ranges are known."""
+        self.rec.send_blueprint(blueprint, make_active=True, make_default=True)
+
+    def log_summary(self, summary: dict) -> None:
+        """The run's summary as a markdown table at ``/run/summary``."""
+        from harness.review.events import summary_markdown
+
+        self.log_static_text("/run/summary", summary_markdown(summary))
 
     def close(self) -> None:
         """Send everything recorded so far and finalise the file (idempotent)."""
