@@ -146,6 +146,13 @@ def test_bus_frames_sit_at_their_tick(faulted):
     k = np.floor(t / dt + 1e-9)
     assert np.all(t - k * dt < 0.9 * dt + 1e-12)  # lockstep: in its own tick
     assert t[-1] < 1.0 + 2 * dt  # silent from 1 s
+    # decoded as the drivers decode them: the hub angle the loop recorded at that tick
+    ta, angle_deg = read_scalar_channel(faulted.run_dir / "run.rrd", "/attitude/angle_deg")
+    at_tick = np.interp(k * dt, ta, angle_deg)
+    assert np.abs(np.degrees(angle) - at_tick).max() < 1e-5
+    tw, torque = read_scalar_channel(faulted.run_dir / "run.rrd",
+                                     "/bus/reaction_wheel/cmd/torque_cmd_n_m")
+    assert torque.min() < 0 < torque.max()  # signed fields
     t2, missing = read_scalar_channel(faulted.run_dir / "run.rrd", "/bus/late_or_missing")
     assert missing[t2 < 0.99].max() == 0 and missing[t2 >= 1.0].min() >= 1
 

@@ -16,14 +16,15 @@ frame sits at its tick's time plus its wall-clock offset after that SYNC, clampe
 of the period: it stays in its own tick, and ``rx_after_sync_ms`` keeps the true wall
 offset. Frames before the first SYNC sit at the first tick's time.
 
-The CAN log is streamed (python-can's BLF reader reads it in blocks) and the decoded values
-are sent with ``send_columns`` every ``block_values`` values, so memory does not grow with
-the run's length. It runs after the run, before run.rrd is closed, never in the tick.
+The CAN log is streamed (python-can's BLF reader reads it in blocks); each frame id's
+payloads are kept as integers in blocks of ``block_rows``, decoded with numpy by the DBC's
+fields (``drivers.dbc``) and sent with ``send_columns``, so memory does not grow with the
+run's length. It runs after the run, before run.rrd is closed, never in the tick.
 """
 
 from __future__ import annotations
 
-import math
+from array import array
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,7 +33,7 @@ import can
 import numpy as np
 import rerun as rr
 
-from drivers.dbc import Protocol, load_protocol
+from drivers.dbc import FrameCodec, Protocol, load_protocol
 
 # device -> (telemetry frame, command frame or None), as the drivers define them
 DEVICES: dict[str, tuple[str, str | None]] = {
@@ -66,45 +67,76 @@ class BusStats:
     warnings: list[tuple[float, str]] = field(default_factory=list)
 
 
-class _Columns:
-    """Values per entity, sent in blocks."""
+class _Frames:
+    """One frame id's frames (time, payload as a little-endian integer) in compact arrays,
+    decoded with numpy (the codec's fields) and sent when ``block_rows`` are held, and at
+    the end: memory is ``block_rows`` x 16 bytes per frame id, whatever the run's length."""
 
-    def __init__(self, rec: rr.RecordingStream, block_values: int) -> None:
+    def __init__(self, rec: rr.RecordingStream, codec: FrameCodec, entities: list[str],
+                 block_rows: int) -> None:
         self.rec = rec
-        self.block = block_values
-        self.t: dict[str, list[float]] = {}
-        self.v: dict[str, list[float]] = {}
-        self.n = 0
+        self.codec = codec
+        self.entities = entities
+        self.block = block_rows
+        self.t = array("d")
+        self.word = array("Q")
 
-    def add(self, entity: str, t: float, v: float) -> None:
-        ts = self.t.get(entity)
-        if ts is None:
-            ts = self.t[entity] = []
-            self.v[entity] = []
-        ts.append(t)
-        self.v[entity].append(v)
-        self.n += 1
-        if self.n >= self.block:
+    def add(self, t: float, data: bytes) -> None:
+        self.t.append(t)
+        self.word.append(int.from_bytes(data, "little"))
+        if len(self.t) >= self.block:
             self.flush()
 
     def flush(self) -> None:
-        for entity, ts in self.t.items():
-            if ts:
-                self.rec.send_columns(
-                    entity, indexes=[rr.TimeColumn("time", duration=np.asarray(ts))],
-                    columns=rr.Scalars.columns(scalars=np.asarray(self.v[entity])))
-        self.t = {}
-        self.v = {}
-        self.n = 0
+        if not len(self.t):
+            return
+        t = np.frombuffer(self.t).copy()
+        word = np.frombuffer(self.word, dtype=np.uint64)
+        index = [rr.TimeColumn("time", duration=t)]
+        for entity, s in zip(self.entities, self.codec.signals, strict=True):
+            raw = ((word >> np.uint64(s.start)) & np.uint64(s.mask)).astype(np.int64)
+            if s.signed:
+                raw = np.where(raw >= 1 << (s.length - 1), raw - (1 << s.length), raw)
+            self.rec.send_columns(entity, indexes=index,
+                                  columns=rr.Scalars.columns(scalars=raw * s.scale + s.offset))
+        self.t = array("d")
+        self.word = array("Q")
+
+
+class _Series:
+    """Derived values of one entity (receive offsets, late-or-missing counts), sent in
+    blocks like ``_Frames``."""
+
+    def __init__(self, rec: rr.RecordingStream, entity: str, block_rows: int) -> None:
+        self.rec = rec
+        self.entity = entity
+        self.block = block_rows
+        self.t = array("d")
+        self.v = array("d")
+
+    def add(self, t: float, v: float) -> None:
+        self.t.append(t)
+        self.v.append(v)
+        if len(self.t) >= self.block:
+            self.flush()
+
+    def flush(self) -> None:
+        if len(self.t):
+            self.rec.send_columns(
+                self.entity, indexes=[rr.TimeColumn("time", duration=np.frombuffer(self.t).copy())],
+                columns=rr.Scalars.columns(scalars=np.frombuffer(self.v).copy()))
+        self.t = array("d")
+        self.v = array("d")
 
 
 def write_bus(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime: bool,
               dividers: Mapping[str, int], protocol: Protocol | None = None,
-              block_values: int = 50_000) -> BusStats:
+              block_rows: int = 10_000) -> BusStats:
     """Decode ``blf`` into ``rec`` (see the module docstring); returns counts."""
     protocol = protocol or load_protocol()
     by_id = protocol.by_id
-    sync_id = protocol["SYNC"].frame_id
+    sync = protocol["SYNC"]
+    sync_id = sync.frame_id
     device_of: dict[int, tuple[str, str]] = {}
     for device, (tlm, cmd) in DEVICES.items():
         device_of[protocol[tlm].frame_id] = (device, "tlm")
@@ -112,24 +144,30 @@ def write_bus(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime: bool,
             device_of[protocol[cmd].frame_id] = (device, "cmd")
     device_of[protocol["HEARTBEAT"].frame_id] = ("harness", "heartbeat")
     device_of[sync_id] = ("harness", "sync")
-    entities = {fid: [signal_entity(f"/bus/{dev}/{kind}", s.name, s.unit)
-                      for s in by_id[fid].signals] for fid, (dev, kind) in device_of.items()}
+    frames = {fid: _Frames(rec, by_id[fid], [signal_entity(f"/bus/{dev}/{kind}", s.name, s.unit)
+                                             for s in by_id[fid].signals], block_rows)
+              for fid, (dev, kind) in device_of.items()}
+    length = {fid: by_id[fid].length for fid in frames}
     tlm_device = {protocol[t].frame_id: d for d, (t, _) in DEVICES.items()}
+    rx_after = {fid: _Series(rec, f"/bus/{d}/rx_after_sync_ms", block_rows)
+                for fid, d in tlm_device.items()}
+    missing_series = _Series(rec, "/bus/late_or_missing", block_rows)
     due = {d: int(dividers.get(d, 1)) for d in DEVICES if d in dividers}
-    cols = _Columns(rec, block_values)
+    tick_mask = sync.signals[0].mask
     stats = BusStats()
     first_sync_ts: float | None = None
     first_tick_t = 0.0
     tick = -1
     sync_ts = 0.0
     seen: set[str] = set()
+    clamp = LOCKSTEP_CLAMP * dt_s
 
     def close_tick() -> None:
         if tick < 0:
             return
         missing = [d for d, n in due.items() if tick % n == 0 and d not in seen]
         t_tick = tick * dt_s
-        cols.add("/bus/late_or_missing", t_tick, float(len(missing)))
+        missing_series.add(t_tick, float(len(missing)))
         stats.ticks += 1
         if missing:
             stats.late_or_missing += len(missing)
@@ -144,19 +182,18 @@ def write_bus(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime: bool,
                 stats.error_frames += 1
                 continue
             fid = msg.arbitration_id
-            codec = by_id.get(fid)
-            if codec is None or fid not in device_of:
+            out = frames.get(fid)
+            if out is None:
                 stats.unknown += 1
                 continue
-            try:
-                values = codec.decode(msg.data)
-            except ValueError:
+            data = msg.data
+            if len(data) != length[fid]:
                 stats.malformed += 1
                 continue
             ts = float(msg.timestamp)
             if fid == sync_id:
                 close_tick()
-                tick = int(values["tick"])
+                tick = int.from_bytes(data, "little") & tick_mask
                 sync_ts = ts
                 seen = set()
                 if first_sync_ts is None:
@@ -167,15 +204,17 @@ def write_bus(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime: bool,
             elif realtime:
                 t = first_tick_t + (ts - first_sync_ts)
             else:
-                t = tick * dt_s + min(max(ts - sync_ts, 0.0), LOCKSTEP_CLAMP * dt_s)
-            device = tlm_device.get(fid)
-            if device is not None and tick >= 0:
-                seen.add(device)
-                cols.add(f"/bus/{device}/rx_after_sync_ms", t, (ts - sync_ts) * 1e3)
-            for entity, v in zip(entities[fid], values.values(), strict=True):
-                if not math.isnan(v):
-                    cols.add(entity, t, v)
+                t = tick * dt_s + min(max(ts - sync_ts, 0.0), clamp)
+            rx = rx_after.get(fid)
+            if rx is not None and tick >= 0:
+                seen.add(tlm_device[fid])
+                rx.add(t, (ts - sync_ts) * 1e3)
+            out.add(t, bytes(data))
             stats.decoded += 1
     close_tick()
-    cols.flush()
+    for f in frames.values():
+        f.flush()
+    for r in rx_after.values():
+        r.flush()
+    missing_series.flush()
     return stats

@@ -146,6 +146,7 @@ def whole_run_axis(duration_s: float | None) -> rrb.TimeAxis | None:
 
 
 MAX_STEPS = 6
+AXIS_MARGIN = 0.06
 
 
 def nice_range(lo: float, hi: float) -> tuple[float, float] | None:
@@ -191,6 +192,9 @@ def time_plot(plot: Plot, duration_s: float | None, channels: Iterable[str] | No
                 if recorded is None or c in recorded or c.startswith("/bus/")]
     contents.append(f"{plot.marker_path}/**")
     yr = y_range(plot, ranges)
+    if yr is not None:  # a margin, so that the labels at the ends are not clipped
+        pad = AXIS_MARGIN * (yr[1] - yr[0])
+        yr = (yr[0] - pad, yr[1] + pad)
     return rrb.TimeSeriesView(
         name=plot.title, contents=contents, axis_x=whole_run_axis(duration_s),
         axis_y=None if yr is None else rrb.ScalarAxis(range=yr, zoom_lock=False),
