@@ -219,6 +219,9 @@ def _log_end(recorder: Recorder, stats: LoopStats, summary: dict[str, Any],
         elif stats.stopped_by == "interrupted" and not stats.error:
             recorder.log_event(t_end, "/events/harness", "interrupted (Ctrl-C or SIGTERM)",
                                "WARN")
+        elif stats.stopped_by == "completed":  # no marker: the log says how the run ended
+            log_event(recorder.rec, t_end, "/events/harness",
+                      f"completed: {stats.ticks} ticks", "INFO")
         recorder.log_summary(summary)
     except Exception as exc:  # never lose the run for its text
         print(f"harness: could not write the summary to the recording ({exc})",

@@ -208,3 +208,21 @@ def test_identify_rrd_spectrum_marks_every_mode_with_the_runs_layout(faulted, tm
     ours = read_blueprints(faulted.run_dir / "run.rrd")[-1]
     theirs = read_blueprints(path)[-1]
     assert sorted(v.name for v in ours) == sorted(v.name for v in theirs)
+
+
+def test_sweep_rrd_has_its_layout(tmp_path):
+    from harness.commands.sweep import save_rrd
+
+    lambdas = np.linspace(0.5, 1.5, 4)
+    betas = np.array([0.6, 1.0])
+    amps = np.random.default_rng(0).uniform(0.01, 1.0, (4, 2, 2))
+    path = tmp_path / "sweep.rrd"
+    save_rrd(path, "sweep-test", lambdas, betas, amps)
+    have = entities(path)
+    assert {"/sweep/curves/tip_accel_m_s2/beta_0.60", "/sweep/log10/tip_deflection_m/beta_1.00",
+            "/sweep/map/tip_accel_m_s2", "/sweep/about"} <= have
+    views = {v.name: v for v in read_blueprints(path)[-1]}
+    curves = [v for v in views.values() if v.kind == "TimeSeries"]
+    assert len(curves) == 4 and all("(" in v.name for v in curves)
+    assert sum(v.kind == "Tensor" for v in views.values()) == 2
+    assert "Sweep" in views

@@ -151,8 +151,13 @@ def summary_markdown(summary: Mapping[str, Any]) -> str:
     lines += ["", "| quantity | value |", "|---|---|"]
     shown = set()
     for key, label in SUMMARY_ROWS:
-        if key in summary and summary[key] not in (None, "", []):
-            lines.append(f"| {label} | {_fmt(summary[key])} |")
+        value = summary.get(key)
+        if value in (None, "", []):
+            pass
+        elif key == "frames" and isinstance(value, dict):
+            lines += [f"| frames {k.replace('_', ' ')} | {_fmt(v)} |" for k, v in value.items()]
+        else:
+            lines.append(f"| {label} | {_fmt(value)} |")
         shown.add(key)
     for key, v in summary.items():
         if key in shown or key in HIDDEN or isinstance(v, dict | list):

@@ -38,6 +38,7 @@ class Plot:
     key: str
     title: str
     channels: tuple[str, ...]
+    from_zero: bool = False  # counts and durations: the y axis always shows 0
 
     @property
     def marker_path(self) -> str:
@@ -56,7 +57,7 @@ PLOTS: dict[str, Plot] = {p.key: p for p in (
     Plot("tip", "Tip acceleration (m/s^2)", ("/tip/accel_m_s2",)),
     Plot("valves", "Valves: command and state (-1 / 0 / +1)",
          ("/thrusters/valve_cmd", "/thrusters/valve_state")),
-    Plot("firings", "Valve firings (count)", ("/thrusters/firings",)),
+    Plot("firings", "Valve firings (count)", ("/thrusters/firings",), from_zero=True),
     Plot("on_time", "Valve on-time, accumulated (s)", ("/thrusters/on_time_s",)),
     Plot("piezo_cmd", "Piezo command ch1, ch2 (V)", ("/piezo/cmd_ch1_v", "/piezo/cmd_ch2_v")),
     Plot("piezo_sensor", "Piezo sensor ch1, ch2 (V)",
@@ -64,9 +65,9 @@ PLOTS: dict[str, Plot] = {p.key: p for p in (
     Plot("rotor_speed", "Disturbance rotor speed (rad/s)", ("/rotor/speed_rad_s",)),
     Plot("rotor_angle", "Disturbance rotor angle (rad)", ("/rotor/angle_rad",)),
     Plot("timing", "Loop timing: lateness and work (ms)",
-         ("/timing/lateness_ms", "/timing/work_ms")),
+         ("/timing/lateness_ms", "/timing/work_ms"), from_zero=True),
     Plot("frames", "Telemetry frames per tick: read, late or missing (count)",
-         ("/timing/frames_rx", "/bus/late_or_missing")),
+         ("/timing/frames_rx", "/bus/late_or_missing"), from_zero=True),
 )}
 
 # the main plots of each kind of run, top to bottom, left column then right
@@ -140,9 +141,10 @@ def whole_run_axis(duration_s: float | None) -> rrb.TimeAxis | None:
     """The time axis of a plot fixed on the whole run, 0 .. duration."""
     if duration_s is None or duration_s <= 0:
         return None
+    pad = 0.015 * float(duration_s)  # so that the last label is not clipped
     return rrb.TimeAxis(view_range=rrb.TimeRange(
         start=rrb.TimeRangeBoundary.absolute(seconds=0.0),
-        end=rrb.TimeRangeBoundary.absolute(seconds=float(duration_s))))
+        end=rrb.TimeRangeBoundary.absolute(seconds=float(duration_s) + pad)))
 
 
 MAX_STEPS = 6
@@ -179,7 +181,8 @@ def y_range(plot: Plot, ranges: Mapping[str, Sequence[float]] | None
     found = [ranges[c] for c in plot.channels if c in ranges]
     if not found:
         return None
-    return nice_range(min(r[0] for r in found), max(r[1] for r in found))
+    lo = min(r[0] for r in found)
+    return nice_range(min(lo, 0.0) if plot.from_zero else lo, max(r[1] for r in found))
 
 
 def time_plot(plot: Plot, duration_s: float | None, channels: Iterable[str] | None = None,
