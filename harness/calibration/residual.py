@@ -21,13 +21,14 @@ from harness.controllers.shaped_wheel_slew import Mode
 
 
 def fit_modal_residual(t: np.ndarray, accel: np.ndarray, modes: Sequence[Mode],
-                       t0_s: float) -> dict[str, float]:
+                       t0_s: float, with_signal: bool = False) -> dict[str, Any]:
     """Least-squares fit of the modes' free decay to ``accel`` over t >= t0 (pure).
 
     Model: c + sum_k exp(-zeta w tau) (a_k cos(w_d tau) + b_k sin(w_d tau)), tau = t - t0.
     Returns the peak and rms of the fitted modal part, its worst 1-sigma uncertainty, the
     rms of what the fit leaves (the noise) and, per mode, its amplitude at t0 (the envelope
-    sqrt(a_k^2 + b_k^2)) with its 1-sigma (first order)."""
+    sqrt(a_k^2 + b_k^2)) with its 1-sigma (first order). ``with_signal``: also the fitted
+    modal signal over the window (``signal``, an array; not JSON)."""
     t = np.asarray(t, dtype=float)
     a = np.asarray(accel, dtype=float)
     sel = t >= t0_s - 1e-9
@@ -55,16 +56,20 @@ def fit_modal_residual(t: np.ndarray, accel: np.ndarray, modes: Sequence[Mode],
         grad = ab / amp if amp > 0 else np.array([1.0, 0.0]) / math.sqrt(2)
         by_mode.append({"amplitude_m_s2": amp,
                         "sigma_m_s2": float(np.sqrt(grad @ cov[i:i + 2, i:i + 2] @ grad))})
-    return {"peak_m_s2": float(np.max(np.abs(modal))),
-            "rms_m_s2": float(np.sqrt(np.mean(modal**2))),
-            "sigma_m_s2": float(np.sqrt(np.max(var))),
-            "noise_rms_m_s2": float(np.sqrt(float(left @ left) / dof)),
-            "by_mode_at_start": by_mode}
+    out: dict[str, Any] = {"peak_m_s2": float(np.max(np.abs(modal))),
+                           "rms_m_s2": float(np.sqrt(np.mean(modal**2))),
+                           "sigma_m_s2": float(np.sqrt(np.max(var))),
+                           "noise_rms_m_s2": float(np.sqrt(float(left @ left) / dof)),
+                           "by_mode_at_start": by_mode}
+    if with_signal:
+        out["signal"] = modal
+    return out
 
 
-def true_residual(rig: Any, t0_s: float) -> dict[str, float]:
+def true_residual(rig: Any, t0_s: float, with_signal: bool = False) -> dict[str, Any]:
     """Noise-free tip acceleration of a virtual rig over [t0, its last tick]: its final state
-    propagated back to t0 through the free plant, then forward tick by tick."""
+    propagated back to t0 through the free plant, then forward tick by tick (``with_signal``:
+    also that signal, ``signal``)."""
     dt = rig.dt_s
     n = int(round((rig.time_s - t0_s) / dt))
     if n < 1:
@@ -81,5 +86,9 @@ def true_residual(rig: Any, t0_s: float) -> dict[str, float]:
     for k in range(n + 1):
         out[k] = c @ x
         x = ad @ x
-    return {"peak_m_s2": float(np.max(np.abs(out))), "rms_m_s2": float(np.sqrt(np.mean(out**2))),
-            "by_mode_at_start_m_s2": by_mode}
+    res: dict[str, Any] = {"peak_m_s2": float(np.max(np.abs(out))),
+                           "rms_m_s2": float(np.sqrt(np.mean(out**2))),
+                           "by_mode_at_start_m_s2": by_mode}
+    if with_signal:
+        res["signal"] = out
+    return res
