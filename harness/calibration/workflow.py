@@ -199,8 +199,8 @@ def match_predictions(plan: ExcitationPlan, modes: list[Mode]) -> tuple[list[dic
             found = ", ".join(f"{m.omega_rad_s:.4g}" for m in modes) or "none"
             notes.append(f"mode {p.index} (predicted {p.omega_rad_s:.4g} rad/s, "
                          f"{p.freq_hz:.4g} Hz) was excited but the identification found no "
-                         f"mode within {MATCH_REL:.0%} of it (identified: {found} rad/s); the "
-                         "shapers are designed without it")
+                         f"mode within {100 * MATCH_REL:g} % of it (identified: {found} "
+                         "rad/s); the shapers are designed without it")
     return rows, notes
 
 
@@ -228,23 +228,44 @@ def measure(result: RunResult, ctrl: Any, modes: list[Mode]) -> dict[str, Any]:
 
 
 def window_for(modes: list[Mode]) -> float:
-    slow = min(m.omega_rad_s for m in modes)
-    return round(float(min(MAX_WINDOW_S, max(MIN_WINDOW_S,
-                                             WINDOW_PERIODS * 2 * math.pi / slow))), 3)
+    """Residual window: ``WINDOW_PERIODS`` periods of the slowest identified mode, or its
+    time constant 1 / (zeta omega) if longer (the fit then sees most of its decay), within
+    [MIN_WINDOW_S, MAX_WINDOW_S]."""
+    slow = min(modes, key=lambda m: m.omega_rad_s)
+    tau = 1.0 / max(slow.damping_ratio * slow.omega_rad_s, 1e-9)
+    w = max(WINDOW_PERIODS * 2 * math.pi / slow.omega_rad_s, tau)
+    return round(float(min(MAX_WINDOW_S, max(MIN_WINDOW_S, w))), 3)
 
 
-def _meets(c: Calibration, row: dict[str, Any]) -> bool:
-    o = c.options
-    if o.target_m_s2 is not None:
-        return row["fitted"]["peak_m_s2"] <= o.target_m_s2
-    return row["ratio_fitted"] >= o.target_ratio
+def threshold_m_s2(c: Calibration) -> float:
+    """The fitted residual a candidate must not exceed (m/s^2)."""
+    if c.options.target_m_s2 is not None:
+        return c.options.target_m_s2
+    assert c.baseline is not None
+    return c.baseline["fitted"]["peak_m_s2"] / c.options.target_ratio
+
+
+def judge(c: Calibration, row: dict[str, Any]) -> None:
+    """A verified row against the target, in place: ``confirmed`` (fitted + 2 sigma below
+    the threshold: the measurement shows the target met), ``consistent`` (fitted - 2 sigma
+    below it: the measurement does not refute it; below 2 sigma the fitted peak is the fit's
+    own noise)."""
+    f = row["fitted"]
+    thr = threshold_m_s2(c)
+    row["threshold_m_s2"] = thr
+    row["confirmed"] = f["peak_m_s2"] + 2 * f["sigma_m_s2"] <= thr
+    row["consistent"] = f["peak_m_s2"] - 2 * f["sigma_m_s2"] <= thr
 
 
 def recommend(c: Calibration) -> None:
-    """The cheapest verified candidate meeting the target (module docstring), in place."""
-    verified = [k for k in (x.key for x in c.candidates) if k in c.verified]
+    """The cheapest verified candidate meeting the target (module docstring), in place.
+
+    Meeting it on the rig means its fitted residual is consistent with the threshold (within
+    2 sigma; ``judge``); among those, candidates whose predicted worst case over the bands
+    meets the target ratio come first; failing every one, the lowest fitted residual."""
     by_key = {x.key: x for x in c.candidates}
-    meets = [k for k in verified if _meets(c, c.verified[k])]
+    verified = [x.key for x in c.candidates if x.key in c.verified]
+    meets = [k for k in verified if c.verified[k].get("consistent")]
     robust = [k for k in meets if by_key[k].predicted_ratio >= c.options.target_ratio]
     if robust:
         c.recommended = min(robust, key=lambda k: by_key[k].cost())
@@ -260,6 +281,11 @@ def recommend(c: Calibration) -> None:
         c.recommended = min(verified, key=lambda k: c.verified[k]["fitted"]["peak_m_s2"])
         c.target_met = False
         c.recommendation_note = "no candidate met the target: the lowest residual measured"
+    if c.recommended is not None and c.target_met and not c.verified[c.recommended].get(
+            "confirmed"):
+        c.recommendation_note += (
+            "; the measurement cannot confirm the target: the fitted residual is within 2 "
+            "sigma of the fit's noise (a longer or quieter window would be needed)")
 
 
 def _dump(path: Path, data: dict[str, Any], header: str) -> None:
@@ -357,6 +383,7 @@ def calibrate(opts: Options, progress: Callable[[str], None] = lambda m: None) -
         row["ratio_raw"] = ref["raw"]["peak_m_s2"] / row["raw"]["peak_m_s2"]
         if row["truth"] is not None:
             row["ratio_truth"] = ref["truth"]["peak_m_s2"] / row["truth"]["peak_m_s2"]
+        judge(c, row)
         c.verified[cand.key] = row
         truth = (f", truth {row['truth']['peak_m_s2']:.2e} ({row['ratio_truth']:.1f}x)"
                  if row["truth"] is not None else "")
