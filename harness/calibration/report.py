@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from harness.calibration.candidates import bands_of, build
+from harness.calibration.candidates import bands_of, baseline_controller, build
 from harness.controllers.shaped_wheel_slew import Mode
 from harness.controllers.thruster_two_level import damped_residual_percent
 from harness.shaping.impulse_shapers import residual_vibration
@@ -77,7 +77,7 @@ def _curve(c: Any, cand: Any, w: np.ndarray, zeta: float) -> np.ndarray:
     _, ctrl = build(c.spec, "plot", "", cand.controller)
     if c.options.actuator == "wheel":
         return residual_vibration(ctrl.applied_shaper, w, zeta)
-    _, base = build(c.spec, "plot", "", dict(cand.controller, profile="bang_bang"))
+    _, base = build(c.spec, "plot", "", baseline_controller(c.spec, c.modes))
     steps = np.diff(np.r_[0.0, ctrl.directions.astype(float), 0.0])
     k = np.flatnonzero(steps)
     tau = base.design.bang_bang_duration_s / 2
