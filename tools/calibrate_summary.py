@@ -16,8 +16,8 @@ def _e(x: float | None) -> str:
 
 def summary(paths: list[Path]) -> str:
     lines = ["| rig | actuator | identified modes (rad/s, damping) | candidate | added s | "
-             "worst V in band (%) | impulse (N m s) / firings | fitted (m/s^2) | ratio fitted (2-sigma floor) | truth "
-             "(m/s^2) | ratio truth | recommended |",
+             "worst V in band (%) | impulse (N m s) / firings | fitted (m/s^2) | ratio fitted "
+             "(2-sigma floor) | truth (m/s^2) | ratio truth | recommended |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for p in paths:
         d = json.loads(p.read_text())
@@ -38,7 +38,8 @@ def summary(paths: list[Path]) -> str:
             fuel = ("-" if c.get("impulse_n_m_s") is None
                     else f"{c['impulse_n_m_s']:.4f} / {c['firings']}")
             lines.append(
-                f"| {rig} | {d['actuator']} | | {c['label']} | {c['added_s']:.3f} | {worst} | {fuel} | "
+                f"| {rig} | {d['actuator']} | | {c['label']} | {c['added_s']:.3f} | {worst} | "
+                f"{fuel} | "
                 f"{_e(m['fitted']['peak_m_s2'])} | {m['ratio_fitted']:.1f} ({floor}) | "
                 f"{_e(truth)} | {m.get('ratio_truth', float('nan')):.1f} | "
                 f"{'**yes**' if c['key'] == d['recommended'] else ''} |")
