@@ -324,3 +324,60 @@ def test_calibrate_fixture_rigs_wheel(tmp_path: Path, capsys, rig: str) -> None:
     code, data = _calibrate_json(tmp_path, capsys, "--rig", str(FIXTURES / f"{rig}.yaml"),
                                  "--max-verify", "2")
     _check_wheel_result(code, data)
+
+
+# --------------------------------------------------------------------------- pieces
+
+
+def test_si_shaper_from_a_run_file_holds_its_band_on_the_ticks() -> None:
+    from harness.runs import build_controller, load_run
+
+    modes = [{"omega_rad_s": m.omega_rad_s, "damping_ratio": m.damping_ratio,
+              "sigma_omega_rad_s": m.sigma_omega_rad_s, "sigma_damping": m.sigma_damping}
+             for m in SGSRT_MODES]
+    run = load_run("slew-rw-unshaped", {"controller": {"shaper": "si", "modes": modes}})
+    ctrl = build_controller(run)
+    for m, band in zip(SGSRT_MODES, bands_of(SGSRT_MODES), strict=True):
+        assert worst_residual_percent(ctrl.applied_shaper, band) <= 5.5, m
+    with pytest.raises(ConfigError, match="sigma_omega_rad_s"):
+        build_controller(load_run("slew-rw-unshaped", {"controller": {
+            "shaper": "si", "modes": [{"omega_rad_s": 3.0, "sigma_omega_rad_s": -1.0}]}}))
+
+
+def test_valve_bursts_fire_whole_cycles_and_give_identify_its_windows() -> None:
+    from harness.commands.identify import analysis_windows
+    from harness.runs import build_controller, run_from_dict
+    from harness.state import RigState
+
+    plan = plan_excitation(load_rig("sgsrt"), "valves")
+    run = run_from_dict(plan.run_dict(), source="plan")
+    ctrl = build_controller(run)
+    dt = run.dt_s
+    dirs = np.array([ctrl.step(RigState(tick=k, time_s=k * dt)).valve_direction
+                     for k in range(int(ctrl.end_s / dt) + 10)])
+    assert set(np.unique(dirs)) == {-1, 0, 1}
+    assert abs(int(dirs.sum())) <= 2 * len(plan.bursts) * max(b.repeat for b in plan.bursts)
+    windows = analysis_windows({"run": run.data})
+    assert len(windows) == sum(b.repeat for b in plan.bursts)
+    too_fast = dict(run.data, controller=dict(run.controller, bursts=[
+        {"omega_rad_s": 400.0, "cycles": 3}]))
+    with pytest.raises(ConfigError, match=r"thruster_valves\.min_on_time_s"):
+        build_controller(run_from_dict(too_fast, source="fast"))
+
+
+@pytest.mark.slow
+def test_valve_candidates_score_fuel_firings_and_the_zv_for_higher_modes() -> None:
+    from harness.calibration.candidates import valve_candidates
+
+    rig = load_rig("sgsrt")
+    spec = slew_spec(rig, "valves", 5.0, 500.0, "sgsrt", "virtual:sgsrt", "lockstep", 6.0)
+    cands = {c.key: c for c in valve_candidates(spec, SGSRT_MODES, 0.002)}
+    assert set(cands) == {"lhhl", "lhhl-zv", "hllh", "hllh-zv"}
+    for key in ("lhhl", "hllh"):
+        plain, zv3 = cands[key], cands[f"{key}-zv"]
+        assert plain.nominal_percent[0] <= 1.2 and plain.nominal_percent[1] <= 2.5
+        # the ZV for mode 3 cuts what the two-mode design leaves there, for more firings
+        assert zv3.nominal_percent[2] < plain.nominal_percent[2] / 5
+        assert zv3.firings > plain.firings and zv3.impulse_n_m_s == pytest.approx(
+            plain.impulse_n_m_s, rel=0.02)
+        assert zv3.added_s > plain.added_s > 0
