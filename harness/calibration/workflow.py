@@ -246,26 +246,26 @@ def threshold_m_s2(c: Calibration) -> float:
 
 
 def judge(c: Calibration, row: dict[str, Any]) -> None:
-    """A verified row against the target, in place: ``confirmed`` (fitted + 2 sigma below
-    the threshold: the measurement shows the target met), ``consistent`` (fitted - 2 sigma
-    below it: the measurement does not refute it; below 2 sigma the fitted peak is the fit's
-    own noise)."""
+    """A verified row against the target, in place: ``meets`` (the fitted peak, the best
+    estimate, at or below the threshold; at the fit's noise the fitted peak reads the noise,
+    so this errs on the safe side), ``confirmed`` (fitted + 2 sigma below the threshold: the
+    measurement shows the target met beyond its noise)."""
     f = row["fitted"]
     thr = threshold_m_s2(c)
     row["threshold_m_s2"] = thr
+    row["meets"] = f["peak_m_s2"] <= thr
     row["confirmed"] = f["peak_m_s2"] + 2 * f["sigma_m_s2"] <= thr
-    row["consistent"] = f["peak_m_s2"] - 2 * f["sigma_m_s2"] <= thr
 
 
 def recommend(c: Calibration) -> None:
     """The cheapest verified candidate meeting the target (module docstring), in place.
 
-    Meeting it on the rig means its fitted residual is consistent with the threshold (within
-    2 sigma; ``judge``); among those, candidates whose predicted worst case over the bands
-    meets the target ratio come first; failing every one, the lowest fitted residual."""
+    Meeting it on the rig means its fitted residual is at or below the threshold
+    (``judge``); among those, candidates whose predicted worst case over the bands meets the
+    target ratio come first; failing every one, the lowest fitted residual."""
     by_key = {x.key: x for x in c.candidates}
     verified = [x.key for x in c.candidates if x.key in c.verified]
-    meets = [k for k in verified if c.verified[k].get("consistent")]
+    meets = [k for k in verified if c.verified[k].get("meets")]
     robust = [k for k in meets if by_key[k].predicted_ratio >= c.options.target_ratio]
     if robust:
         c.recommended = min(robust, key=lambda k: by_key[k].cost())
@@ -284,8 +284,9 @@ def recommend(c: Calibration) -> None:
     if c.recommended is not None and c.target_met and not c.verified[c.recommended].get(
             "confirmed"):
         c.recommendation_note += (
-            "; the measurement cannot confirm the target: the fitted residual is within 2 "
-            "sigma of the fit's noise (a longer or quieter window would be needed)")
+            "; the measurement does not confirm it beyond its noise: the fitted residual plus 2 "
+            "sigma exceeds the threshold (the fit's noise over this window allows at most "
+            f"{c.verified[c.recommended].get('ratio_resolvable', math.nan):.1f}x)")
 
 
 def _dump(path: Path, data: dict[str, Any], header: str) -> None:
