@@ -304,7 +304,7 @@ def plan_excitation(rig: RigConfig, actuator: str = "wheel", *, rig_ref: str = "
         nyq = math.pi * fs
         if wd > NYQUIST_FRACTION * nyq:
             unreachable.append(Unreachable(m, (
-                f"above {NYQUIST_FRACTION:.0%} of the accelerometer's Nyquist frequency "
+                f"above {100 * NYQUIST_FRACTION:g} % of the accelerometer's Nyquist frequency "
                 f"{nyq / (2 * math.pi):.4g} Hz (loop {rate_hz:g} Hz / accelerometer "
                 f"sync_divider {rig.data['bus']['sync_divider']['accelerometer']}): it cannot "
                 "be seen")))
