@@ -9,12 +9,14 @@
    (``candidates``).
 4. Verify: the unshaped slew and every feasible candidate run through the harness; each
    one's residual read over the same window after its own manoeuvre (``residual``): the
-   identified modes fitted to the recorded residual (the recommendation uses this), the raw
-   peak, and on the virtual rig the noise-free truth. The recommendation is the cheapest
+   identified modes fitted to the recorded residual (the recommendation uses this; a
+   predicted mode that was not identified stays in the fit at its predicted frequency and
+   damping, so the reading is not blind to it), the raw peak, and on the virtual rig the
+   noise-free truth. The recommendation is the cheapest
    candidate whose fitted residual meets the target (``target_ratio`` x below unshaped, or
-   ``target_m_s2``) and whose predicted worst case over the bands does too; failing that,
-   the cheapest meeting the measured target; failing that, the lowest residual (target not
-   met).
+   ``target_m_s2``; ``judge``) and whose predicted worst case over the bands does too;
+   failing that, the cheapest meeting the measured target; failing that, the lowest
+   residual (target not met).
 """
 
 from __future__ import annotations
@@ -92,6 +94,7 @@ class Calibration:
     excitation_dir: Path | None = None
     identification: Any = None
     modes: list[Mode] = field(default_factory=list)
+    unidentified: list[Mode] = field(default_factory=list)  # predicted, not identified
     matches: list[dict[str, Any]] = field(default_factory=list)
     spec: SlewSpec | None = None
     candidates: list[Candidate] = field(default_factory=list)
@@ -104,6 +107,11 @@ class Calibration:
     baseline_run_file: Path | None = None
     report: Path | None = None
     notes: list[str] = field(default_factory=list)
+
+    @property
+    def analysis_modes(self) -> list[Mode]:
+        """The residual fit's basis: the identified modes, then the unidentified predicted."""
+        return self.modes + self.unidentified
 
     def to_dict(self) -> dict[str, Any]:
         o = self.options
@@ -123,6 +131,9 @@ class Calibration:
                  "damping_ratio": m.damping_ratio, "sigma_omega_rad_s": m.sigma_omega_rad_s,
                  "sigma_damping": m.sigma_damping} for m in self.modes],
             "predicted_match": self.matches,
+            "residual_fit_extra_modes": [{"omega_rad_s": m.omega_rad_s,
+                                          "damping_ratio": m.damping_ratio}
+                                         for m in self.unidentified],
             "angle_deg": None if self.spec is None else self.spec.angle_deg,
             "slew_torque_n_m": None if self.spec is None else self.spec.torque_n_m,
             "residual_window_s": None if self.spec is None else self.spec.window_s,
@@ -336,6 +347,19 @@ def calibrate(opts: Options, progress: Callable[[str], None] = lambda m: None) -
                  f"damping {m.damping_ratio:.4f} +- {m.sigma_damping:.2g}")
     for n in miss:
         progress(f"  {n}")
+    # predicted modes not identified (unreachable or missed) stay in the residual fit at
+    # their predicted frequency and damping, so that it is not blind to what a slew leaves
+    # in them; the shapers are designed on the identified modes only
+    found = {r["mode"] for r in c.matches if r["identified"] is not None}
+    c.unidentified = [Mode(p.omega_rad_s, p.damping_ratio) for p in plan.predicted
+                      if p.index not in found
+                      and p.omega_damped_rad_s < 0.8 * math.pi * opts.rate_hz
+                      / rig.data["bus"]["sync_divider"]["accelerometer"]]
+    if c.unidentified:
+        c.notes.append("the residual fit also holds the predicted, unidentified mode(s) "
+                       + ", ".join(f"{m.omega_rad_s:.4g} rad/s (damping {m.damping_ratio:.3g})"
+                                   for m in c.unidentified)
+                       + " so that it sees what the slews leave there")
 
     progress("calibrate 3/4: designing and scoring candidates ...")
     spec = slew_spec(rig, opts.actuator, angle, opts.rate_hz, rig_ref, bus, clock,
@@ -363,18 +387,19 @@ def calibrate(opts: Options, progress: Callable[[str], None] = lambda m: None) -
     progress(f"calibrate 4/4: verifying on the rig: unshaped (1/{n_runs}) ...")
     run, ctrl = build(spec, base_name, f"harness calibrate: unshaped {desc} (baseline)",
                       baseline_controller(spec, c.modes))
-    c.baseline = measure(_run(run, runs_dir, opts.bus, clock), ctrl, c.modes)
+    c.baseline = measure(_run(run, runs_dir, opts.bus, clock), ctrl, c.analysis_modes)
     c.baseline["ratio_fitted"] = 1.0
     c.baseline["run"] = run_dict(spec, base_name, run.data["description"],
                                  baseline_controller(spec, c.modes), run.data["duration_s"])
-    weights = [m["amplitude_m_s2"] for m in c.baseline["fitted"]["by_mode_at_start"]]
+    weights = [m["amplitude_m_s2"]
+               for m in c.baseline["fitted"]["by_mode_at_start"][: len(c.modes)]]
     predict_ratios(c.candidates, weights)
     ref = c.baseline
     for i, cand in enumerate(feasible):
         progress(f"calibrate 4/4: verifying on the rig: {cand.label} ({i + 2}/{n_runs}) ...")
         name = safe_name(f"calibrate-{rig.name}-{opts.actuator}-{cand.key}")
         run, ctrl = build(spec, name, f"harness calibrate: {cand.label} {desc}", cand.controller)
-        row = measure(_run(run, runs_dir, opts.bus, clock), ctrl, c.modes)
+        row = measure(_run(run, runs_dir, opts.bus, clock), ctrl, c.analysis_modes)
         row["run"] = run_dict(spec, name, run.data["description"], cand.controller,
                               run.data["duration_s"])
         row["ratio_fitted"] = ref["fitted"]["peak_m_s2"] / row["fitted"]["peak_m_s2"]
