@@ -28,6 +28,7 @@ from harness.calibration.workflow import (
     match_predictions,
     recommend,
     safe_name,
+    unidentified_modes,
 )
 from harness.cli import main
 from harness.controllers.shaped_wheel_slew import Mode
@@ -177,6 +178,14 @@ def test_a_predicted_mode_the_identification_misses_is_named() -> None:
     assert [r["identified"] for r in rows] == [1, 2, None]
     assert len(notes) == 1 and notes[0].startswith("mode 3 (predicted 36.93 rad/s")
     assert "found no mode within 25 %" in notes[0]
+    # the residual fit keeps it, at its predicted values
+    extra = unidentified_modes(plan, rows)
+    assert [m.omega_rad_s for m in extra] == pytest.approx([plan.predicted[2].omega_rad_s])
+    # a mode above what the accelerometer sees is not put in the fit
+    stubby = plan_excitation(load_rig(FIXTURES / "stubby.yaml"), "wheel")
+    rows, _ = match_predictions(stubby, [Mode(stubby.predicted[0].omega_rad_s, 0.02)])
+    assert [m.omega_rad_s for m in unidentified_modes(stubby, rows)] == pytest.approx(
+        [stubby.predicted[1].omega_rad_s])
 
 
 # --------------------------------------------------------------------------- scoring

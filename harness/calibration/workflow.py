@@ -46,7 +46,12 @@ from harness.calibration.candidates import (
     valve_candidates,
     wheel_candidates,
 )
-from harness.calibration.plan import ExcitationPlan, plan_excitation, rig_reference
+from harness.calibration.plan import (
+    NYQUIST_FRACTION,
+    ExcitationPlan,
+    plan_excitation,
+    rig_reference,
+)
 from harness.calibration.residual import fit_modal_residual, true_residual
 from harness.controllers.shaped_wheel_slew import Mode
 from harness.runs import RunConfig, run_from_dict
@@ -215,6 +220,15 @@ def match_predictions(plan: ExcitationPlan, modes: list[Mode]) -> tuple[list[dic
     return rows, notes
 
 
+def unidentified_modes(plan: ExcitationPlan, matches: list[dict[str, Any]]) -> list[Mode]:
+    """Predicted modes without an identified counterpart that the accelerometer can see
+    (below NYQUIST_FRACTION of its Nyquist frequency), at their predicted values."""
+    found = {r["mode"] for r in matches if r["identified"] is not None}
+    fs = plan.rate_hz / plan.rig.data["bus"]["sync_divider"]["accelerometer"]
+    return [Mode(p.omega_rad_s, p.damping_ratio) for p in plan.predicted
+            if p.index not in found and p.omega_damped_rad_s < NYQUIST_FRACTION * math.pi * fs]
+
+
 def measure(result: RunResult, ctrl: Any, modes: list[Mode]) -> dict[str, Any]:
     """Residual of one slew over [end + MARGIN_S, run end]: raw, fitted, truth."""
     rec = result.recorder
@@ -350,11 +364,7 @@ def calibrate(opts: Options, progress: Callable[[str], None] = lambda m: None) -
     # predicted modes not identified (unreachable or missed) stay in the residual fit at
     # their predicted frequency and damping, so that it is not blind to what a slew leaves
     # in them; the shapers are designed on the identified modes only
-    found = {r["mode"] for r in c.matches if r["identified"] is not None}
-    c.unidentified = [Mode(p.omega_rad_s, p.damping_ratio) for p in plan.predicted
-                      if p.index not in found
-                      and p.omega_damped_rad_s < 0.8 * math.pi * opts.rate_hz
-                      / rig.data["bus"]["sync_divider"]["accelerometer"]]
+    c.unidentified = unidentified_modes(plan, c.matches)
     if c.unidentified:
         c.notes.append("the residual fit also holds the predicted, unidentified mode(s) "
                        + ", ".join(f"{m.omega_rad_s:.4g} rad/s (damping {m.damping_ratio:.3g})"
