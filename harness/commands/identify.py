@@ -5,7 +5,8 @@ decay, interpolated) and a parametric fit of the free decay (matrix pencil, then
 least squares) with damping and 1-sigma uncertainties.
 
 Free-decay windows. For a run directory they come from its config.yaml: after a wheel pulse,
-one window from its end; after ``wheel_bursts``, one window in every zero-torque gap that a
+one window from its end; after ``wheel_bursts`` (or
+``valve_bursts``), one window in every zero-torque gap that a
 burst's ``free_decay_s`` leaves before the next burst, and one from the end of the last burst
 to the end of the record (each window starts 0.1 s after its burst, for the wheel's torque
 lag). Each window is fitted on its own. Windows after bursts of the same nominal frequency
@@ -79,10 +80,10 @@ def analysis_windows(cfg: dict[str, Any] | None) -> list[AnalysisWindow] | None:
     c = cfg.get("run", {}).get("controller", {})
     if c.get("type") == "wheel_pulse":
         return [AnalysisWindow(float(c["start_s"] + c["width_s"] + SETTLE_S))]
-    if c.get("type") == "wheel_bursts":
+    if c.get("type") in ("wheel_bursts", "valve_bursts"):
         from harness.controllers.registry import WheelBursts, _bursts
 
-        wb = WheelBursts(c["torque_n_m"], c["start_s"], _bursts(c))
+        wb = WheelBursts(c.get("torque_n_m", 1.0), c["start_s"], _bursts(c))
         wins = [AnalysisWindow(t0 + SETTLE_S, t1, omega) for t0, t1, omega in wb.free_intervals
                 if t1 - t0 > 2 * SETTLE_S]
         return [*wins, AnalysisWindow(wb.end_s + SETTLE_S, None, wb.last_omega_rad_s)]
