@@ -28,6 +28,7 @@ from harness.can_log import CanLog
 from harness.clock import LockstepClock, RealTimeClock, RealTimeSetup
 from harness.loop import CHANNELS, LoopStats, run_loop
 from harness.monitor import FaultMonitor
+from harness.paths import safe_child, safe_name
 from harness.periodic import steady_state_amplitude
 from harness.recording import Recorder
 from harness.rig_interface import RigInterface
@@ -66,8 +67,9 @@ def bus_load_of(run: RunConfig):  # noqa: ANN201 - BusLoad
 
 
 def make_run_dir(out: Path, name: str) -> Path:
+    """``<out>/<UTC time>-<safe_name(name)>``: a run's name never leaves ``out``."""
     stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%S.%fZ")
-    run_dir = out / f"{stamp}-{name}"
+    run_dir = safe_child(out, f"{stamp}-{safe_name(name)}")
     run_dir.mkdir(parents=True, exist_ok=False)
     return run_dir
 
@@ -115,8 +117,12 @@ def execute_run(
                 lifetime_s=run.data["duration_s"] + 60.0))
             spec = parse_bus(where)
             faults = []
-        return _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
-                        show_progress, dry_run, faults, should_stop)
+        try:
+            return _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
+                            show_progress, dry_run, faults, should_stop)
+        except Exception as exc:  # the run raised: its directory can still be judged (ERROR)
+            exc.run_dir = run_dir  # type: ignore[attr-defined]
+            raise
 
 
 def make_monitor(run: RunConfig, interface: RigInterface, realtime: bool) -> FaultMonitor:

@@ -179,20 +179,13 @@ def _nearest_model_mode(omega: float, truth: dict[str, list[float]]) -> int:
     return int(np.argmin([abs(math.log(omega / w)) for w in truth["omega_rad_s"]]))
 
 
-def cmd_identify(args: argparse.Namespace) -> int:
-    try:
-        if args.n_modes is not None and args.n_modes < 1:
-            raise ValueError(f"--n-modes must be >= 1, got {args.n_modes}")
-        t, a, cfg, run_dir = load_record(args.source)
-        windows = _windows(args, t, cfg)
-        print(f"harness identify: {len(t)} samples, {t[-1] - t[0]:.1f} s, free decay"
-              f"{'s' if len(windows) > 1 else ''} "
-              f"{', '.join(w.label() for w in windows)} ...", file=sys.stderr)
-        result = identify_windows(t, a, windows, n_modes=args.n_modes, f_max_hz=args.f_max_hz)
-        truth = model_modes(cfg)
-    except (ValueError, OSError) as exc:
-        print(f"harness identify: {exc}", file=sys.stderr)
-        return 2
+def identify_record(t: np.ndarray, a: np.ndarray, cfg: dict[str, Any] | None,
+                    run_dir: Path | None, windows: list[AnalysisWindow],
+                    n_modes: int | None = None, f_max_hz: float | None = None
+                    ) -> dict[str, Any]:
+    """What ``harness identify --json`` prints (also writes identify.rrd in ``run_dir``)."""
+    result = identify_windows(t, a, windows, n_modes=n_modes, f_max_hz=f_max_hz)
+    truth = model_modes(cfg)
     # top-level keys of the long window (fs, fft, fit, ...) as before; modes from all windows
     out = result.primary.to_dict()
     out.update(result.to_dict())
@@ -209,6 +202,30 @@ def cmd_identify(args: argparse.Namespace) -> int:
     out["paper_003_table1_rad_s"] = PAPER_TABLE1
     if run_dir is not None:
         out["spectrum_rrd"] = str(write_spectrum_rrd(run_dir, result))
+    return out
+
+
+def identify_run(source: Path, n_modes: int | None = None,
+                 f_max_hz: float | None = None) -> dict[str, Any]:
+    """Identify a run directory (.rrd, CSV) over its own free-decay windows."""
+    t, a, cfg, run_dir = load_record(source)
+    windows = analysis_windows(cfg) or [AnalysisWindow(float(t[0]))]
+    return identify_record(t, a, cfg, run_dir, windows, n_modes, f_max_hz)
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    try:
+        if args.n_modes is not None and args.n_modes < 1:
+            raise ValueError(f"--n-modes must be >= 1, got {args.n_modes}")
+        t, a, cfg, run_dir = load_record(args.source)
+        windows = _windows(args, t, cfg)
+        print(f"harness identify: {len(t)} samples, {t[-1] - t[0]:.1f} s, free decay"
+              f"{'s' if len(windows) > 1 else ''} "
+              f"{', '.join(w.label() for w in windows)} ...", file=sys.stderr)
+        out = identify_record(t, a, cfg, run_dir, windows, args.n_modes, args.f_max_hz)
+    except (ValueError, OSError) as exc:
+        print(f"harness identify: {exc}", file=sys.stderr)
+        return 2
     if args.json:
         print(json.dumps(out, indent=2, default=float))
         return 0
