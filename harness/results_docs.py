@@ -154,6 +154,14 @@ def paper003_tables(records: list[dict[str, Any]]) -> list[str]:
     return out
 
 
+def measures_block(measures: dict[str, Any]) -> list[str]:
+    """Every measure a study reported (when the results keep them), folded."""
+    lines = ["<details><summary>every measure of this study</summary>", "",
+             "| measure | value |", "|---|---|"]
+    lines += [f"| `{k}` | {fmt(v)} |" for k, v in measures.items()]
+    return lines + ["", "</details>", ""]
+
+
 def suite_markdown(doc: dict[str, Any], suite: str, source: str) -> str:
     """The generated results page of one suite from one results.json document."""
     records = [r for r in doc.get("tests", []) if r.get("suite") == suite]
@@ -187,4 +195,8 @@ def suite_markdown(doc: dict[str, Any], suite: str, source: str) -> str:
         if desc:
             lines += [desc, ""]
         lines += criteria_table(recs) + [""]
+        for r in recs:
+            measures = r.get("measures") or (r.get("document") or {}).get("measures")
+            if isinstance(measures, dict) and measures:
+                lines += measures_block(measures)
     return "\n".join(lines).rstrip() + "\n"

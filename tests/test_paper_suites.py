@@ -68,6 +68,10 @@ def test_suite_markdown_tables_come_from_the_results():
     assert "| C | 1 | 0.02 | 0.037 | 0.54 |" in text
     assert "| C | 0.8 | - | 0.023 | - |" in text  # not run: shown as missing, not invented
     assert fmt_limit({"limit": {"max_abs_deg": 0.01}, "unit": "deg"}) == "abs <= 0.01 deg"
+    assert "every measure" not in text
+    doc = _doc()
+    doc["tests"][0]["measures"] = {"zvd_over_zv": 0.25}  # kept by the results: listed too
+    assert "| `zvd_over_zv` | 0.25 |" in suite_markdown(doc, "paper003", "x")
 
 
 def test_report_docs_writes_the_pages_and_refuses_bad_input(tmp_path, capsys):
