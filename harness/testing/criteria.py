@@ -97,7 +97,7 @@ def _band(source: str, path: str, raw: Mapping[str, Any], unit: str, target: str
     limit: dict[str, Any] = {}
     for key in raw:
         prefix = next((p for p in BAND_PREFIXES if key.startswith(p)), None)
-        if prefix is None and key in ("min", "max", "max_abs", "marginal"):
+        if key in ("min", "max", "max_abs", "marginal"):
             raise _err(source, f"{path}.{key}", f"missing unit: {target} is in {unit}: "
                        f"expected {key}_{unit}")
         if prefix is None:
@@ -121,13 +121,14 @@ def _band(source: str, path: str, raw: Mapping[str, Any], unit: str, target: str
     if "max_abs" in limit and lo is not None and lo > limit["max_abs"]:
         raise _err(source, f"{path}.min_{unit}",
                    f"min {lo:g} > max_abs {limit['max_abs']:g} ({unit})")
-    if "marginal" in limit:
-        width = min([limit[k] - lo for k in ("max",) if k in limit and lo is not None]
-                    + [2 * limit["max_abs"]] * ("max_abs" in limit) + [math.inf])
-        if limit["marginal"] > 0 and width < math.inf and limit["marginal"] * 2 > width:
+    if "marginal" in limit and limit["marginal"] > 0:
+        halves = [limit["max_abs"]] if "max_abs" in limit else []
+        if lo is not None and hi is not None:
+            halves.append((hi - lo) / 2)
+        if halves and limit["marginal"] >= min(halves):
             raise _err(source, f"{path}.marginal_{unit}",
-                       f"marginal band {limit['marginal']:g} {unit} is wider than half the "
-                       f"pass band ({width:g} {unit})")
+                       f"marginal band {limit['marginal']:g} {unit} covers the whole pass "
+                       f"band (half-width {min(halves):g} {unit}); expected less")
     return limit
 
 

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from harness.testing.criteria import Criterion, Window
-from harness.testing.measures import NULL_MEANS_FAIL, lookup
+from harness.testing.measures import NULL_MEANS_FAIL, WORST_SAMPLE, lookup
 
 PASS, MARGINAL, FAIL, ERROR = "PASS", "MARGINAL", "FAIL", "ERROR"
 SEVERITY = {PASS: 0, MARGINAL: 1, FAIL: 2, ERROR: 3}
@@ -397,8 +397,41 @@ def evaluate_left_safe(c: Criterion, facts: Facts) -> CriterionResult:
                    if not n else "rig not left safe: " + "; ".join(unsafe))
 
 
+def scalar_worst_time(c: Criterion, facts: Facts) -> float | None:
+    """The time of the sample a summary peak or final came from (None if unknown)."""
+    if c.target == "settle_time_s":
+        v = facts.measures.get("settle_time_s")
+        return float(v) if isinstance(v, int | float) else None
+    if c.target not in WORST_SAMPLE or facts.channel is None:
+        return None
+    entity, how = WORST_SAMPLE[c.target]
+    try:
+        t, x = facts.channel(entity)
+    except (KeyError, ValueError, OSError, MissingData):
+        return None
+    ok = ~np.isnan(x)
+    if how == "abs_residual":
+        window = facts.measures.get("residual_window_s")
+        if isinstance(window, int | float) and len(t):
+            ok &= t >= t[-1] - float(window)
+    if not ok.any():
+        return None
+    t, x = t[ok], x[ok]
+    return float(t[-1]) if how == "last" else float(t[int(np.argmax(np.abs(x)))])
+
+
+def _scalar(c: Criterion, facts: Facts) -> CriterionResult:
+    r = evaluate_scalar(c, facts.measures)
+    if r.worst_time_s is None and r.value is not None:
+        r.worst_time_s = scalar_worst_time(c, facts)
+        if r.verdict == FAIL and r.worst_time_s is not None:
+            r.violations_s = [r.worst_time_s]
+            r.message += f" (at t = {r.worst_time_s:.3f} s)"
+    return r
+
+
 EVALUATORS: dict[str, Callable[[Criterion, Facts], CriterionResult]] = {
-    "scalar": lambda c, f: evaluate_scalar(c, f.measures),
+    "scalar": _scalar,
     "channel": evaluate_channel,
     "settles": evaluate_settles,
     "baseline": evaluate_baseline,

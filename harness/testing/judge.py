@@ -32,6 +32,7 @@ from harness.testing.evaluate import (
     run_checks,
     worst_verdict,
 )
+from harness.testing.measures import WORST_SAMPLE
 from rig_models.schema import ConfigError
 
 APPLICATION_ID = "sgsrt-harness"  # as harness.recording's (same recording in the viewer)
@@ -116,13 +117,16 @@ def identity_of(run_dir: Path, cfg: Mapping[str, Any], summary: Mapping[str, Any
 
 
 # ----------------------------------------------------------------------------- readers
-def read_channels(rrd: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Every scalar channel of a recording on the ``time`` timeline, in one pass."""
+def read_channels(rrd: Path, wanted: set[str] | None = None
+                  ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The scalar channels of a recording on the ``time`` timeline (``wanted`` ones, or
+    all), in one pass."""
     from rerun.chunk import RrdReader
 
     parts: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
     for chunk in RrdReader(rrd).stream().to_chunks():
-        if chunk.is_static or "time" not in chunk.timeline_names:
+        if chunk.is_static or "time" not in chunk.timeline_names or (
+                wanted is not None and chunk.entity_path not in wanted):
             continue
         batch = chunk.to_record_batch()
         if "Scalars:scalars" not in batch.schema.names:
@@ -144,10 +148,11 @@ def read_channels(rrd: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
 
 class ChannelCache:
-    """Reads a recording once, on first use."""
+    """Reads a recording once, on first use (only ``wanted`` channels if given)."""
 
-    def __init__(self, rrd: Path) -> None:
+    def __init__(self, rrd: Path, wanted: set[str] | None = None) -> None:
         self.rrd = rrd
+        self.wanted = wanted
         self._data: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
 
     def __call__(self, entity: str) -> tuple[np.ndarray, np.ndarray]:
@@ -155,7 +160,7 @@ class ChannelCache:
             if not self.rrd.is_file():
                 raise MissingData(f"{self.rrd} does not exist")
             try:
-                self._data = read_channels(self.rrd)
+                self._data = read_channels(self.rrd, self.wanted)
             except Exception as exc:  # a damaged recording: rerun raises various kinds
                 raise MissingData(f"{self.rrd}: cannot read ({type(exc).__name__}: {exc})"
                                   ) from exc
@@ -165,14 +170,15 @@ class ChannelCache:
 
 
 class BaselineCache:
-    def __init__(self) -> None:
+    def __init__(self, wanted: set[str] | None = None) -> None:
+        self.wanted = wanted
         self._runs: dict[str, ChannelCache] = {}
 
     def __call__(self, base: str, entity: str) -> tuple[np.ndarray, np.ndarray]:
         p = Path(base)
         rrd = p if p.suffix == ".rrd" else p / "run.rrd"
         if base not in self._runs:
-            self._runs[base] = ChannelCache(rrd)
+            self._runs[base] = ChannelCache(rrd, self.wanted)
         return self._runs[base](entity)
 
 
@@ -282,11 +288,21 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
     for name in ("run.rrd", "can.blf"):
         if not (run_dir / name).is_file():
             results.append(_missing(name, f"no {name} in the run directory"))
-    facts = Facts(summary, ChannelCache(run_dir / "run.rrd"), BaselineCache(),
+    wanted = {c.target for c in criteria if c.kind in ("channel", "settles", "baseline")}
+    wanted |= {WORST_SAMPLE[c.target][0] for c in criteria
+               if c.kind == "scalar" and c.target in WORST_SAMPLE}
+    facts = Facts(summary, ChannelCache(run_dir / "run.rrd", wanted), BaselineCache(wanted),
                   lambda: left_safe_problems(run_dir / "can.blf"))
+    dry = bool(summary.get("dry_run"))
+    if dry:  # nothing was commanded: only the rig left safe and the run's own checks
+        criteria = [c for c in criteria if c.kind == "left_safe"]
     results = evaluate(criteria, facts) + results + (run_checks(criteria, summary)
                                                      if summary else [])
-    return make_verdict(results, identity_of(run_dir, cfg, summary, expect_file), run_dir)
+    verdict = make_verdict(results, identity_of(run_dir, cfg, summary, expect_file), run_dir)
+    if dry and verdict.verdict == "PASS":
+        verdict.reason = "dry run (nothing commanded): only left_safe and the run's own " \
+                         "checks judged; " + verdict.reason
+    return verdict
 
 
 def _missing(what: str, message: str) -> CriterionResult:
@@ -346,6 +362,8 @@ def format_block(v: Verdict, path: Path | None = None) -> str:
         at = "" if c.worst_time_s is None else f"  worst at t = {c.worst_time_s:.3f} s"
         lines.append(f"  {c.verdict:<8} {c.name:<{w}}  {val} {c.unit}".rstrip()
                      + (f"  limit {lim}" if lim else "") + margin + at)
+        if c.verdict != "PASS":
+            lines.append(f"  {'':<8} {'':<{w}}  {c.message}")
     if path is not None:
         lines.append(f"  verdict in {path}")
     return "\n".join(lines)

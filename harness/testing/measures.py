@@ -92,6 +92,18 @@ NULL_MEANS_FAIL = {
 """Summary fields whose null is a result (FAIL), not missing data (ERROR)."""
 
 
+WORST_SAMPLE: dict[str, tuple[str, str]] = {
+    "peak_tip_accel_m_s2": ("/tip/accel_m_s2", "abs"),
+    "residual_tip_accel_m_s2": ("/tip/accel_m_s2", "abs_residual"),
+    "max_wheel_torque_cmd_n_m": ("/wheel/torque_cmd_n_m", "abs"),
+    "max_wheel_torque_measured_n_m": ("/wheel/torque_n_m", "abs"),
+    "final_angle_deg": ("/attitude/angle_deg", "last"),
+    "final_angle_error_deg": ("/attitude/error_deg", "last"),
+}
+"""Summary peaks and finals whose sample the recording can name: (channel, how); the
+judge reports that sample's time as the criterion's ``worst_time_s``."""
+
+
 def unit_of_name(name: str) -> str | None:
     """The unit suffix of a name (``accel_m_s2`` -> ``m_s2``), or None."""
     for u in UNIT_SUFFIXES:

@@ -90,6 +90,38 @@ def _png(fig: Any) -> str:
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
+def _shade_band(ax: Any, s: dict[str, Any], t0: float, t1: float, v: np.ndarray) -> None:
+    """The criterion's band over its window. For ``reduce: each`` the band bounds every
+    sample; for rms / mean / final it bounds that one number, drawn as a thick line."""
+    lo, hi = s["lo"], s["hi"]
+    if lo is None and hi is None:
+        return
+    reduce = s.get("reduce") or "each"
+    if reduce == "rms":
+        value = float(np.sqrt(np.nanmean(v ** 2)))
+        lo = 0.0 if lo is None else lo
+    elif reduce == "mean":
+        value = float(np.nanmean(v))
+    elif reduce == "final":
+        value = float(v[-1])
+    else:
+        value = None
+    y_lo, y_hi = ax.get_ylim()
+    draw_lo = lo if lo is not None else min(y_lo, hi)
+    draw_hi = hi if hi is not None else max(y_hi, lo)
+    what = "band" if reduce == "each" else f"band of the {reduce}"
+    ax.fill_between([t0, t1], [draw_lo, draw_lo], [draw_hi, draw_hi], color="#2da44e",
+                    alpha=0.3, zorder=3, label=f"{what} ({s['window']})")
+    for y in (lo, hi):
+        if y is not None:
+            ax.hlines(y, t0, t1, colors="#2da44e", lw=0.8)
+    if value is not None:
+        ax.hlines(value, t0, t1, colors="#cf222e" if s["verdict"] in ("FAIL", "ERROR")
+                  else "#1f2328", lw=2.0, label=f"{reduce} {value:.4g}")
+    if reduce == "each":  # the band and the data, whichever is wider
+        ax.set_ylim(min(y_lo, draw_lo), max(y_hi, draw_hi))
+
+
 def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dict[str, str]]:
     """[{title, png (base64)}]: each checked channel with its band over its window; the
     angle and tip acceleration when no channel is checked."""
@@ -117,22 +149,15 @@ def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dic
             continue
         t, v = data[s["channel"]]
         fig, ax = plt.subplots(figsize=(7.5, 2.6))
-        ax.plot(t, v, lw=0.8, color="#0969da", label=s["channel"])
+        ax.plot(t, v, lw=0.6, color="#0969da", alpha=0.7, label=s["channel"])
         try:
             mask, _ = s["window_fn"](t)
         except Exception:  # noqa: BLE001 - e.g. the window's event never happened
             mask = np.zeros_like(t, dtype=bool)
         if mask.any():
             t0, t1 = float(t[mask][0]), float(t[mask][-1])
-            lo = s["lo"] if s["lo"] is not None else float(np.nanmin(v)) - 1e9
-            hi = s["hi"] if s["hi"] is not None else float(np.nanmax(v)) + 1e9
-            if s["lo"] is not None or s["hi"] is not None:
-                ax.fill_between([t0, t1], [lo, lo], [hi, hi], color="#2da44e", alpha=0.18,
-                                label=f"band ({s['window']})", step="post")
-                for y in (s["lo"], s["hi"]):
-                    if y is not None:
-                        ax.hlines(y, t0, t1, colors="#2da44e", lw=0.8)
             ax.axvspan(t0, t1, color="#eaeef2", alpha=0.35, zorder=0)
+            _shade_band(ax, s, t0, t1, v[mask])
         if s["kind"] == "baseline":
             try:
                 bt, bv = read_channels(Path(s["baseline"]) / "run.rrd" if Path(
@@ -143,12 +168,6 @@ def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dic
         if s["worst_time_s"] is not None:
             ax.axvline(s["worst_time_s"], color=COLORS.get(s["verdict"] or "", "k"), lw=0.8,
                        ls="--", label="worst")
-        if s["lo"] is not None and s["hi"] is not None and mask.any():
-            span = max(s["hi"] - s["lo"], float(np.nanmax(np.abs(v[mask]))) * 0.1, 1e-12)
-            vis_lo = min(s["lo"], float(np.nanmin(v[mask]))) - 0.3 * span
-            vis_hi = max(s["hi"], float(np.nanmax(v[mask]))) + 0.3 * span
-            if s["reduce"] == "each":
-                ax.set_ylim(min(vis_lo, float(np.nanmin(v))), max(vis_hi, float(np.nanmax(v))))
         ax.set_xlabel("time (s)")
         ax.set_ylabel(f"{s['channel'].rsplit('/', 1)[-1]}")
         ax.set_title(f"{s['name']}: {s['channel']} ({s['verdict']})", fontsize=9)

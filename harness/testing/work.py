@@ -21,10 +21,12 @@ import sys
 import tempfile
 import time
 import traceback
+import uuid
 from pathlib import Path
 from typing import Any
 
 from harness.engine import current_worker, stop_requested
+from harness.paths import safe_name
 from harness.testing.checks import combine, judge_check
 from harness.testing.suite import Case
 
@@ -76,6 +78,10 @@ def _run(case: Case, out_dir: Path, bus: str | None) -> tuple[dict[str, Any], Pa
         clock = None
         if bus is not None and not parse_bus(bus).in_process:
             clock = "realtime"  # a rig in its own process, or the real one: its own time
+        elif bus is None and parse_bus(run.data["bus"]).in_process:
+            # python-can's virtual channels are per process: a worker running two jobs at
+            # once (a Dask worker with several threads) must not join them on one channel
+            bus = f"virtual:{safe_name(case.suite)}-{uuid.uuid4().hex[:12]}"
         result = execute_run(run, out_dir=out_dir, bus=bus, clock=clock, show_progress=False,
                              should_stop=stop_requested)
     except (ConfigError, BusSpecError, RunRefused, RigProcessError) as exc:
