@@ -43,8 +43,12 @@ def fmt(v: Any) -> str:
     return str(v)
 
 
+UNITS = {"m_s2": "m/s^2", "deg_s": "deg/s", "rad_s": "rad/s", "n_m": "N m", "percent": "%",
+         "hz": "Hz", "v": "V", "a": "A"}
+
+
 def _unit(u: str) -> str:
-    return "" if u in ("", "ratio", "count", "bool") else f" {u}"
+    return "" if u in ("", "ratio", "count", "bool") else f" {UNITS.get(u, u)}"
 
 
 def fmt_limit(c: dict[str, Any]) -> str:
