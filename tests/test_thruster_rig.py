@@ -281,3 +281,6 @@ def test_study_command_json(tmp_path):
     assert len(list(tmp_path.glob("*-thruster-*/run.rrd"))) == 5
     assert len(list(tmp_path.glob("*-thruster-*/design.json"))) == 5
     assert "PD + PWPF" in format_report(study)
+    m = study["measures"]  # the paper suite's flat measures
+    assert m["pd_pwpf_peak_energy_ratio"] == 1.0 and m["pd_pwpf_oppf_completed"] is True
+    assert m["oppf_mode1_damping_gain"] > 1.0 and m["oppf_stability_margin"] > 0
