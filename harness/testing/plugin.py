@@ -113,9 +113,12 @@ class SuitePlugin:
             fut.add_done_callback(lambda f, k=key: self._finished(k, f))
 
     def _preflight(self) -> None:
+        """The probe before anything is armed, with the first probe test's settings."""
+        opts = next((c.probe for s in self.suites.values() for c in s.cases
+                     if c.kind == "probe"), {})
         self._say(f"pre-flight probe on {self.bus} (never arms) ...")
         try:
-            self.preflight = run_probe({}, self.bus)
+            self.preflight = run_probe(opts, self.bus)
             v = probe_verdict(self.preflight)
         except Exception as exc:  # noqa: BLE001 - a bus that does not open refuses too
             v = item_result("ERROR", f"{type(exc).__name__}: {exc}")
