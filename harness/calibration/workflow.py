@@ -224,7 +224,7 @@ def unidentified_modes(plan: ExcitationPlan, matches: list[dict[str, Any]]) -> l
 
 def measure(result: RunResult, ctrl: Any, modes: list[Mode]) -> dict[str, Any]:
     """Residual of one slew over [end + MARGIN_S, run end]: raw, fitted, truth."""
-    rec = result.recorder
+    rec = result.columns()
     t = rec.time_s[: rec.rows]
     accel = rec.column("/tip/accel_m_s2")
     t0 = ctrl.end_s + MARGIN_S

@@ -131,7 +131,7 @@ def measure(slew: Slew, out_dir: Path, modes: Sequence[Mode] | None = None,
     if s["stopped_by"] != "completed":
         raise RuntimeError(f"{run.name}: stopped by {s['stopped_by']}: {s['error']} "
                            f"{s['faults']}")
-    rec = result.recorder
+    rec = result.columns()
     t = rec.time_s[: rec.rows]
     accel = rec.column("/tip/accel_m_s2")
     analysis_modes = parse_modes(run.controller["modes"])
@@ -264,9 +264,37 @@ def run_study(out_dir: Path, groups: Sequence[str] = ("wheel", "thruster"),
         ratios(rows, ref)
         results[group] = rows
     results["checks"] = checks(results)
+    results["measures"] = claim_measures(results)
     results["paper_parman2022_relative"] = paper_relative()
     results["paper_wang2022"] = PAPER_WANG2022
     return results
+
+
+def claim_measures(results: dict[str, Any]) -> dict[str, Any]:
+    """Flat, named scalars (unit in the name; none = a ratio) that the paper suites'
+    criteria read (``measures.<name>``): per slew the residual (fitted and truth) and the
+    unshaped / this ratios, and ZVD against ZV with the modes 10 % off."""
+    m: dict[str, Any] = {}
+    for group in ("wheel", "thruster"):
+        for key, row in (results.get(group) or {}).items():
+            k = f"{group}_{key.replace('-', '_')}"
+            m[f"{k}_fitted_m_s2"] = float(row["fitted"]["peak_m_s2"])
+            m[f"{k}_truth_m_s2"] = float(row["truth"]["peak_m_s2"])
+            m[f"{k}_reduction_fitted"] = float(row["ratio_fitted"])
+            m[f"{k}_reduction_truth"] = float(row["ratio_truth"])
+            m[f"{k}_final_angle_error_deg"] = float(row["final_angle_error_deg"])
+            if "design_t8_s" in row:
+                m[f"{k}_manoeuvre_s"] = float(row["manoeuvre_s"])
+                m[f"{k}_firings_count"] = int(row["firings"])
+    wheel = results.get("wheel") or {}
+    for off in ("minus_10", "plus_10"):
+        zv, zvd = wheel.get(f"zv-{off.replace('_', '-')}"), wheel.get(
+            f"zvd-{off.replace('_', '-')}")
+        if zv and zvd:
+            for kind in ("fitted", "truth"):
+                m[f"wheel_zvd_over_zv_{off}_{kind}"] = float(
+                    zvd[kind]["peak_m_s2"] / zv[kind]["peak_m_s2"])
+    return m
 
 
 def checks(results: dict[str, Any]) -> dict[str, bool]:
