@@ -282,6 +282,14 @@ def evaluate_settles(c: Criterion, facts: Facts) -> CriterionResult:
             entry = float(t[a])
             break
     what = f"{c.target} within {center:g} +- {band:g} {u} for {stays:g} s"
+    if entry is None and len(starts) and ends[-1] == len(t) - 1 \
+            and t[starts[-1]] - trigger <= c.limit["max"] + 1e-9:
+        # in the band in time and still in it at the end, but the run ended before it had
+        # stayed stays_s: too short to judge, not a failure to settle
+        a = float(t[starts[-1]])
+        raise MissingData(
+            f"{what}: in the band from t = {a:.3f} s to the run's end at t = "
+            f"{float(t[-1]):.3f} s; judging needs the run to last until t = {a + stays:.3f} s")
     if entry is None:
         dev = np.abs(x - center)
         late = t >= trigger + c.limit["max"] - 1e-9

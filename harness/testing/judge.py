@@ -121,7 +121,7 @@ def read_channels(rrd: Path, wanted: set[str] | None = None
                   ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """The scalar channels of a recording on the ``time`` timeline (``wanted`` ones, or
     all), in one pass."""
-    from rerun.chunk import RrdReader
+    from harness.recording_reader import RrdReader
 
     parts: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
     for chunk in RrdReader(rrd).stream().to_chunks():
@@ -355,6 +355,11 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
     return out
 
 
+UNIT_TEXT = {"n_m": "N m", "m_s2": "m/s^2", "deg_s": "deg/s", "rad_s": "rad/s", "m_s": "m/s",
+             "n_m_s": "N m s", "percent": "%", "bool": "", "count": "", "ratio": ""}
+"""How a unit suffix reads in the printed block (the keys keep the suffix)."""
+
+
 def format_block(v: Verdict, path: Path | None = None) -> str:
     """The verdict as printed at the end of ``harness run`` and by ``harness judge``."""
     lines = [f"VERDICT {v.verdict} (exit {v.exit_code}): {v.reason}"]
@@ -366,7 +371,8 @@ def format_block(v: Verdict, path: Path | None = None) -> str:
                         for k, val_ in c.limit.items())
         margin = "" if c.margin is None else f"  margin {c.margin:.4g}"
         at = "" if c.worst_time_s is None else f"  worst at t = {c.worst_time_s:.3f} s"
-        lines.append(f"  {c.verdict:<8} {c.name:<{w}}  {val} {c.unit}".rstrip()
+        unit = UNIT_TEXT.get(c.unit, c.unit)
+        lines.append(f"  {c.verdict:<8} {c.name:<{w}}  {val} {unit}".rstrip()
                      + (f"  limit {lim}" if lim else "") + margin + at)
         if c.verdict != "PASS":
             lines.append(f"  {'':<8} {'':<{w}}  {c.message}")
