@@ -49,6 +49,31 @@ def default_blueprint(extra_views: list[rrb.View] | None = None) -> rrb.Blueprin
 BlockObserver = Callable[[np.ndarray, np.ndarray], None]
 
 
+class ChannelRanges:
+    """Each channel's [min, max] over the whole run, fed block by block (a recorder
+    observer), so a layout can scale its plots without keeping the run in memory."""
+
+    def __init__(self, channels: list[str]) -> None:
+        self.channels = list(channels)
+        self.lo = np.full(len(self.channels), np.inf)
+        self.hi = np.full(len(self.channels), -np.inf)
+
+    def update(self, t: np.ndarray, rows: np.ndarray) -> None:
+        if len(rows) == 0:
+            return
+        with np.errstate(invalid="ignore"):
+            self.lo = np.fmin(self.lo, np.nanmin(np.where(np.isfinite(rows), rows, np.inf),
+                                                 axis=0))
+            self.hi = np.fmax(self.hi, np.nanmax(np.where(np.isfinite(rows), rows, -np.inf),
+                                                 axis=0))
+
+    def ranges(self) -> dict[str, list[float]]:
+        """channel -> [min, max] of its finite values (channels with none are left out)."""
+        return {c: [float(lo), float(hi)] for c, lo, hi in zip(self.channels, self.lo, self.hi,
+                                                                strict=True)
+                if np.isfinite(lo) and np.isfinite(hi)}
+
+
 class _Block:
     __slots__ = ("t", "data", "next_channel")
 
@@ -88,6 +113,7 @@ class Recorder:
         self._tail_rows = 0
         self._blocks_sent = 0
         self._closed = False
+        self._last_block: _Block | None = None
         self.rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_name)
         bp = blueprint or default_blueprint()
         # no RRD footer: writing one keeps a manifest entry per chunk in memory until the
@@ -123,6 +149,7 @@ class Recorder:
         self._data = np.full((self.block_rows, len(self.channels)), np.nan)
         self._fill = 0
         self._pending.append(block)
+        self._last_block = block
         if self.retain_rows:
             self._tail.append(block)
             self._tail_rows += n
@@ -171,8 +198,34 @@ class Recorder:
         self.rec.log(entity, rr.TextDocument(text, media_type="text/markdown"), static=True)
 
     def log_event(self, time_s: float, entity: str, text: str, level: str = "WARN") -> None:
-        self.rec.set_time("time", duration=time_s)
-        self.rec.log(entity, rr.TextLog(text, level=level))
+        """A TextLog under ``/events/...`` and a marker on every plot at ``time_s``, on the
+        plot's signal at the last recorded row (harness.review.events)."""
+        from harness.review.events import log_event
+
+        log_event(self.rec, time_s, entity, text, level, self.latest_values())
+
+    def latest_values(self) -> dict[str, float]:
+        """Every channel's value in the last committed row (empty before the first)."""
+        if self.rows == 0:
+            return {}
+        if self._fill:
+            row = self._data[self._fill - 1]
+        elif self._last_block is not None:
+            row = self._last_block.data[-1]
+        else:
+            return {}
+        return {c: float(row[i]) for i, c in enumerate(self.channels)}
+
+    def send_layout(self, blueprint: rrb.Blueprint) -> None:
+        """Replace the recording's layout (made default and active), e.g. at the end of a
+        run when the plots' ranges are known."""
+        self.rec.send_blueprint(blueprint, make_active=True, make_default=True)
+
+    def log_summary(self, summary: dict) -> None:
+        """The run's summary as a markdown table at ``/run/summary``."""
+        from harness.review.events import summary_markdown
+
+        self.log_static_text("/run/summary", summary_markdown(summary))
 
     def finish_rows(self) -> None:
         """Queue the partly filled block (observers see it); rows after it start a new one."""

@@ -30,8 +30,11 @@ from harness.loop import CHANNELS, LoopStats, run_loop
 from harness.monitor import FaultMonitor
 from harness.paths import safe_child, safe_name
 from harness.periodic import steady_state_amplitude
-from harness.recording import Recorder
+from harness.recording import ChannelRanges, Recorder
 from harness.recording_reader import RecordedColumns
+from harness.review.bus import write_bus
+from harness.review.events import log_event
+from harness.review.layouts import layout_for_run, write_layout_file
 from harness.rig_interface import RigInterface
 from harness.rig_process import RigProcess
 from harness.runs import RunConfig, build_controller
@@ -139,8 +142,12 @@ def execute_run(
             rig_measures = proc.measures
             spec = parse_bus(where)
             faults = []
-        result = _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
-                          show_progress, dry_run, faults, should_stop)
+        try:
+            result = _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
+                              show_progress, dry_run, faults, should_stop)
+        except Exception as exc:  # the run raised: its directory can still be judged (ERROR)
+            exc.run_dir = run_dir  # type: ignore[attr-defined]
+            raise
         result.summary["virtual_rig_mode"] = rig_mode
         if rig_measures:
             m = result.summary["realtime_measures"]
@@ -196,12 +203,14 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
     stop_rig = threading.Event()
     can_log = CanLog(run_dir / "can.blf")
     running = running_summary_for(run)
+    ranges = ChannelRanges(CHANNELS)
     recorder = Recorder(run_dir / "run.rrd", CHANNELS, run.n_ticks, f"{run_dir.name}",
                         live_view_url=live_view_url, retain_rows=retain_rows_for(run),
-                        observers=[running.update],
+                        observers=[running.update, ranges.update],
                         # lockstep outruns the file sink: wait for it every 10 blocks so its
                         # queue stays bounded; real time never waits (the sink keeps up)
-                        flush_every_blocks=0 if clock_name == "realtime" else 10)
+                        flush_every_blocks=0 if clock_name == "realtime" else 10,
+                        blueprint=layout_for_run(run.resolved(), CHANNELS))
     pump = None
     stats = LoopStats()
     setup = RealTimeSetup()
@@ -251,13 +260,17 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
             summary["faults"] = [f.to_dict() for f in stats.faults]
             summary["injected_faults"] = [vars(f) for f in (rig.injector.faults if rig else [])]
             (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+            _log_end(recorder, stats, summary, dt_s)
+            _final_layout(recorder, run, run_dir, ranges)
     finally:
         setup.restore()
         stop_rig.set()
         if rig_thread is not None:
             rig_thread.join(timeout=2.0)
-        recorder.close()
         can_log.close()
+        _log_bus(recorder, can_log.path, dt_s, clock_name == "realtime",
+                 run.rig.data["bus"]["sync_divider"])
+        recorder.close()
         harness_bus.shutdown()
         if rig_bus is not None:
             rig_bus.shutdown()
@@ -274,6 +287,63 @@ def retain_rows_for(run: RunConfig) -> int:
 def running_summary_for(run: RunConfig) -> RunningSummary:
     return RunningSummary(CHANNELS, run.controller.get("angle_deg"),
                           run.data["settle_band_deg"])
+
+
+def _log_end(recorder: Recorder, stats: LoopStats, summary: dict[str, Any],
+             dt_s: float) -> None:
+    """The summary as text, and the end of a run the loop did not log (Ctrl-C, an error)."""
+    try:
+        t_end = max(0, stats.ticks - 1) * dt_s
+        if stats.stopped_by == "error":
+            recorder.log_event(t_end, "/events/harness", stats.error, "ERROR")
+        elif stats.stopped_by == "interrupted" and not stats.error:
+            recorder.log_event(t_end, "/events/harness", "interrupted (Ctrl-C or SIGTERM)",
+                               "WARN")
+        elif stats.stopped_by == "completed":  # no marker: the log says how the run ended
+            log_event(recorder.rec, t_end, "/events/harness",
+                      f"completed: {stats.ticks} ticks", "INFO")
+        recorder.log_summary(summary)
+    except Exception as exc:  # never lose the run for its text
+        print(f"harness: could not write the summary to the recording ({exc})",
+              file=sys.stderr)
+
+
+def _final_layout(recorder: Recorder, run: RunConfig, run_dir: Path,
+                  channel_ranges: ChannelRanges) -> None:
+    """The run's layout with each plot's y axis on its recorded range (layout.json keeps the
+    ranges for identify.rrd and verdict.rrd, harness.review.layouts)."""
+    try:
+        ranges = channel_ranges.ranges()
+        write_layout_file(run_dir, ranges)
+        recorder.send_layout(layout_for_run(run.resolved(), CHANNELS, ranges))
+    except Exception as exc:  # the layout of the start stays
+        print(f"harness: could not write the run's final layout ({exc})", file=sys.stderr)
+
+
+def _log_bus(recorder: Recorder, blf: Path, dt_s: float, realtime: bool,
+             dividers: dict[str, int]) -> None:
+    """The CAN log decoded into the recording (harness.review.bus), after the run."""
+    try:
+        if not blf.exists():
+            return
+        bus = write_bus(recorder.rec, blf, dt_s, realtime, dividers)
+        for t_s, text in bus.warnings:
+            log_event(recorder.rec, t_s, "/events/bus", text, "WARN")
+        if bus.late_or_missing > len(bus.warnings):
+            log_event(recorder.rec, bus.warnings[-1][0], "/events/bus",
+                      f"{bus.late_or_missing} late or missing telemetry frames in all "
+                      f"(the first {len(bus.warnings)} listed)", "WARN")
+    except Exception as exc:  # the run's own recording is complete without it
+        print(f"harness: could not decode the CAN log into the recording ({exc})",
+              file=sys.stderr)
+
+
+def _settle_time(t: np.ndarray, err_deg: np.ndarray, band_deg: float) -> float | None:
+    outside = np.nonzero(np.abs(err_deg) > band_deg)[0]
+    if len(outside) == 0:
+        return float(t[0]) if len(t) else None
+    last = outside[-1]
+    return None if last + 1 >= len(t) else float(t[last + 1])
 
 
 def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent: float,

@@ -1,5 +1,7 @@
 """`harness sweep`: residual vibration over frequency ratio x amplitude ratio (paper 003,
-Figures 6-9) on the rig model, on every core.
+Figures 6-9) on the rig model, on every core
+(or on a Dask cluster: ``--cluster tcp://HOST:8786`` or ``$SGSRT_CLUSTER``, see
+docs/suites.md).
 
 Writes ``<out>/<UTC time>-sweep/`` with ``sweep.csv``, ``sweep.rrd`` (the maps as tensors and
 one curve per beta against lambda), ``maps.png``, ``curves.png`` and ``summary.json`` (where
@@ -19,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.engine import CLUSTER_ENV, EngineError, make_engine
 from harness.sweep import SweepSpec, run_sweep
 from rig_models.rig_file import load_rig
 from rig_models.schema import ConfigError
@@ -83,26 +86,50 @@ def save_plots(path_maps: Path, path_curves: Path, lambdas: np.ndarray, betas: n
     plt.close(fig)
 
 
+SWEEP_TIMELINE = "lambda_x1000"
+
+
+def sweep_blueprint() -> object:
+    """The sweep's layout (harness.review.layouts.study_layout): per output, the amplitude
+    and its log10 against lambda (one curve per beta), the lambda x beta maps, and the
+    description."""
+    from harness.review.layouts import study_layout
+
+    curves = {}
+    for out, title in zip(OUTPUTS, ("tip acceleration amplitude (m/s^2)",
+                                    "tip deflection amplitude (m)"), strict=True):
+        curves[f"{title[0].upper()}{title[1:]} vs lambda x 1000, one curve per beta"] = [
+            f"/sweep/curves/{out}/**"]
+        curves[f"log10 {title} vs lambda x 1000"] = [f"/sweep/log10/{out}/**"]
+    return study_layout(
+        curves, SWEEP_TIMELINE, texts={"Sweep": "/sweep/about"},
+        tensors={"Tip acceleration amplitude map (m/s^2) [lambda x beta]":
+                 "/sweep/map/tip_accel_m_s2",
+                 "Tip deflection amplitude map (m) [lambda x beta]":
+                 "/sweep/map/tip_deflection_m"})
+
+
 def save_rrd(path: Path, name: str, lambdas: np.ndarray, betas: np.ndarray,
              amps: np.ndarray) -> None:
     import rerun as rr
-    import rerun.blueprint as rrb
 
     rec = rr.RecordingStream("sgsrt-harness", recording_id=name)
-    bp = rrb.Blueprint(rrb.Horizontal(
-        rrb.TensorView(origin="/sweep/map/tip_accel_m_s2", name="accel map [lambda x beta]"),
-        rrb.TensorView(origin="/sweep/map/tip_deflection_m", name="deflection map"),
-        rrb.TimeSeriesView(origin="/sweep/curves", name="amplitude vs lambda (per beta)")))
-    rec.save(str(path), default_blueprint=bp)
+    rec.save(str(path), default_blueprint=sweep_blueprint())
     for o, out in enumerate(OUTPUTS):
         rec.log(f"/sweep/map/{out}", rr.Tensor(amps[:, :, o], dim_names=["lambda", "beta"]),
                 static=True)
         for j, b in enumerate(betas):
-            rec.send_columns(
-                f"/sweep/curves/{out}/beta_{b:.2f}",
-                indexes=[rr.TimeColumn("lambda_x1000", sequence=np.round(lambdas * 1000)
-                                       .astype(np.int64))],
-                columns=rr.Scalars.columns(scalars=amps[:, j, o]))
+            index = [rr.TimeColumn(SWEEP_TIMELINE, sequence=np.round(lambdas * 1000)
+                                   .astype(np.int64))]
+            rec.send_columns(f"/sweep/curves/{out}/beta_{b:.2f}", indexes=index,
+                             columns=rr.Scalars.columns(scalars=amps[:, j, o]))
+            rec.send_columns(f"/sweep/log10/{out}/beta_{b:.2f}", indexes=index,
+                             columns=rr.Scalars.columns(scalars=np.log10(amps[:, j, o])))
+    rec.log("/sweep/about", rr.TextDocument(
+        f"# Sweep {name}\n\nx axis: the `{SWEEP_TIMELINE}` timeline, lambda = w_m / w_ref "
+        f"times 1000 ({lambdas[0]:g} to {lambdas[-1]:g}, {len(lambdas)} points); one curve "
+        f"per beta = U / A ({betas[0]:g} to {betas[-1]:g}, {len(betas)} values). Maps: "
+        "rows lambda, columns beta.", media_type="text/markdown"), static=True)
     rec.flush()
     rec.disconnect()
 
@@ -125,6 +152,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dish-radius-m", type=float, default=0.6, help="P_m")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="processes (default: every core)")
+    p.add_argument("--cluster", metavar="tcp://HOST:8786",
+                   help=f"run on this Dask scheduler's workers (default ${CLUSTER_ENV}, if "
+                   "set; see docs/suites.md)")
     p.add_argument("--out", type=Path, default=Path("logs"))
     p.add_argument("--json", action="store_true", help="summary JSON on stdout")
     p.set_defaults(func=cmd_sweep)
@@ -139,7 +169,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         if not 0 <= args.beta_min < args.beta_max:
             raise ConfigError("--beta-min must be >= 0 and < --beta-max")
         rig = load_rig(args.rig)
-    except ConfigError as exc:
+        engine = make_engine(args.cluster, args.workers, preload=("harness.sweep",))
+    except (ConfigError, EngineError) as exc:
         print(f"harness sweep: {exc}", file=sys.stderr)
         return 2
     model = rig.plant
@@ -156,8 +187,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
               file=sys.stderr, flush=True)
 
     print(f"harness sweep: {args.n_lambda} x {args.n_beta} grid, w_ref {w_ref:.4f} rad/s "
-          f"({args.reference}), {args.workers} workers", file=sys.stderr)
-    amps = run_sweep(model, spec, args.workers, progress)
+          f"({args.reference}), {engine.name}", file=sys.stderr)
+    try:
+        amps = run_sweep(model, spec, progress=progress, engine=engine)
+    finally:
+        engine.close()
     wall = time.perf_counter() - t0
     stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%S.%fZ")
     out_dir = args.out / f"{stamp}-sweep"
@@ -175,7 +209,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     save_rrd(out_dir / "sweep.rrd", out_dir.name, lambdas, betas, amps)
     summary = {"grid": [args.n_lambda, args.n_beta], "reference": args.reference,
                "omega_ref_rad_s": w_ref, "wall_time_s": round(wall, 2),
-               "workers": args.workers, "out_dir": str(out_dir),
+               "workers": engine.workers, "engine": engine.name, "out_dir": str(out_dir),
                "laws": analyse(lambdas, betas, amps)}
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     if args.json:

@@ -311,7 +311,41 @@ def run_study(out_dir: Path, duration_s: float | None = None,
         "results": rows,
         "ordering": ordering(rows),
         "paper": PAPER_HU2006,
+        "measures": claim_measures(rows, designs),
     }
+
+
+def claim_measures(rows: list[dict[str, Any]], designs: dict[str, Any]) -> dict[str, Any]:
+    """Flat, named scalars (unit in the name; none = a ratio) that the paper suite's
+    criteria read (``measures.<name>``); ratios are against PD + PWPF's run."""
+    m: dict[str, Any] = {}
+    base = rows[0]
+    for r in rows:
+        k = r["key"]
+        if r["settle_s"] is not None:
+            m[f"{k}_settle_s"] = float(r["settle_s"])
+        m[f"{k}_angle_error_deg"] = float(r["angle_err_deg"])
+        if base["peak_energy"] > 0:
+            m[f"{k}_peak_energy_ratio"] = float(r["peak_energy"] / base["peak_energy"])
+        ring, ring0 = r["firing_ringing_ch1_v"], base["firing_ringing_ch1_v"]
+        if ring is not None:  # None: no isolated firing to measure it on (a short run)
+            m[f"{k}_ringing_ch1_v"] = float(ring)
+            if ring0:
+                m[f"{k}_ringing_ratio"] = float(ring / ring0)
+        m[f"{k}_completed"] = r["stopped_by"] == "completed"
+    for d in designs.values():
+        cl = d.get("closed_loop") or {}
+        if d.get("oppf") and cl.get("damping_with_ppf"):
+            for i in (0, 1):
+                m[f"oppf_mode{i + 1}_damping_gain"] = float(
+                    cl["damping_with_ppf"][i] / cl["damping_pd_only"][i])
+            m["oppf_stability_margin"] = float(min(
+                o["stability_margin"] for o in d["oppf"].values()))
+            break
+    pd = next(iter(designs.values()), {}).get("pd") or {}
+    if pd.get("time_scale_vs_paper"):
+        m["pd_time_scale_vs_paper"] = float(pd["time_scale_vs_paper"])
+    return m
 
 
 def format_report(study: dict[str, Any]) -> str:
