@@ -32,7 +32,12 @@ from harness.periodic import steady_state_amplitude
 from harness.recording import Recorder
 from harness.review.bus import write_bus
 from harness.review.events import log_event
-from harness.review.layouts import channel_ranges, layout_for_run, write_layout_file
+from harness.review.layouts import (
+    channel_ranges,
+    layout_for_run,
+    legend_corners,
+    write_layout_file,
+)
 from harness.rig_interface import RigInterface
 from harness.rig_process import RigProcess
 from harness.runs import RunConfig, build_controller
@@ -215,13 +220,14 @@ def _log_end(recorder: Recorder, stats: LoopStats, summary: dict[str, Any],
     try:
         t_end = max(0, stats.ticks - 1) * dt_s
         if stats.stopped_by == "error":
-            recorder.log_event(t_end, "/events/harness", stats.error, "ERROR")
+            recorder.log_event(t_end, "/events/harness",
+                               f"harness: error: {stats.error} (t = {t_end:.3f} s)", "ERROR")
         elif stats.stopped_by == "interrupted" and not stats.error:
-            recorder.log_event(t_end, "/events/harness", "interrupted (Ctrl-C or SIGTERM)",
-                               "WARN")
+            recorder.log_event(t_end, "/events/harness", "harness: interrupted (Ctrl-C or "
+                               f"SIGTERM) (t = {t_end:.3f} s)", "WARN")
         elif stats.stopped_by == "completed":  # no marker: the log says how the run ended
             log_event(recorder.rec, t_end, "/events/harness",
-                      f"completed: {stats.ticks} ticks", "INFO")
+                      f"harness: completed, {stats.ticks} ticks (t = {t_end:.3f} s)", "INFO")
         recorder.log_summary(summary)
     except Exception as exc:  # never lose the run for its text
         print(f"harness: could not write the summary to the recording ({exc})",
@@ -229,12 +235,16 @@ def _log_end(recorder: Recorder, stats: LoopStats, summary: dict[str, Any],
 
 
 def _final_layout(recorder: Recorder, run: RunConfig, run_dir: Path) -> None:
-    """The run's layout with each plot's y axis on its recorded range (layout.json keeps the
-    ranges for identify.rrd and verdict.rrd, harness.review.layouts)."""
+    """The run's layout with each plot's y axis on its recorded range and its legend in the
+    emptiest corner (layout.json keeps both for identify.rrd and verdict.rrd,
+    harness.review.layouts)."""
     try:
-        ranges = channel_ranges({c: recorder.column(c) for c in CHANNELS})
-        write_layout_file(run_dir, ranges)
-        recorder.send_layout(layout_for_run(run.resolved(), CHANNELS, ranges))
+        columns = {c: recorder.column(c) for c in CHANNELS}
+        ranges = channel_ranges(columns)
+        legends = legend_corners(recorder.time_s[: recorder.rows], columns,
+                                 run.data["duration_s"], ranges)
+        write_layout_file(run_dir, ranges, legends)
+        recorder.send_layout(layout_for_run(run.resolved(), CHANNELS, ranges, legends))
     except Exception as exc:  # the layout of the start stays
         print(f"harness: could not write the run's final layout ({exc})", file=sys.stderr)
 
@@ -250,8 +260,8 @@ def _log_bus(recorder: Recorder, blf: Path, dt_s: float, realtime: bool,
             log_event(recorder.rec, t_s, "/events/bus", text, "WARN")
         if bus.late_or_missing > len(bus.warnings):
             log_event(recorder.rec, bus.warnings[-1][0], "/events/bus",
-                      f"{bus.late_or_missing} late or missing telemetry frames in all "
-                      f"(the first {len(bus.warnings)} listed)", "WARN")
+                      f"bus: {bus.late_or_missing} late or missing telemetry frames in all "
+                      f"(the first {len(bus.warnings)} ticks listed)", "WARN")
     except Exception as exc:  # the run's own recording is complete without it
         print(f"harness: could not decode the CAN log into the recording ({exc})",
               file=sys.stderr)

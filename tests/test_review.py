@@ -226,3 +226,19 @@ def test_sweep_rrd_has_its_layout(tmp_path):
     assert len(curves) == 4 and all("(" in v.name for v in curves)
     assert sum(v.kind == "Tensor" for v in views.values()) == 2
     assert "Sweep" in views
+
+
+def test_legend_goes_where_it_hides_no_curve():
+    """A slew stopped at 12 s of 50: its angle rises in the left of the plot, so the legend
+    must not sit at the left top (where it hid the curve in the viewer)."""
+    t = np.arange(0, 12, 0.002)
+    angle = 7.5 * (t / 12) ** 2
+    cols = {"/attitude/angle_deg": angle, "/attitude/reference_deg": angle}
+    ranges = L.channel_ranges(cols)
+    corners = L.legend_corners(t, cols, 50.0, ranges)
+    assert corners["angle"] in ("RightTop", "RightBottom")
+    # a full-length slew to 20 deg holds at the top right: the bottom right is free
+    t = np.arange(0, 50, 0.002)
+    angle = 20 * np.clip(t / 25, 0, 1)
+    cols = {"/attitude/angle_deg": angle}
+    assert L.legend_corners(t, cols, 50.0, L.channel_ranges(cols))["angle"] == "RightBottom"

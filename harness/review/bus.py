@@ -172,8 +172,9 @@ def write_bus(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime: bool,
         if missing:
             stats.late_or_missing += len(missing)
             if len(stats.warnings) < MAX_WARNINGS:
-                stats.warnings.append((t_tick, f"tick {tick}: no telemetry before the next "
-                                       f"SYNC from {', '.join(missing)}"))
+                stats.warnings.append((t_tick, f"bus: no telemetry from {', '.join(missing)} "
+                                       f"before the next SYNC (tick {tick}, t = "
+                                       f"{t_tick:.3f} s)"))
 
     with can.BLFReader(str(blf)) as reader:
         for msg in reader:
