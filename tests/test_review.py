@@ -166,6 +166,9 @@ def _tiny_verdict_rrd(run_dir: Path) -> Path:
             static=True)
     rec.set_time("time", duration=0.5)
     rec.log("/events/verdict", rr.TextLog("settle_time_s 30 > 25", level="ERROR"))
+    from harness.review.events import mark_events
+
+    assert mark_events(rec, run_dir / "run.rrd", [(0.5, "verdict", "VERDICT settle")]) >= 8
     rec.flush()
     rec.disconnect()
     return path
@@ -180,6 +183,15 @@ def test_verdict_rrd_opens_with_the_runs_layout(faulted):
     theirs = read_blueprints(verdict)[-1]
     key = sorted((v.name, v.kind, v.origin, v.contents) for v in ours)
     assert key == sorted((v.name, v.kind, v.origin, v.contents) for v in theirs)
+    # its violation is marked on the plots at the run's values at 0.5 s
+    from harness.recording_reader import read_scalar_channel
+    from harness.review.events import values_at
+
+    t, angle = read_scalar_channel(verdict, "/markers/angle/verdict")
+    assert t == pytest.approx([0.5])
+    t_run, a_run = read_scalar_channel(faulted.run_dir / "run.rrd", "/attitude/angle_deg")
+    assert angle[0] == pytest.approx(a_run[np.searchsorted(t_run, 0.5 + 1e-9) - 1])
+    assert values_at(faulted.run_dir / "run.rrd", [0.5])[0]["/attitude/angle_deg"] == angle[0]
 
 
 def test_identify_rrd_spectrum_marks_every_mode_with_the_runs_layout(faulted, tmp_path):
