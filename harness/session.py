@@ -32,12 +32,7 @@ from harness.periodic import steady_state_amplitude
 from harness.recording import Recorder
 from harness.review.bus import write_bus
 from harness.review.events import log_event
-from harness.review.layouts import (
-    channel_ranges,
-    layout_for_run,
-    legend_corners,
-    write_layout_file,
-)
+from harness.review.layouts import PlotStats, layout_for_run, write_layout_file
 from harness.rig_interface import RigInterface
 from harness.rig_process import RigProcess
 from harness.runs import RunConfig, build_controller
@@ -239,10 +234,9 @@ def _final_layout(recorder: Recorder, run: RunConfig, run_dir: Path) -> None:
     emptiest corner (layout.json keeps both for identify.rrd and verdict.rrd,
     harness.review.layouts)."""
     try:
-        columns = {c: recorder.column(c) for c in CHANNELS}
-        ranges = channel_ranges(columns)
-        legends = legend_corners(recorder.time_s[: recorder.rows], columns,
-                                 run.data["duration_s"], ranges)
+        stats = PlotStats(CHANNELS)
+        stats.add(recorder.time_s[: recorder.rows], recorder.data[: recorder.rows])
+        ranges, legends = stats.ranges(), stats.legends(run.data["duration_s"])
         write_layout_file(run_dir, ranges, legends)
         recorder.send_layout(layout_for_run(run.resolved(), CHANNELS, ranges, legends))
     except Exception as exc:  # the layout of the start stays

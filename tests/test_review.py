@@ -254,3 +254,21 @@ def test_legend_goes_where_it_hides_no_curve():
     angle = 20 * np.clip(t / 25, 0, 1)
     cols = {"/attitude/angle_deg": angle}
     assert L.legend_corners(t, cols, 50.0, L.channel_ranges(cols))["angle"] == "RightBottom"
+
+
+def test_plot_stats_in_blocks_match_the_whole_run():
+    """Fed block by block (as a streaming recorder would) with bounded memory, the same
+    ranges as the whole columns and a decimated copy that still spans the run."""
+    rng = np.random.default_rng(2)
+    t = np.arange(0, 100, 0.002)
+    data = np.column_stack([np.sin(t), 1e-3 * rng.normal(size=len(t)), np.full(len(t), np.nan)])
+    stats = L.PlotStats(["/attitude/angle_deg", "/attitude/error_deg", "/piezo/cmd_ch1_v"],
+                        max_rows=1000)
+    for k in range(0, len(t), 500):
+        stats.add(t[k:k + 500], data[k:k + 500])
+    whole = L.channel_ranges({"/attitude/angle_deg": data[:, 0],
+                              "/attitude/error_deg": data[:, 1]})
+    assert stats.ranges() == whole
+    assert len(stats.t) <= 1000 and stats.t[0] == 0.0 and stats.t[-1] > 99.0
+    assert np.all(np.diff(stats.t) > 0)
+    assert set(stats.legends(100.0)) >= {"angle", "error"}

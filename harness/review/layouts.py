@@ -403,3 +403,62 @@ def blueprint_views(bp: rrb.Blueprint) -> list[rrb.View]:
 
     walk(bp.root_container)
     return out
+
+
+class PlotStats:
+    """What a run's final layout needs, gathered block by block in bounded memory: each
+    channel's extremes, and a decimated copy of the rows (at most ``max_rows``; when full,
+    every other row is dropped and the stride doubles) for ``legend_corners``. Feed it with
+    ``add(time_s, rows)`` (rows: one column per channel), e.g. as a Recorder block
+    observer, then ``ranges()`` and ``legends(duration_s)``."""
+
+    def __init__(self, channels: Sequence[str], max_rows: int = 4096) -> None:
+        import numpy as np
+
+        self.channels = list(channels)
+        self.max_rows = max_rows
+        self.lo = np.full(len(self.channels), np.inf)
+        self.hi = np.full(len(self.channels), -np.inf)
+        self.stride = 1
+        self._skip = 0  # rows to skip before the next one kept
+        self.t: list[float] = []
+        self.rows: list[Any] = []
+
+    def add(self, time_s: Any, rows: Any) -> None:
+        import numpy as np
+
+        t = np.asarray(time_s, dtype=float)
+        data = np.asarray(rows, dtype=float).reshape(len(t), len(self.channels))
+        if not len(t):
+            return
+        with np.errstate(invalid="ignore"):
+            self.lo = np.fmin(self.lo, np.nanmin(np.where(np.isfinite(data), data, np.nan),
+                                                 axis=0, initial=np.inf))
+            self.hi = np.fmax(self.hi, np.nanmax(np.where(np.isfinite(data), data, np.nan),
+                                                 axis=0, initial=-np.inf))
+        i = self._skip
+        while i < len(t):
+            self.t.append(float(t[i]))
+            self.rows.append(data[i].copy())
+            if len(self.t) >= self.max_rows:
+                self.t = self.t[::2]
+                self.rows = self.rows[::2]
+                self.stride *= 2
+            i += self.stride
+        self._skip = i - len(t)
+
+    def ranges(self) -> dict[str, list[float]]:
+        import math as m
+
+        return {c: [float(a), float(b)] for c, a, b in zip(self.channels, self.lo, self.hi,
+                                                          strict=True)
+                if m.isfinite(a) and m.isfinite(b)}
+
+    def legends(self, duration_s: float) -> dict[str, str]:
+        import numpy as np
+
+        if not self.t:
+            return {}
+        data = np.array(self.rows)
+        cols = {c: data[:, i] for i, c in enumerate(self.channels)}
+        return legend_corners(np.array(self.t), cols, duration_s, self.ranges())
