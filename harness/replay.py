@@ -293,7 +293,7 @@ def load_run_dir(run_dir: Path) -> tuple[RunConfig, dict[str, Any]]:
         # the run's own rig reference may be a file that is gone: validate against the
         # built-in rig, then put the resolved rig (and the original keys) back
         raw = dict(cfg["run"], rig="sgsrt", rig_overrides=None)
-        checked = run_from_dict(raw, source=f"{cfg_path}: run")
+        checked = run_from_dict(raw, source=f"{cfg_path}: run", check_files=False)
     except ConfigError as exc:
         raise ReplayError(str(exc)) from exc
     data = dict(checked.data, rig=cfg["run"].get("rig"),

@@ -43,14 +43,25 @@ RUN_SCHEMA: dict[str, Any] = {
     "variants": Field("any", default=None),
     "receive_timeout_ms": Field("number", "ms", default=50.0, exclusive_minimum=0.0),
     "faults": Field("any", default=None),
+    "expect": Field("any", default=None),
     "monitor": MONITOR_SCHEMA,
     "limits": LIMITS_SCHEMA,
+    # real-time measures, requested by default on the real-time clock (docs/realtime.md);
+    # a refused one is a warning recorded in the summary. Set a key false to opt out.
     "realtime": {
-        "sched_fifo": Field("bool", default=False),
-        "priority": Field("int", default=50, minimum=1, maximum=99),
+        "sched_fifo": Field("bool", default=True),
+        "priority": Field("int", default=50, minimum=1, maximum=98),
+        "pin_cpu": Field("bool", default=True),
         "cpu": Field("int", default=-1, minimum=-1),
-        "lock_memory": Field("bool", default=False),
+        "lock_memory": Field("bool", default=True),
         "gc_freeze": Field("bool", default=True),
+        # the virtual rig in a real-time run on the virtual bus: "auto" (the measured best,
+        # REALTIME_RIG_DEFAULT), "thread" (in the harness's process), "process-unix" (its
+        # own process over a Unix-domain socket), "process-tcp" (own process, socketcand)
+        "virtual_rig": Field("str", default="auto",
+                             choices=("auto", "thread", "process-unix", "process-tcp")),
+        "rig_priority": Field("int", default=49, minimum=0, maximum=98),
+        "rig_cpu": Field("int", default=-1, minimum=-1),
     },
 }
 
@@ -130,10 +141,14 @@ def load_run(name_or_path: str, overrides: dict[str, Any] | None = None) -> RunC
         raise ConfigError(f"run file {path}: not valid YAML: {exc}") from exc
     if overrides:
         raw = _deep_merge(raw or {}, overrides)
-    return run_from_dict(raw, source=f"run file {path.name}")
+    return run_from_dict(raw, source=f"run file {path.name}", base_dir=path.parent)
 
 
-def run_from_dict(raw: Any, source: str = "run") -> RunConfig:
+def run_from_dict(raw: Any, source: str = "run", base_dir: Path | None = None,
+                  check_files: bool = True) -> RunConfig:
+    """A checked RunConfig. ``base_dir``: where relative paths in the run (an ``expect:``
+    baseline) start (default: the working directory); ``check_files=False`` does not
+    require a baseline to exist (re-reading a run directory's config.yaml)."""
     data = validate(raw, RUN_SCHEMA, source)
     actuators = data["actuators"]
     if not isinstance(actuators, list) or not all(a in ACTUATORS for a in actuators):
@@ -156,7 +171,21 @@ def run_from_dict(raw: Any, source: str = "run") -> RunConfig:
             raise ConfigError(f"{source}: rig_overrides: expected a mapping")
         rig = rig_from_dict(_deep_merge(rig.data, data["rig_overrides"]),
                             source=f"{rig.source} + rig_overrides of {source}")
+    _check_expect(data, rig, source, base_dir, check_files)
     return RunConfig(source=source, data=data, rig=rig)
+
+
+def _check_expect(data: dict[str, Any], rig: RigConfig, source: str, base_dir: Path | None,
+                  check_files: bool) -> None:
+    """Refuse bad criteria (``expect:``, and the rig's ``expect_overrides``) before anything
+    is sent; relative baselines are made absolute so config.yaml can be judged anywhere."""
+    if data["expect"] is None and not rig.data.get("expect_overrides"):
+        return
+    # the verdict layer sits above the run files: imported here, not at module level
+    from harness.testing.criteria import apply_overrides, parse_criteria, resolve_baselines
+    data["expect"] = resolve_baselines(data["expect"], base_dir or Path.cwd())
+    expect = apply_overrides(data["expect"], rig.data.get("expect_overrides"), rig.source)
+    parse_criteria(expect, source, check_files=check_files)
 
 
 def build_controller(run: RunConfig) -> Any:

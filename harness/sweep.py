@@ -6,7 +6,7 @@ an ideal square wave here). The hub-beam model is stepped exactly (ZOH) with eve
 grid at once (one state column per beta), until the free transient has died, and the
 steady-state amplitudes of the tip acceleration and of the tip's elastic deflection are taken
 from a harmonic fit over whole periods (``harness.periodic``). Lambdas are spread over worker
-processes.
+processes or a Dask cluster (``harness.engine``).
 
 ``harmonic_steady_state`` gives the same steady state in closed form (sum of the square
 wave's harmonics through the plant's frequency response); the tests check one against the
@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
+from harness.engine import Engine, make_engine
 from harness.periodic import steady_state_amplitude
 from rig_models.flexible_hub import HubBeamModel
 
@@ -114,28 +114,30 @@ def _worker(args: tuple[HubBeamModel, SweepSpec, np.ndarray]) -> np.ndarray:
     return simulate_lambdas(*args)
 
 
-def run_sweep(model: HubBeamModel, spec: SweepSpec, workers: int,
+def run_sweep(model: HubBeamModel, spec: SweepSpec, workers: int | None = None,
               progress: Callable[[int, int], None] | None = None,
-              batch: int = 4) -> np.ndarray:
-    """Amplitudes [lambda, beta, (accel, deflection)]: batches of lambdas spread over
-    ``workers`` processes."""
+              batch: int = 4, engine: Engine | None = None) -> np.ndarray:
+    """Amplitudes [lambda, beta, (accel, deflection)]: batches of lambdas spread over an
+    engine (``harness.engine``: ``workers`` local processes by default, or a Dask
+    cluster)."""
     out = np.empty((len(spec.lambdas), len(spec.betas), 2))
     idx = np.arange(len(spec.lambdas))
     chunks = [idx[i : i + batch] for i in range(0, len(idx), batch)]
-    jobs = [(model, spec, spec.lambdas[c]) for c in chunks]
-    done = 0
-    if workers <= 1:
-        results = map(_worker, jobs)
-        for c, res in zip(chunks, results, strict=True):
-            out[c] = res
+    own = engine is None
+    if engine is None:
+        engine = make_engine(workers=workers, preload=("harness.sweep",))
+    try:
+        futures = [engine.submit(_worker, (model, spec, spec.lambdas[c])) for c in chunks]
+        done = 0
+        for c, fut in zip(chunks, futures, strict=True):
+            out[c] = fut.result()
             done += len(c)
             if progress:
                 progress(done, len(idx))
-        return out
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        for c, res in zip(chunks, pool.map(_worker, jobs), strict=True):
-            out[c] = res
-            done += len(c)
-            if progress:
-                progress(done, len(idx))
+    except BaseException:
+        engine.stop()
+        raise
+    finally:
+        if own:
+            engine.close()
     return out

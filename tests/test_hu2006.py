@@ -149,3 +149,17 @@ def test_thruster_torque_changes_the_result(plant):
     weak_peak = simulate_slew(plant, cfg, None, dt=5e-3, duration=15.0).peak_energy
     strong_peak = simulate_slew(strong, cfg, None, dt=5e-3, duration=15.0).peak_energy
     assert strong_peak > 2 * weak_peak
+
+
+def test_claim_measures_are_flat_and_relative(plant, fast_study):
+    from harness.studies.hu2006 import claim_measures
+
+    design = design_plant_oppf(plant)
+    rows = list(fast_study.values())
+    m = claim_measures(plant, design, rows)
+    assert m["pd_pwpf_peak_energy_ratio"] == 1.0
+    assert m["pd_pwpf_csvs_peak_energy_ratio"] == pytest.approx(
+        fast_study["pd_pwpf_csvs"].peak_energy / fast_study["pd_pwpf"].peak_energy)
+    assert abs(m["plant_mode1_freq_error_percent"]) < 1.0
+    assert m["oppf_stability_condition_holds"] is True
+    assert all(isinstance(v, bool | float) for v in m.values())

@@ -280,3 +280,9 @@ def test_study_runs_end_to_end():
     assert bb["residual_m"] > 1.0
     for kind in ("LHHL", "HLLH"):
         assert out["cases"][kind]["residual_m"] < 0.1 * bb["residual_m"]
+    m = out["measures"]  # the paper suite's flat measures
+    assert m["lhhl_roll_constraints_met"] and m["hllh_yaw_constraints_met"]
+    assert m["lhhl_roll_t8_diff_percent"] == out["table3"]["LHHL roll"]["t8_diff_percent"]
+    assert abs(m["lhhl_roll_paper_sequence_impulse_error_percent"]) < 1e-6
+    assert m["paper_sequences_over_limit_count"] == 3
+    assert 6.0 < m["fe_as_specified_mode1_freq_error_percent"] < 8.0

@@ -272,3 +272,28 @@ def test_plot_stats_in_blocks_match_the_whole_run():
     assert len(stats.t) <= 1000 and stats.t[0] == 0.0 and stats.t[-1] > 99.0
     assert np.all(np.diff(stats.t) > 0)
     assert set(stats.legends(100.0)) >= {"angle", "error"}
+
+
+def test_judged_run_verdict_rrd_has_layout_events_and_markers(faulted, tmp_path):
+    """harness judge's verdict.rrd (the verdict layer) carries run.rrd's layout, the
+    verdict text, its violation as an event and a marker on the plots at its time."""
+    import shutil
+
+    from harness.testing import judge_run
+    from harness.testing.judge import write_verdict
+
+    run_dir = tmp_path / faulted.run_dir.name  # a copy: the fixture's verdict.rrd is ours
+    shutil.copytree(faulted.run_dir, run_dir)
+    (run_dir / "verdict.rrd").unlink(missing_ok=True)
+    v = judge_run(run_dir)
+    assert v.verdict == "ERROR"  # a fault the run did not expect
+    write_verdict(v, run_dir)
+    path = run_dir / "verdict.rrd"
+    ev = [e for e in read_events(path) if e.entity == "/events/verdict"]
+    fault_t = faulted.summary["faults"][0]["time_s"]
+    assert ev and ev[0].time_s == pytest.approx(fault_t)
+    assert read_text(path, "/run/verdict")
+    assert {"/markers/angle/verdict", "/markers/tip/verdict"} <= entities(path)
+    ours = read_blueprints(faulted.run_dir / "run.rrd")[-1]
+    theirs = read_blueprints(path)[-1]
+    assert sorted(v.name for v in ours) == sorted(v.name for v in theirs)

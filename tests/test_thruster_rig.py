@@ -163,7 +163,7 @@ def test_oppf_gains_come_from_the_optimiser_with_eq7_met():
 def _ringing(result, channel: str = "/piezo/sensor_ch1_v") -> float:
     from harness.studies.hu2006_rig import firing_ringing
 
-    rec = result.recorder
+    rec = result.columns()
     return firing_ringing(rec.time_s[: rec.rows], rec.column("/thrusters/valve_cmd"),
                           rec.column(channel))
 
@@ -281,3 +281,6 @@ def test_study_command_json(tmp_path):
     assert len(list(tmp_path.glob("*-thruster-*/run.rrd"))) == 5
     assert len(list(tmp_path.glob("*-thruster-*/design.json"))) == 5
     assert "PD + PWPF" in format_report(study)
+    m = study["measures"]  # the paper suite's flat measures
+    assert m["pd_pwpf_peak_energy_ratio"] == 1.0 and m["pd_pwpf_oppf_completed"] is True
+    assert m["oppf_mode1_damping_gain"] > 1.0 and m["oppf_stability_margin"] > 0

@@ -277,6 +277,12 @@ def test_study_runs_reduced_and_is_json() -> None:
     assert set(histories) == {f"tracked/{s}/{c}" for s in ("zv", "zvd") for c in cases}
     table = study.format_tables(results)
     assert "freq +5 %" in table and "SQP" in table
+    m = results["measures"]  # the paper suite's flat measures, computed from the rows
+    assert m["tracked_freq_plus5_zvd_over_zv_tip_residual"] == pytest.approx(
+        rows[1]["zvd"]["tip_residual_m"] / rows[1]["zv"]["tip_residual_m"])
+    assert m["zvd_sqp_converged"] is True and m["zvd_end_attitude_error_deg"] < 1e-6
+    assert m["mode1_zvd_over_zv_at_1p10"] > 0 and "mode1_zvd_over_zv_at_1p00" not in m
+    assert all(isinstance(v, bool | float) for v in m.values())
 
 
 def test_study_registered_with_cli() -> None:

@@ -5,7 +5,8 @@ decay, interpolated) and a parametric fit of the free decay (matrix pencil, then
 least squares) with damping and 1-sigma uncertainties.
 
 Free-decay windows. For a run directory they come from its config.yaml: after a wheel pulse,
-one window from its end; after ``wheel_bursts``, one window in every zero-torque gap that a
+one window from its end; after ``wheel_bursts`` (or
+``valve_bursts``), one window in every zero-torque gap that a
 burst's ``free_decay_s`` leaves before the next burst, and one from the end of the last burst
 to the end of the record (each window starts 0.1 s after its burst, for the wheel's torque
 lag). Each window is fitted on its own. Windows after bursts of the same nominal frequency
@@ -79,10 +80,10 @@ def analysis_windows(cfg: dict[str, Any] | None) -> list[AnalysisWindow] | None:
     c = cfg.get("run", {}).get("controller", {})
     if c.get("type") == "wheel_pulse":
         return [AnalysisWindow(float(c["start_s"] + c["width_s"] + SETTLE_S))]
-    if c.get("type") == "wheel_bursts":
+    if c.get("type") in ("wheel_bursts", "valve_bursts"):
         from harness.controllers.registry import WheelBursts, _bursts
 
-        wb = WheelBursts(c["torque_n_m"], c["start_s"], _bursts(c))
+        wb = WheelBursts(c.get("torque_n_m", 1.0), c["start_s"], _bursts(c))
         wins = [AnalysisWindow(t0 + SETTLE_S, t1, omega) for t0, t1, omega in wb.free_intervals
                 if t1 - t0 > 2 * SETTLE_S]
         return [*wins, AnalysisWindow(wb.end_s + SETTLE_S, None, wb.last_omega_rad_s)]
@@ -154,20 +155,13 @@ def _nearest_model_mode(omega: float, truth: dict[str, list[float]]) -> int:
     return int(np.argmin([abs(math.log(omega / w)) for w in truth["omega_rad_s"]]))
 
 
-def cmd_identify(args: argparse.Namespace) -> int:
-    try:
-        if args.n_modes is not None and args.n_modes < 1:
-            raise ValueError(f"--n-modes must be >= 1, got {args.n_modes}")
-        t, a, cfg, run_dir = load_record(args.source)
-        windows = _windows(args, t, cfg)
-        print(f"harness identify: {len(t)} samples, {t[-1] - t[0]:.1f} s, free decay"
-              f"{'s' if len(windows) > 1 else ''} "
-              f"{', '.join(w.label() for w in windows)} ...", file=sys.stderr)
-        result = identify_windows(t, a, windows, n_modes=args.n_modes, f_max_hz=args.f_max_hz)
-        truth = model_modes(cfg)
-    except (ValueError, OSError) as exc:
-        print(f"harness identify: {exc}", file=sys.stderr)
-        return 2
+def identify_record(t: np.ndarray, a: np.ndarray, cfg: dict[str, Any] | None,
+                    run_dir: Path | None, windows: list[AnalysisWindow],
+                    n_modes: int | None = None, f_max_hz: float | None = None
+                    ) -> dict[str, Any]:
+    """What ``harness identify --json`` prints (also writes identify.rrd in ``run_dir``)."""
+    result = identify_windows(t, a, windows, n_modes=n_modes, f_max_hz=f_max_hz)
+    truth = model_modes(cfg)
     # top-level keys of the long window (fs, fft, fit, ...) as before; modes from all windows
     out = result.primary.to_dict()
     out.update(result.to_dict())
@@ -184,6 +178,30 @@ def cmd_identify(args: argparse.Namespace) -> int:
     out["paper_003_table1_rad_s"] = PAPER_TABLE1
     if run_dir is not None:
         out["spectrum_rrd"] = str(write_spectrum_rrd(run_dir, result, out["modes"], cfg))
+    return out
+
+
+def identify_run(source: Path, n_modes: int | None = None,
+                 f_max_hz: float | None = None) -> dict[str, Any]:
+    """Identify a run directory (.rrd, CSV) over its own free-decay windows."""
+    t, a, cfg, run_dir = load_record(source)
+    windows = analysis_windows(cfg) or [AnalysisWindow(float(t[0]))]
+    return identify_record(t, a, cfg, run_dir, windows, n_modes, f_max_hz)
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    try:
+        if args.n_modes is not None and args.n_modes < 1:
+            raise ValueError(f"--n-modes must be >= 1, got {args.n_modes}")
+        t, a, cfg, run_dir = load_record(args.source)
+        windows = _windows(args, t, cfg)
+        print(f"harness identify: {len(t)} samples, {t[-1] - t[0]:.1f} s, free decay"
+              f"{'s' if len(windows) > 1 else ''} "
+              f"{', '.join(w.label() for w in windows)} ...", file=sys.stderr)
+        out = identify_record(t, a, cfg, run_dir, windows, args.n_modes, args.f_max_hz)
+    except (ValueError, OSError) as exc:
+        print(f"harness identify: {exc}", file=sys.stderr)
+        return 2
     if args.json:
         print(json.dumps(out, indent=2, default=float))
         return 0

@@ -1,11 +1,19 @@
-"""`harness logs [--logs DIR] [--last N] [--json]`: the recorded runs and how each ended.
+"""`harness logs [--logs DIR] [--last N] [--failed] [--json]`: the recorded runs, how each ended
+and its verdict.
 
 One line per run directory under ``--logs`` (default ``./logs``), oldest first (directory
 names start with the UTC time): run name, clock and bus, simulated time, how it stopped
 (completed, fault, interrupted, error), the first fault, the final angle error and residual
-tip acceleration where the run has them, and the real-time factor. A directory without a
-readable ``summary.json`` (the harness was killed, or the file was damaged) is listed as
-such: its ``run.rrd`` and ``can.blf`` hold what was written. Exit 0, or 1 if there is no run.
+tip acceleration where the run has them, the real-time factor, and the verdict of its
+``verdict.json`` (PASS, MARGINAL, FAIL, ERROR; ``-`` if the run was never judged: see
+``harness judge``). A directory without a readable ``summary.json`` (the harness was killed,
+or the file was damaged) is listed as such: its ``run.rrd`` and ``can.blf`` hold what was
+written.
+
+``--failed`` lists only the failures: runs judged FAIL or ERROR, and runs without a
+verdict.json that did not complete (a fault, an exception, an interruption, no summary):
+judged, each of those would be ERROR. A completed run never judged is not listed.
+Exit 0, or 1 if there is no run.
 """
 
 from __future__ import annotations
@@ -22,6 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--logs", type=Path, default=Path("logs"), help="logs directory (./logs)")
     p.add_argument("--last", type=int, default=0, metavar="N", help="only the newest N runs")
+    p.add_argument("--failed", action="store_true", help="only runs judged FAIL or ERROR, and "
+                   "unjudged runs that did not complete")
     p.add_argument("--json", action="store_true", help="the list as JSON on stdout")
     p.set_defaults(func=cmd_logs)
 
@@ -33,7 +43,7 @@ def collect(logs: Path) -> list[dict[str, Any]]:
     for run_dir in sorted(p for p in logs.iterdir() if p.is_dir()):
         if not any((run_dir / f).exists() for f in ("config.yaml", "run.rrd", "can.blf")):
             continue  # not a run directory
-        row: dict[str, Any] = {"dir": str(run_dir)}
+        row: dict[str, Any] = {"dir": str(run_dir), **_verdict(run_dir)}
         path = run_dir / "summary.json"
         try:
             s = json.loads(path.read_text())
@@ -60,6 +70,23 @@ def collect(logs: Path) -> list[dict[str, Any]]:
     return rows
 
 
+def _verdict(run_dir: Path) -> dict[str, Any]:
+    try:
+        v = json.loads((run_dir / "verdict.json").read_text())
+    except (OSError, ValueError):
+        return {"verdict": None, "verdict_reason": None}
+    if not isinstance(v, dict):
+        return {"verdict": None, "verdict_reason": None}
+    return {"verdict": v.get("verdict"), "verdict_reason": v.get("reason")}
+
+
+def is_failure(row: dict[str, Any]) -> bool:
+    """Judged FAIL or ERROR, or not judged and not completed."""
+    if row.get("verdict"):
+        return row["verdict"] in ("FAIL", "ERROR")
+    return row.get("status") != "completed"
+
+
 def _fault_text(f: Any) -> str:
     if isinstance(f, dict):
         return (f"{f.get('device', '?')}: {f.get('kind', '?')}: {f.get('message', '')} "
@@ -78,6 +105,16 @@ def cmd_logs(args: argparse.Namespace) -> int:
     rows = collect(args.logs)
     if args.last:
         rows = rows[-args.last:]
+    if args.failed:
+        if not rows:
+            print(f"harness logs: no run directories under {args.logs}", file=sys.stderr)
+            return 1
+        rows = [r for r in rows if is_failure(r)]
+        if not rows:
+            if args.json:
+                print("[]")
+            print("harness logs: no failed runs", file=sys.stderr)
+            return 0
     if args.json:
         print(json.dumps(rows, indent=2))
     if not rows:
@@ -86,15 +123,17 @@ def cmd_logs(args: argparse.Namespace) -> int:
     if args.json:
         return 0
     w = max(len("run directory"), *(len(Path(r["dir"]).name) for r in rows))
-    print(f"{'run directory':<{w}} {'clock':<9} {'sim s':>7} {'status':<12} "
+    print(f"{'run directory':<{w}} {'verdict':<8} {'clock':<9} {'sim s':>7} {'status':<12} "
           f"{'final err deg':>13} {'resid m/s^2':>11} {'x real':>7}  first fault / error")
     for r in rows:
         name = Path(r["dir"]).name
+        verdict = r.get("verdict") or "-"
         if "run" not in r:
-            print(f"{name:<{w}} {r['status']}")
+            print(f"{name:<{w}} {verdict:<8} {r['status']}")
             continue
         status = r["status"] + (" (dry)" if r["dry_run"] else "")
-        print(f"{name:<{w}} {str(r['clock'] or '-'):<9} {_num(r['simulated_s'], '7.2f')} "
+        print(f"{name:<{w}} {verdict:<8} {str(r['clock'] or '-'):<9} "
+              f"{_num(r['simulated_s'], '7.2f')} "
               f"{status:<12} {_num(r['final_angle_error_deg'], '13.2e')} "
               f"{_num(r['residual_tip_accel_m_s2'], '11.4f')} "
               f"{_num(r['real_time_factor'], '7.1f')}  "

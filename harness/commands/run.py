@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import traceback
 from pathlib import Path
 
 from harness.bus import BusSpecError
@@ -12,6 +13,7 @@ from harness.interrupts import StopRequest, stop_on_signals
 from harness.rig_process import RigProcessError
 from harness.runs import load_run
 from harness.session import RunRefused, execute_run
+from harness.testing import JudgeInputError, format_block, judge_run, write_verdict
 from rig_models.faults import parse_fault
 from rig_models.schema import ConfigError
 
@@ -20,7 +22,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run a test (built-in name or YAML path) and record it",
                        description="Run a test on the virtual rig (default) or the lab rig. "
                        "Writes logs/<UTC time>-<name>/ with run.rrd, can.blf, config.yaml and "
-                       "summary.json. Progress goes to stderr; --json prints the summary.")
+                       "summary.json, then judges the run by its expect: criteria and writes "
+                       "verdict.json and verdict.rrd (docs/criteria.md). Progress goes to "
+                       "stderr; --json prints the summary. Exit codes: 0 PASS (or no "
+                       "criteria), 1 FAIL, 2 bad input or run refused before anything was "
+                       "sent, 3 ERROR by a fault the run did not expect, 4 ERROR otherwise "
+                       "(exception, missing data, real-time budget not held), 5 MARGINAL, "
+                       "130 interrupted; with variants, the most severe.")
     p.add_argument("run", help="built-in run name (see 'harness cases') or a run file path")
     p.add_argument("--bus", help="INTERFACE:CHANNEL, e.g. virtual:sgsrt (default), "
                    "socketcan:vcan0, socketcand:127.0.0.1:29536")
@@ -39,9 +47,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dry-run", action="store_true",
                    help="read every sensor, never send a command frame (actuators stay at rest)")
     p.add_argument("--rig-process", action="store_true",
-                   help="real-time runs on the virtual bus: run the virtual rig as its own "
-                   "process (socketcand on 127.0.0.1) instead of a thread of this one, so the "
-                   "loop does not share the interpreter lock with the physics")
+                   help="real-time runs on the virtual bus: the virtual rig's own process "
+                   "serves socketcand on 127.0.0.1 (TCP, the lab's kind of transport) instead "
+                   "of the default Unix-domain socket (run file realtime.virtual_rig)")
     p.add_argument("--view", nargs="?", const="rerun+http://127.0.0.1:9876/proxy",
                    metavar="URL", help="also stream to a Rerun viewer you started with "
                    "'rerun --bind 127.0.0.1' (default URL rerun+http://127.0.0.1:9876/proxy)")
@@ -55,6 +63,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> int:
+    codes: list[int] = []
     try:
         overrides = {"duration_s": args.duration_s} if args.duration_s else None
         if args.view and "127.0.0.1" not in args.view and "localhost" not in args.view:
@@ -69,7 +78,8 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
             if name is not None and name not in variants:
                 raise ConfigError(f"--variant {name}: {base.source} has variants "
                                   f"{sorted(variants) or 'none'}")
-        for name in names:
+        runs = []
+        for name in names:  # every variant checked (criteria included) before any runs
             run = base
             if name is not None:
                 over = dict(variants[name])
@@ -77,11 +87,24 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
                 if args.duration_s:
                     over["duration_s"] = args.duration_s
                 run = load_run(args.run, over)
+            runs.append((name, run))
+        for name, run in runs:
+            if name is not None:
                 print(f"harness: {run.name}", file=sys.stderr)
-            result = execute_run(run, out_dir=args.out, bus=args.bus, clock=args.clock,
-                                 live_view_url=args.view, show_progress=not args.quiet,
-                                 dry_run=args.dry_run, faults=faults, should_stop=stop,
-                                 rig_process=args.rig_process)
+            try:
+                result = execute_run(run, out_dir=args.out, bus=args.bus, clock=args.clock,
+                                     live_view_url=args.view, show_progress=not args.quiet,
+                                     dry_run=args.dry_run, faults=faults, should_stop=stop,
+                                     rig_process=args.rig_process)
+            except (ConfigError, BusSpecError, RunRefused, RigProcessError):
+                raise
+            except Exception as exc:  # the run raised (controller, driver): judged ERROR
+                run_dir = getattr(exc, "run_dir", None)
+                traceback.print_exc()
+                if run_dir is None:
+                    return 4
+                codes.append(_judge(run_dir, None))
+                break
             s = result.summary
             s["run_dir"] = str(result.run_dir)
             summaries.append(s)
@@ -95,6 +118,7 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
             for f in s.get("faults", []):
                 print(f"harness: FAULT {f['device']}: {f['kind']}: {f['message']} at "
                       f"t = {f['time_s']:.3f} s; actuators commanded safe", file=sys.stderr)
+            codes.append(_judge(result.run_dir, s))
             if s["stopped_by"] != "completed":
                 break
     except (ConfigError, BusSpecError, RunRefused, RigProcessError) as exc:
@@ -102,9 +126,27 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
         return 2
     if args.json:
         print(json.dumps(summaries[0] if len(summaries) == 1 else summaries, indent=2))
-    stops = {s["stopped_by"] for s in summaries}
-    if "fault" in stops:
-        return 3
-    if "interrupted" in stops:
-        return 130
-    return 0
+    return worst_exit(codes)
+
+
+EXIT_ORDER = (130, 3, 4, 1, 5, 0)
+"""Most severe first: the exit code of several runs (variants) is the most severe one's."""
+
+
+def worst_exit(codes: list[int]) -> int:
+    return min(codes, key=EXIT_ORDER.index, default=0)
+
+
+def _judge(run_dir: Path, summary: dict | None) -> int:
+    """Judge the finished run (run.rrd and can.blf are closed), write verdict.json and
+    verdict.rrd, print the verdict; its exit code."""
+    try:
+        verdict = judge_run(run_dir)
+    except (ConfigError, JudgeInputError) as exc:
+        print(f"harness: cannot judge {run_dir}: {exc}", file=sys.stderr)
+        return 4
+    path = write_verdict(verdict, run_dir)
+    print(format_block(verdict, path), file=sys.stderr)
+    if summary is not None:
+        summary["verdict"] = verdict.verdict
+    return verdict.exit_code

@@ -1,5 +1,7 @@
 """`harness sweep`: residual vibration over frequency ratio x amplitude ratio (paper 003,
-Figures 6-9) on the rig model, on every core.
+Figures 6-9) on the rig model, on every core
+(or on a Dask cluster: ``--cluster tcp://HOST:8786`` or ``$SGSRT_CLUSTER``, see
+docs/suites.md).
 
 Writes ``<out>/<UTC time>-sweep/`` with ``sweep.csv``, ``sweep.rrd`` (the maps as tensors and
 one curve per beta against lambda), ``maps.png``, ``curves.png`` and ``summary.json`` (where
@@ -19,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.engine import CLUSTER_ENV, EngineError, make_engine
 from harness.sweep import SweepSpec, run_sweep
 from rig_models.rig_file import load_rig
 from rig_models.schema import ConfigError
@@ -149,6 +152,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dish-radius-m", type=float, default=0.6, help="P_m")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="processes (default: every core)")
+    p.add_argument("--cluster", metavar="tcp://HOST:8786",
+                   help=f"run on this Dask scheduler's workers (default ${CLUSTER_ENV}, if "
+                   "set; see docs/suites.md)")
     p.add_argument("--out", type=Path, default=Path("logs"))
     p.add_argument("--json", action="store_true", help="summary JSON on stdout")
     p.set_defaults(func=cmd_sweep)
@@ -163,7 +169,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         if not 0 <= args.beta_min < args.beta_max:
             raise ConfigError("--beta-min must be >= 0 and < --beta-max")
         rig = load_rig(args.rig)
-    except ConfigError as exc:
+        engine = make_engine(args.cluster, args.workers, preload=("harness.sweep",))
+    except (ConfigError, EngineError) as exc:
         print(f"harness sweep: {exc}", file=sys.stderr)
         return 2
     model = rig.plant
@@ -180,8 +187,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
               file=sys.stderr, flush=True)
 
     print(f"harness sweep: {args.n_lambda} x {args.n_beta} grid, w_ref {w_ref:.4f} rad/s "
-          f"({args.reference}), {args.workers} workers", file=sys.stderr)
-    amps = run_sweep(model, spec, args.workers, progress)
+          f"({args.reference}), {engine.name}", file=sys.stderr)
+    try:
+        amps = run_sweep(model, spec, progress=progress, engine=engine)
+    finally:
+        engine.close()
     wall = time.perf_counter() - t0
     stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%S.%fZ")
     out_dir = args.out / f"{stamp}-sweep"
@@ -199,7 +209,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     save_rrd(out_dir / "sweep.rrd", out_dir.name, lambdas, betas, amps)
     summary = {"grid": [args.n_lambda, args.n_beta], "reference": args.reference,
                "omega_ref_rad_s": w_ref, "wall_time_s": round(wall, 2),
-               "workers": args.workers, "out_dir": str(out_dir),
+               "workers": engine.workers, "engine": engine.name, "out_dir": str(out_dir),
                "laws": analyse(lambdas, betas, amps)}
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     if args.json:

@@ -273,7 +273,28 @@ def run_study(dt: float = 1e-3, duration: float = 40.0,
             for r in results
         ],
         "paper": PAPER_HU2006,
-    }
+    } | {"measures": claim_measures(plant, design, results)}
+
+
+def claim_measures(plant: Hu2006HubBeam, design, results) -> dict[str, float | bool]:
+    """Flat, named scalars (unit in the name; none = a ratio) that the paper suite's
+    criteria read (``measures.<name>``). Energies and residuals are relative to PD + PWPF."""
+    m: dict[str, float | bool] = {}
+    freqs = plant.coupled_freqs()
+    for k, f_paper in enumerate(PAPER_HU2006["coupled_freqs_rad_s"]):
+        m[f"plant_mode{k + 1}_freq_error_percent"] = float(100 * (freqs[k] / f_paper - 1))
+    base = results[0]
+    for r in results:
+        if not math.isnan(r.settle_s):
+            m[f"{r.key}_settle_s"] = float(r.settle_s)
+        m[f"{r.key}_angle_error_deg"] = float(r.angle_err_deg)
+        m[f"{r.key}_rate_error_deg_s"] = float(r.rate_err_deg_s)
+        m[f"{r.key}_peak_energy_ratio"] = float(r.peak_energy / base.peak_energy)
+        m[f"{r.key}_residual_energy_ratio"] = float(r.residual_energy / base.residual_energy)
+    m["oppf_stability_margin"] = float(design.margin)
+    m["oppf_stability_condition_holds"] = bool(design.stability_condition_holds())
+    m["oppf_cost_over_open_loop"] = float(design.cost / design.open_loop_cost)
+    return m
 
 
 def _fmt(v, spec: str = ".3g") -> str:

@@ -3,7 +3,7 @@ through the harness over CAN (run files ``harness/runs/thruster-*.yaml``).
 
 Each run is executed with ``harness.session.execute_run`` (virtual rig in lockstep, every
 frame through python-can, recordings in ``--out``). The table is computed from what the
-harness recorded (``RunResult.recorder``, the same columns as ``run.rrd``):
+harness recorded (``RunResult.columns()``, read back from ``run.rrd``):
 
 - settle time: from the slew start, the hub stays within the run's ``settle_band_deg`` (1 % of
   the slew, as in ``harness study hu2006``);
@@ -150,7 +150,7 @@ class VibrationEnergyEstimator:
 
 def recorded_energy(result: RunResult, rig: RigConfig, dt_s: float) -> np.ndarray:
     """Estimated vibration energy at every tick of a run, from its recorded columns."""
-    rec = result.recorder
+    rec = result.columns()
     est = VibrationEnergyEstimator(rig, dt_s)
     n_ch = len(rig.piezo_gains)
     meas = np.column_stack(
@@ -185,7 +185,7 @@ def firing_ringing(t: np.ndarray, valve_cmd: np.ndarray, signal: np.ndarray,
 # ----------------------------------------------------------------------------- one run
 def analyse_run(result: RunResult, run: RunConfig) -> dict[str, Any]:
     """The table's row for one run, from its recorder (the columns of run.rrd)."""
-    rec = result.recorder
+    rec = result.columns()
     s = result.summary
     ctrl = run.controller
     t = rec.time_s[: rec.rows]
@@ -311,7 +311,41 @@ def run_study(out_dir: Path, duration_s: float | None = None,
         "results": rows,
         "ordering": ordering(rows),
         "paper": PAPER_HU2006,
+        "measures": claim_measures(rows, designs),
     }
+
+
+def claim_measures(rows: list[dict[str, Any]], designs: dict[str, Any]) -> dict[str, Any]:
+    """Flat, named scalars (unit in the name; none = a ratio) that the paper suite's
+    criteria read (``measures.<name>``); ratios are against PD + PWPF's run."""
+    m: dict[str, Any] = {}
+    base = rows[0]
+    for r in rows:
+        k = r["key"]
+        if r["settle_s"] is not None:
+            m[f"{k}_settle_s"] = float(r["settle_s"])
+        m[f"{k}_angle_error_deg"] = float(r["angle_err_deg"])
+        if base["peak_energy"] > 0:
+            m[f"{k}_peak_energy_ratio"] = float(r["peak_energy"] / base["peak_energy"])
+        ring, ring0 = r["firing_ringing_ch1_v"], base["firing_ringing_ch1_v"]
+        if ring is not None:  # None: no isolated firing to measure it on (a short run)
+            m[f"{k}_ringing_ch1_v"] = float(ring)
+            if ring0:
+                m[f"{k}_ringing_ratio"] = float(ring / ring0)
+        m[f"{k}_completed"] = r["stopped_by"] == "completed"
+    for d in designs.values():
+        cl = d.get("closed_loop") or {}
+        if d.get("oppf") and cl.get("damping_with_ppf"):
+            for i in (0, 1):
+                m[f"oppf_mode{i + 1}_damping_gain"] = float(
+                    cl["damping_with_ppf"][i] / cl["damping_pd_only"][i])
+            m["oppf_stability_margin"] = float(min(
+                o["stability_margin"] for o in d["oppf"].values()))
+            break
+    pd = next(iter(designs.values()), {}).get("pd") or {}
+    if pd.get("time_scale_vs_paper"):
+        m["pd_time_scale_vs_paper"] = float(pd["time_scale_vs_paper"])
+    return m
 
 
 def format_report(study: dict[str, Any]) -> str:

@@ -303,7 +303,48 @@ def run_study(starts: int = 128, duration_s: float = DURATION_S) -> tuple[dict, 
             )
         cases.append(run_case(f"{kind} paper seq., offset 0", no_offset, axes, duration_s))
     out["cases"] = {c.name: c.summary() for c in cases}
+    out["measures"] = claim_measures(out)
     return out, cases
+
+
+def claim_measures(out: dict) -> dict[str, float | bool]:
+    """Flat, named scalars (unit in the name; none = a ratio or a count) that the paper
+    suite's criteria read (``measures.<name>``); every one is computed from ``out``."""
+    paper = out["paper"]
+    m: dict[str, float | bool] = {}
+    missing = 0
+    for key, row in out["table3"].items():
+        kind, axis = key.split()
+        name = f"{kind.lower()}_{axis}"
+        m[f"{name}_t8_s"] = float(row["ours_times_s"][-1])
+        m[f"{name}_t8_paper_s"] = float(row["paper_times_s"][-1])
+        m[f"{name}_t8_diff_percent"] = float(row["t8_diff_percent"])
+        m[f"{name}_constraints_met"] = bool(row["constraints_met"])
+        m[f"{name}_mode1_residual_percent"] = float(row["ours_V_percent"][0])
+        m[f"{name}_mode2_residual_percent"] = float(row["ours_V_percent"][1])
+        pv = row["paper_sequence_V_percent"]
+        m[f"{name}_paper_sequence_mode1_residual_percent"] = float(pv[0])
+        m[f"{name}_paper_sequence_mode2_residual_percent"] = float(pv[1])
+        printed = paper["impulse_n_m_s"][key]
+        m[f"{name}_paper_sequence_impulse_error_percent"] = float(
+            100 * (row["paper_sequence_impulse_n_m_s"] / printed - 1))
+        missing += int(pv[0] > paper["vmax_percent"][0] or pv[1] > paper["vmax_percent"][1])
+    m["paper_sequences_over_limit_count"] = missing
+    f_paper = paper["freqs_rad_s"]
+    for variant, freqs in out["model"]["roll_yaw_freqs_rad_s"].items():
+        for k in (0, 1):
+            m[f"fe_{variant}_mode{k + 1}_freq_error_percent"] = float(
+                100 * (freqs[k] / f_paper[k] - 1))
+    cases = out["cases"]
+    lhhl, hllh, bb = cases["LHHL"], cases["HLLH"], cases["bang-bang"]
+    m["hllh_shorter_than_lhhl_percent"] = float(100 * (1 - hllh["end_s"] / lhhl["end_s"]))
+    m["hllh_first_peak_above_lhhl_percent"] = float(
+        100 * (hllh["first_peak_m"] / lhhl["first_peak_m"] - 1))
+    m["bang_bang_residual_m"] = float(bb["residual_m"])
+    m["bang_bang_period_s"] = float(bb["period_s"])
+    m["lhhl_residual_over_bang_bang"] = float(lhhl["residual_m"] / bb["residual_m"])
+    m["hllh_residual_over_bang_bang"] = float(hllh["residual_m"] / bb["residual_m"])
+    return m
 
 
 def _inertia_dict(model: SatelliteModel) -> dict:

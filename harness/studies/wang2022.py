@@ -195,7 +195,42 @@ def run_study(
             row["paper"] = PAPER_WANG2022[case.paper_key]
             rows.append(row)
         results["robustness"][drive] = rows
+    results["measures"] = claim_measures(results)
     return results, histories
+
+
+def _ratio_name(r: float) -> str:
+    return f"{r:.2f}".replace(".", "p")
+
+
+def claim_measures(results: dict[str, Any]) -> dict[str, float | bool]:
+    """Flat, named scalars (unit in the name; none = a ratio) that the paper suite's
+    criteria read (``measures.<name>``), computed from the study's results."""
+    m: dict[str, float | bool] = {}
+    for name, solve in results["solver"].items():
+        m[f"{name}_sqp_converged"] = bool(solve["converged"])
+        m[f"{name}_end_attitude_error_deg"] = abs(float(solve["end_attitude_error_deg"]))
+    sens = results["sensitivity_prescribed_motion"]
+    if "zv" in sens and "zvd" in sens:
+        for k, r in enumerate(sens["ratios"]):
+            zv, zvd = sens["zv"]["by_ratio"][k][0], sens["zvd"]["by_ratio"][k][0]
+            m[f"mode1_zv_residual_at_{_ratio_name(r)}"] = float(zv)
+            m[f"mode1_zvd_residual_at_{_ratio_name(r)}"] = float(zvd)
+            if r != 1.0:  # both vanish at the design frequency
+                m[f"mode1_zvd_over_zv_at_{_ratio_name(r)}"] = float(zvd / zv)
+        zv, zvd = sens["zv"]["damping_0.01"][0], sens["zvd"]["damping_0.01"][0]
+        m["mode1_zvd_over_zv_damping_0p01"] = float(zvd / zv)
+    for drive, rows in results["robustness"].items():
+        for row in rows:
+            zv, zvd = row["zv"], row["zvd"]
+            base = f"{drive}_{row['case']}"
+            m[f"{base}_zv_tip_residual_m"] = float(zv["tip_residual_m"])
+            m[f"{base}_zvd_tip_residual_m"] = float(zvd["tip_residual_m"])
+            m[f"{base}_zvd_over_zv_tip_residual"] = float(
+                zvd["tip_residual_m"] / zv["tip_residual_m"])
+            m[f"{base}_zv_attitude_error_deg"] = float(zv["attitude_error_tf_deg"])
+            m[f"{base}_zvd_attitude_error_deg"] = float(zvd["attitude_error_tf_deg"])
+    return m
 
 
 # ------------------------------------------------------------------------------ reporting

@@ -1,0 +1,50 @@
+"""`harness judge RUN_DIR [--expect FILE] [--json]`: judge (or re-judge) a recorded run.
+
+The run's criteria (the ``expect:`` section of its run file, as written in config.yaml, with
+the rig file's ``expect_overrides``), or those of ``--expect FILE`` (a YAML file with an
+``expect:`` section, or a run file), are checked against the run directory's summary.json,
+run.rrd and can.blf; the run's own checks are added (it raised, was interrupted, a fault no
+criterion expects, files missing). Writes verdict.json and verdict.rrd into RUN_DIR (the
+same verdict.json ``harness run`` wrote at the end of the run, for the same criteria and
+code) and prints the verdict: one line per criterion (value, limit, margin, verdict, the
+worst sample's time). Forms of criteria: docs/criteria.md.
+
+Exit codes: 0 PASS (or no criteria), 1 FAIL, 2 bad input (no such directory, bad criteria),
+3 ERROR by a fault the run did not expect, 4 ERROR otherwise (the run raised, missing data, a
+real-time budget not held), 5 MARGINAL, 130 the run was interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from harness.testing import JudgeInputError, format_block, judge_run, write_verdict
+from rig_models.schema import ConfigError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("judge", help="judge a recorded run by its criteria; writes verdict.json",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run_dir", type=Path, help="a run directory (logs/<UTC time>-<name>/)")
+    p.add_argument("--expect", type=Path, metavar="FILE",
+                   help="judge by this file's expect: section instead of the run's own")
+    p.add_argument("--json", action="store_true", help="print verdict.json on stdout")
+    p.set_defaults(func=cmd_judge)
+
+
+def cmd_judge(args: argparse.Namespace) -> int:
+    try:
+        verdict = judge_run(args.run_dir, args.expect)
+    except (ConfigError, JudgeInputError) as exc:
+        print(f"harness judge: {exc}", file=sys.stderr)
+        return 2
+    path = write_verdict(verdict, args.run_dir)
+    if args.json:
+        print(json.dumps(verdict.to_dict(), indent=2))
+        print(format_block(verdict, path), file=sys.stderr)
+    else:
+        print(format_block(verdict, path))
+    return verdict.exit_code

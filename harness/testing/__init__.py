@@ -1,0 +1,88 @@
+"""The verdict layer: criteria (a run file's ``expect:`` section), judging, verdicts.
+
+Depends on the loop's channel list, the recording and the CAN log; nothing below it imports
+it (``harness.runs`` calls ``parse_criteria`` lazily to refuse bad criteria before a run).
+The criteria forms are documented in docs/criteria.md.
+
+Public API
+----------
+``parse_criteria(raw, source="expect", known_measures=None, channels=None, key="expect",
+base_dir=None, check_files=True) -> list[Criterion]``
+    Check an ``expect:`` section (mapping ``name: criterion`` or a list); raises
+    ``ConfigError`` naming ``source`` and the key path (``expect.final_error.max_abs_s: ...``).
+    ``known_measures``: extra scalar paths beside summary.json's (unit from the name's
+    suffix, dimensionless ``ratio`` without one). ``channels=()`` for results without a
+    recording (scalar criteria only); None = the loop's recorded channels.
+
+``evaluate_scalar(criterion, measures) -> CriterionResult``
+    A ``measure:`` criterion against any mapping (summary.json, a study's JSON output):
+    dotted paths, min / max / max_abs and the marginal band.
+
+``evaluate(criteria, facts) -> list[CriterionResult]``
+    Every criterion against ``Facts(measures, channel, baseline_channel, left_safe)``:
+    ``channel(entity) -> (t_s, values)`` and the others are called only by the forms that
+    need them. Missing data gives that criterion ERROR, never an exception.
+
+``make_verdict(results, identity=None) -> Verdict``
+    The worst result wins (PASS < MARGINAL < FAIL < ERROR); no results is PASS.
+
+``judge_run(run_dir, expect=None) -> Verdict``
+    A run directory judged by its own criteria (config.yaml's ``run.expect`` with the rig's
+    ``expect_overrides``) or ``expect`` (a YAML file path or the section itself), plus the
+    run's own checks (it raised, was interrupted, a fault nobody expected, files missing).
+    ``write_verdict(verdict, run_dir)`` writes verdict.json and verdict.rrd;
+    ``format_block(verdict, path)`` is the text ``harness run`` / ``harness judge`` print.
+
+``Verdict``: ``.verdict`` ("PASS" | "MARGINAL" | "FAIL" | "ERROR"), ``.reason``,
+``.criteria`` (CriterionResult: name, kind, value, unit, limit, margin, verdict,
+worst_time_s, message), ``.identity``, ``.exit_code``, ``.to_dict()`` (verdict.json).
+
+Exit codes (``EXIT_CODES``): 0 PASS (or no criteria), 1 FAIL, 2 bad input / refused before
+anything was sent, 3 ERROR by a fault the run did not expect, 4 ERROR otherwise (exception,
+missing data, real-time budget not held), 5 MARGINAL, 130 interrupted.
+"""
+
+from __future__ import annotations
+
+from harness.testing.criteria import (
+    Criterion,
+    Window,
+    apply_overrides,
+    parse_criteria,
+    parse_criterion,
+    resolve_baselines,
+)
+from harness.testing.evaluate import (
+    ERROR,
+    FAIL,
+    MARGINAL,
+    PASS,
+    SEVERITY,
+    CriterionResult,
+    Facts,
+    MissingData,
+    evaluate,
+    evaluate_scalar,
+    exit_code,
+    run_checks,
+    worst_verdict,
+)
+from harness.testing.judge import (
+    JudgeInputError,
+    Verdict,
+    format_block,
+    judge_run,
+    make_verdict,
+    write_verdict,
+)
+
+EXIT_CODES = {"PASS": 0, "FAIL": 1, "BAD_INPUT": 2, "ERROR_FAULT": 3, "ERROR": 4,
+              "MARGINAL": 5, "INTERRUPTED": 130}
+
+__all__ = [
+    "ERROR", "EXIT_CODES", "FAIL", "MARGINAL", "PASS", "SEVERITY", "Criterion",
+    "CriterionResult", "Facts", "JudgeInputError", "MissingData", "Verdict", "Window",
+    "apply_overrides", "evaluate", "evaluate_scalar", "exit_code", "format_block",
+    "judge_run", "make_verdict", "parse_criteria", "parse_criterion", "resolve_baselines",
+    "run_checks", "worst_verdict", "write_verdict",
+]

@@ -1,0 +1,398 @@
+"""Judging a run directory: criteria from its config.yaml (or an ``--expect`` file) against
+its summary.json, run.rrd and can.blf; writes verdict.json and verdict.rrd beside them.
+
+A pure function of the directory's files (and the judging code): the end of ``harness run``
+and ``harness judge`` call the same ``judge_run`` and write the same verdict.json.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import importlib.metadata
+import json
+import subprocess
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from harness.testing.criteria import Criterion, apply_overrides, parse_criteria
+from harness.testing.evaluate import (
+    ERROR,
+    CriterionResult,
+    Facts,
+    MissingData,
+    evaluate,
+    exit_code,
+    reason,
+    run_checks,
+    worst_verdict,
+)
+from harness.testing.measures import WORST_SAMPLE
+from rig_models.schema import ConfigError
+
+APPLICATION_ID = "sgsrt-harness"  # as harness.recording's (same recording in the viewer)
+PACKAGE = "sgsrt-harness"
+
+
+class JudgeInputError(ValueError):
+    """The directory or the criteria cannot be judged at all (exit 2)."""
+
+
+@dataclass
+class Verdict:
+    verdict: str
+    reason: str
+    criteria: list[CriterionResult]
+    identity: dict[str, Any]
+    run_dir: Path | None = None
+    exit_code: int = 0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"verdict": self.verdict, "reason": self.reason, "exit_code": self.exit_code,
+                "criteria": [c.to_dict() for c in self.criteria], "identity": self.identity}
+
+
+def make_verdict(results: list[CriterionResult], identity: Mapping[str, Any] | None = None,
+                 run_dir: Path | None = None) -> Verdict:
+    """The worst of ``results`` wins; no results is PASS (completed with no criteria)."""
+    v = worst_verdict(results)
+    return Verdict(v, reason(v, results), results, dict(identity or {}), run_dir,
+                   exit_code(v, results))
+
+
+# ----------------------------------------------------------------------------- identity
+def sha256_of(path: Path) -> str | None:
+    if not path.is_file():
+        return None
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+@functools.cache
+def source_commit() -> str:
+    """``git rev-parse HEAD`` of the harness's source tree, or "unknown"."""
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
+                             capture_output=True, text=True, timeout=5, check=False)
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return out.stdout.strip() if out.returncode == 0 and out.stdout.strip() else "unknown"
+
+
+def harness_version() -> str:
+    try:
+        return importlib.metadata.version(PACKAGE)
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def identity_of(run_dir: Path, cfg: Mapping[str, Any], summary: Mapping[str, Any],
+                expect_file: Path | None) -> dict[str, Any]:
+    run = cfg.get("run") if isinstance(cfg.get("run"), Mapping) else {}
+    rig = cfg.get("rig") if isinstance(cfg.get("rig"), Mapping) else {}
+    return {
+        "run": summary.get("run") or run.get("name"),
+        "recording_id": run_dir.name,
+        "harness_version": harness_version(),
+        "commit": source_commit(),
+        "rig": rig.get("name"),
+        "bus": summary.get("bus") or run.get("bus"),
+        "clock": summary.get("clock") or run.get("clock"),
+        "config_sha256": sha256_of(run_dir / "config.yaml"),
+        "summary_sha256": sha256_of(run_dir / "summary.json"),
+        "run_rrd_sha256": sha256_of(run_dir / "run.rrd"),
+        "can_blf_sha256": sha256_of(run_dir / "can.blf"),
+        "criteria_from": "config.yaml" if expect_file is None else expect_file.name,
+        "expect_sha256": None if expect_file is None else sha256_of(expect_file),
+    }
+
+
+# ----------------------------------------------------------------------------- readers
+def read_channels(rrd: Path, wanted: set[str] | None = None
+                  ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The scalar channels of a recording on the ``time`` timeline (``wanted`` ones, or
+    all), in one pass."""
+    from rerun.chunk import RrdReader
+
+    parts: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
+    for chunk in RrdReader(rrd).stream().to_chunks():
+        if chunk.is_static or "time" not in chunk.timeline_names or (
+                wanted is not None and chunk.entity_path not in wanted):
+            continue
+        batch = chunk.to_record_batch()
+        if "Scalars:scalars" not in batch.schema.names:
+            continue
+        t = batch.column("time").cast("int64").to_numpy(zero_copy_only=False) * 1e-9
+        col = batch.column("Scalars:scalars")
+        flat = col.flatten().to_numpy(zero_copy_only=False).astype(float)
+        if len(flat) != len(t):  # not one scalar per row: take each row's first
+            flat = np.array([x[0] if x else np.nan for x in col.to_pylist()], dtype=float)
+        ts, vs = parts.setdefault(chunk.entity_path, ([], []))
+        ts.append(t)
+        vs.append(flat)
+    out = {}
+    for entity, (ts, vs) in parts.items():
+        t, v = np.concatenate(ts), np.concatenate(vs)
+        order = np.argsort(t, kind="stable")
+        out[entity] = (t[order], v[order])
+    return out
+
+
+class ChannelCache:
+    """Reads a recording once, on first use (only ``wanted`` channels if given)."""
+
+    def __init__(self, rrd: Path, wanted: set[str] | None = None) -> None:
+        self.rrd = rrd
+        self.wanted = wanted
+        self._data: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
+
+    def __call__(self, entity: str) -> tuple[np.ndarray, np.ndarray]:
+        if self._data is None:
+            if not self.rrd.is_file():
+                raise MissingData(f"{self.rrd} does not exist")
+            try:
+                self._data = read_channels(self.rrd, self.wanted)
+            except Exception as exc:  # a damaged recording: rerun raises various kinds
+                raise MissingData(f"{self.rrd}: cannot read ({type(exc).__name__}: {exc})"
+                                  ) from exc
+        if entity not in self._data:
+            raise KeyError(f"{self.rrd.name} has no channel {entity}")
+        return self._data[entity]
+
+
+class BaselineCache:
+    def __init__(self, wanted: set[str] | None = None) -> None:
+        self.wanted = wanted
+        self._runs: dict[str, ChannelCache] = {}
+
+    def __call__(self, base: str, entity: str) -> tuple[np.ndarray, np.ndarray]:
+        p = Path(base)
+        rrd = p if p.suffix == ".rrd" else p / "run.rrd"
+        if base not in self._runs:
+            self._runs[base] = ChannelCache(rrd, self.wanted)
+        return self._runs[base](entity)
+
+
+SAFE_CHECKS = {
+    "WHEEL_CMD": (("torque_cmd", "wheel torque"), ("enable", "wheel enable")),
+    "VALVE_CMD": (("valve_pos", "positive valve"), ("valve_neg", "negative valve")),
+    "PIEZO_CMD": (("voltage_ch1", "piezo ch1 voltage"), ("voltage_ch2", "piezo ch2 voltage")),
+    "ROTOR_CMD": (("speed_cmd", "rotor speed"), ("enable", "rotor enable")),
+    "HEARTBEAT": (("armed", "heartbeat armed"),),
+}
+
+
+def left_safe_problems(blf: Path) -> list[str]:
+    """What the CAN log's last command frame of each device (and last heartbeat) leaves
+    unsafe: wheel torque 0 and disabled, valves closed, piezo 0 V, rotor stopped and
+    disabled, heartbeat disarmed. A frame never sent is nothing commanded."""
+    import can
+
+    from drivers.dbc import FrameError, load_protocol
+
+    if not blf.is_file():
+        raise MissingData(f"{blf} does not exist")
+    protocol = load_protocol()
+    ids = {protocol[name].frame_id: name for name in SAFE_CHECKS}
+    last: dict[str, bytes] = {}
+    try:
+        for msg in can.LogReader(str(blf)):
+            if not msg.is_error_frame and msg.arbitration_id in ids:
+                last[ids[msg.arbitration_id]] = bytes(msg.data)
+    except Exception as exc:  # python-can raises many kinds for a damaged file
+        raise MissingData(f"{blf}: cannot read ({type(exc).__name__}: {exc})") from exc
+    problems = []
+    for name, checks in SAFE_CHECKS.items():
+        if name not in last:
+            continue
+        try:
+            values = protocol[name].decode(last[name])
+        except FrameError:
+            problems.append(f"last {name} undecodable ({last[name].hex()})")
+            continue
+        for signal, what in checks:
+            if values[signal] != 0:
+                problems.append(f"last {name}: {what} {values[signal]:g}")
+    return problems
+
+
+# ----------------------------------------------------------------------------- judging
+def _load_yaml(path: Path) -> Any:
+    try:
+        return yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise JudgeInputError(f"{path}: cannot read: {exc}") from exc
+
+
+def criteria_of(run_dir: Path, cfg: Mapping[str, Any], expect: Any = None
+                ) -> tuple[list[Criterion], Path | None]:
+    """The criteria to judge ``run_dir`` by: ``expect`` (a file with an ``expect:`` section,
+    or the section itself) or the run's own (config.yaml), with the rig's
+    ``expect_overrides`` applied."""
+    rig = cfg.get("rig") if isinstance(cfg.get("rig"), Mapping) else {}
+    overrides = rig.get("expect_overrides")
+    expect_file = None
+    if expect is None:
+        run = cfg.get("run") if isinstance(cfg.get("run"), Mapping) else {}
+        raw, source, base_dir, check = run.get("expect"), f"{run_dir / 'config.yaml'}: run", \
+            run_dir, False
+    elif isinstance(expect, str | Path):
+        expect_file = Path(expect)
+        if not expect_file.is_file():
+            raise JudgeInputError(f"--expect {expect_file}: no such file")
+        doc = _load_yaml(expect_file)
+        raw = doc.get("expect") if isinstance(doc, Mapping) and "expect" in doc else doc
+        source, base_dir, check = f"expect file {expect_file.name}", expect_file.parent, True
+    else:
+        raw, source, base_dir, check = expect, "expect", Path.cwd(), True
+    raw = apply_overrides(raw, overrides, f"{run_dir / 'config.yaml'}: rig")
+    return parse_criteria(raw, source, base_dir=base_dir, check_files=check), expect_file
+
+
+def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
+    """Judge a run directory (see the module docstring). ``expect``: None (the run's own
+    criteria from config.yaml), a path to a YAML file (an ``expect:`` section or a run
+    file), or the section itself. Raises JudgeInputError / ConfigError for bad input."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise JudgeInputError(f"{run_dir}: not a directory")
+    cfg_path = run_dir / "config.yaml"
+    cfg: Mapping[str, Any] = {}
+    results: list[CriterionResult] = []
+    if cfg_path.is_file():
+        loaded = _load_yaml(cfg_path)
+        cfg = loaded if isinstance(loaded, Mapping) else {}
+    elif expect is None:
+        raise JudgeInputError(f"{cfg_path}: no such file (not a run directory)")
+    criteria, expect_file = criteria_of(run_dir, cfg, expect)
+    summary: dict[str, Any] = {}
+    sum_path = run_dir / "summary.json"
+    try:
+        loaded = json.loads(sum_path.read_text())
+        summary = loaded if isinstance(loaded, dict) else {}
+        if not summary:
+            raise ValueError("not a JSON object")
+    except FileNotFoundError:
+        results.append(_missing("summary.json", "no summary.json (the harness was killed?)"))
+    except (OSError, ValueError) as exc:
+        results.append(_missing("summary.json", f"summary.json unreadable ({exc})"))
+    for name in ("run.rrd", "can.blf"):
+        if not (run_dir / name).is_file():
+            results.append(_missing(name, f"no {name} in the run directory"))
+    wanted = {c.target for c in criteria if c.kind in ("channel", "settles", "baseline")}
+    wanted |= {WORST_SAMPLE[c.target][0] for c in criteria
+               if c.kind == "scalar" and c.target in WORST_SAMPLE}
+    facts = Facts(summary, ChannelCache(run_dir / "run.rrd", wanted), BaselineCache(wanted),
+                  lambda: left_safe_problems(run_dir / "can.blf"))
+    dry = bool(summary.get("dry_run"))
+    if dry:  # nothing was commanded: only the rig left safe and the run's own checks
+        criteria = [c for c in criteria if c.kind == "left_safe"]
+    results = evaluate(criteria, facts) + results + (run_checks(criteria, summary)
+                                                     if summary else [])
+    verdict = make_verdict(results, identity_of(run_dir, cfg, summary, expect_file), run_dir)
+    if dry and verdict.verdict == "PASS":
+        verdict.reason = "dry run (nothing commanded): only left_safe and the run's own " \
+                         "checks judged; " + verdict.reason
+    return verdict
+
+
+def _missing(what: str, message: str) -> CriterionResult:
+    return CriterionResult("run", "run", None, "", {}, None, ERROR, None,
+                           f"missing data: {message}")
+
+
+# ----------------------------------------------------------------------------- output
+def verdict_markdown(v: Verdict) -> str:
+    lines = [f"# Verdict: {v.verdict}", "", v.reason, "",
+             "| criterion | value | limit | margin | verdict | worst at (s) |",
+             "|---|---|---|---|---|---|"]
+    for c in v.criteria:
+        lim = ", ".join(f"{k} {val}" for k, val in c.limit.items())
+        val = "-" if c.value is None else (f"{c.value:.4g}" if isinstance(c.value, float)
+                                           else str(c.value))
+        lines.append(f"| {c.name} | {val} {c.unit} | {lim} | "
+                     f"{'-' if c.margin is None else f'{c.margin:.4g}'} | {c.verdict} | "
+                     f"{'-' if c.worst_time_s is None else f'{c.worst_time_s:.3f}'} |")
+    lines += ["", *[f"- **{c.name}** ({c.verdict}): {c.message}" for c in v.criteria]]
+    ident = "\n".join(f"- {k}: {val}" for k, val in v.identity.items())
+    return "\n".join(lines) + "\n\n## Identity\n\n" + ident + "\n"
+
+
+def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
+    """verdict.json and verdict.rrd (same application and recording id as run.rrd:
+    ``/run/verdict`` and events under ``/events/verdict`` at each violation)."""
+    import rerun as rr
+
+    run_dir = Path(run_dir or v.run_dir or ".")
+    out = run_dir / "verdict.json"
+    out.write_text(json.dumps(v.to_dict(), indent=2) + "\n")
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id=run_dir.name)
+    rec.save(str(run_dir / "verdict.rrd"), default_blueprint=_run_layout(run_dir))
+    rec.log("/run/verdict", rr.TextDocument(verdict_markdown(v), media_type="text/markdown"),
+            static=True)
+    events = sorted((t, c) for c in v.criteria for t in c.violations_s)
+    for t, c in events:
+        rec.set_time("time", duration=t)
+        rec.log("/events/verdict", rr.TextLog(f"{c.name} {c.verdict}: {c.message}",
+                                              level="ERROR" if c.verdict == ERROR else "WARN"))
+    _mark_on_plots(rec, run_dir, [(t, f"VERDICT {c.name} {c.verdict}") for t, c in events])
+    rec.flush()
+    rec.disconnect()
+    return out
+
+
+def _run_layout(run_dir: Path) -> Any:
+    """run.rrd's layout (harness.review), so the files open together in any order."""
+    try:
+        from harness.review.layouts import blueprint_for_run_dir
+
+        return blueprint_for_run_dir(run_dir)
+    except Exception:  # no config.yaml (a bare recording): the viewer keeps run.rrd's
+        return None
+
+
+def _mark_on_plots(rec: Any, run_dir: Path, events: list[tuple[float, str]]) -> None:
+    """The violations marked on the run's plots at the run's values (harness.review)."""
+    if not events or not (run_dir / "run.rrd").exists():
+        return
+    try:
+        from harness.review.events import mark_events
+
+        mark_events(rec, run_dir / "run.rrd", [(t, "verdict", name) for t, name in events])
+    except Exception as exc:  # the verdict stands without its markers
+        print(f"harness judge: could not mark the violations on the plots ({exc})",
+              file=sys.stderr)
+
+
+def format_block(v: Verdict, path: Path | None = None) -> str:
+    """The verdict as printed at the end of ``harness run`` and by ``harness judge``."""
+    lines = [f"VERDICT {v.verdict} (exit {v.exit_code}): {v.reason}"]
+    w = max([len(c.name) for c in v.criteria] + [9])
+    for c in v.criteria:
+        val = "-" if c.value is None else (f"{c.value:.4g}" if isinstance(c.value, float)
+                                           else str(c.value))
+        lim = ", ".join(f"{k} {val_:g}" if isinstance(val_, float) else f"{k} {val_}"
+                        for k, val_ in c.limit.items())
+        margin = "" if c.margin is None else f"  margin {c.margin:.4g}"
+        at = "" if c.worst_time_s is None else f"  worst at t = {c.worst_time_s:.3f} s"
+        lines.append(f"  {c.verdict:<8} {c.name:<{w}}  {val} {c.unit}".rstrip()
+                     + (f"  limit {lim}" if lim else "") + margin + at)
+        if c.verdict != "PASS":
+            lines.append(f"  {'':<8} {'':<{w}}  {c.message}")
+    if path is not None:
+        lines.append(f"  verdict in {path}")
+    return "\n".join(lines)
+
+
+__all__ = ["ConfigError", "JudgeInputError", "Verdict", "format_block", "judge_run",
+           "make_verdict", "write_verdict"]

@@ -1,0 +1,160 @@
+"""What a criterion can measure: summary.json's fields and the recorded channels, with units.
+
+The unit of a measure is the suffix of its name (``final_angle_error_deg`` is in ``deg``,
+``lateness_ms.p99`` in ``ms`` from its parent); names without a unit suffix are dimensionless:
+``count`` (integers: ``overruns``, ``frames.missing``) or ``ratio`` (``real_time_factor``,
+``beta``). A criterion's limit keys carry the same unit (``max_abs_deg``, ``max_count``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+UNIT_SUFFIXES = ("deg_s", "rad_s", "m_s2", "n_m", "percent", "hz", "ms", "deg", "rad", "kg",
+                 "m", "s", "v", "a")
+"""Unit suffixes, longest first where one ends another (``deg_s`` before ``s``)."""
+
+DIMENSIONLESS = ("count", "ratio")
+
+# summary.json (harness/session.py summarise / periodic_summary): path -> unit. Every
+# numeric or boolean leaf is here; tests check it against a real summary.json.
+SUMMARY_MEASURES: dict[str, str] = {
+    "rate_hz": "hz",
+    "ticks": "count",
+    "target_angle_deg": "deg",
+    "final_angle_deg": "deg",
+    "final_angle_error_deg": "deg",
+    "slew_profile_end_s": "s",
+    "settle_time_s": "s",
+    "settle_band_deg": "deg",
+    "peak_tip_accel_m_s2": "m_s2",
+    "residual_tip_accel_m_s2": "m_s2",
+    "residual_tip_accel_rms_m_s2": "m_s2",
+    "residual_window_s": "s",
+    "max_wheel_torque_cmd_n_m": "n_m",
+    "max_wheel_torque_measured_n_m": "n_m",
+    "wheel_torque_limit_n_m": "n_m",
+    "wheel_torque_within_limit": "bool",
+    "overruns": "count",
+    "lateness_ms.p50": "ms",
+    "lateness_ms.p99": "ms",
+    "lateness_ms.max": "ms",
+    "work_ms.p50": "ms",
+    "work_ms.p99": "ms",
+    "work_ms.max": "ms",
+    "bus_load_percent": "percent",
+    "frames.sent": "count",
+    "frames.received": "count",
+    "frames.unknown": "count",
+    "frames.malformed": "count",
+    "frames.missing": "count",
+    "frames.error_frames": "count",
+    "wall_time_s": "s",
+    "simulated_time_s": "s",
+    "real_time_factor": "ratio",
+    "virtual_rig.watchdog_trips": "count",
+    "virtual_rig.steps": "count",
+    "virtual_rig.malformed": "count",
+    "virtual_rig.unknown": "count",
+    "dry_run": "bool",
+    # periodic disturbance runs (case-a/b/c)
+    "rotor_speed_rad_s": "rad_s",
+    "rotor_period_s": "s",
+    "beta": "ratio",
+    "frequency_ratio": "ratio",
+    "disturbance_amplitude_n_m": "n_m",
+    "compensation_amplitude_n_m": "n_m",
+    "steady_window_s": "s",
+    "steady_tip_accel_amplitude_m_s2": "m_s2",
+    "steady_angle_amplitude_deg": "deg",
+    # computed by the judge from summary.json's lists
+    "faults.count": "count",
+}
+
+OPEN_PREFIXES = ("controller_design.",)
+"""Summary sections whose fields depend on the controller: any path under them is accepted,
+its unit read from its name (``ratio`` without a suffix); a path the run did not write is
+missing data at judge time (ERROR)."""
+
+BUDGET_MEASURES = ("overruns", "lateness_ms.", "work_ms.", "real_time_factor", "frames.missing")
+"""Measures of the real-time budget: a criterion on them that fails makes the verdict ERROR
+(the test was not valid), not FAIL. A criterion's ``budget: true|false`` overrides this."""
+
+TIME_EVENTS = ("slew_profile_end_s", "settle_time_s", "fault", "injected_fault")
+"""Events a window can start ``after``: summary times, the first detected fault's time, the
+first injected fault's ``at_s``."""
+
+NULL_MEANS_FAIL = {
+    "settle_time_s": "the hub never stayed within settle_band_deg of the target",
+}
+"""Summary fields whose null is a result (FAIL), not missing data (ERROR)."""
+
+
+WORST_SAMPLE: dict[str, tuple[str, str]] = {
+    "peak_tip_accel_m_s2": ("/tip/accel_m_s2", "abs"),
+    "residual_tip_accel_m_s2": ("/tip/accel_m_s2", "abs_residual"),
+    "max_wheel_torque_cmd_n_m": ("/wheel/torque_cmd_n_m", "abs"),
+    "max_wheel_torque_measured_n_m": ("/wheel/torque_n_m", "abs"),
+    "final_angle_deg": ("/attitude/angle_deg", "last"),
+    "final_angle_error_deg": ("/attitude/error_deg", "last"),
+}
+"""Summary peaks and finals whose sample the recording can name: (channel, how); the
+judge reports that sample's time as the criterion's ``worst_time_s``."""
+
+
+def unit_of_name(name: str) -> str | None:
+    """The unit suffix of a name (``accel_m_s2`` -> ``m_s2``), or None."""
+    for u in UNIT_SUFFIXES:
+        if name == u or name.endswith("_" + u):
+            return u
+    return None
+
+
+def unit_of_measure(path: str) -> str | None:
+    """Unit of a summary path, or None if the path is not a known measure."""
+    if path in SUMMARY_MEASURES:
+        return SUMMARY_MEASURES[path]
+    if path.startswith(OPEN_PREFIXES) and len(path) > len(path.split(".")[0]) + 1:
+        parts = path.split(".")
+        for part in reversed(parts[1:]):
+            u = unit_of_name(part)
+            if u is not None:
+                return u
+        return "ratio"
+    return None
+
+
+def unit_of_channel(entity: str) -> str:
+    """Unit of a recorded channel from its last path segment (``count`` if it has none:
+    ``/thrusters/firings``, ``/timing/frames_rx``)."""
+    return unit_of_name(entity.rstrip("/").rsplit("/", 1)[-1]) or "count"
+
+
+def is_budget(path: str) -> bool:
+    return any(path == b or (b.endswith(".") and path.startswith(b)) for b in BUDGET_MEASURES)
+
+
+def lookup(measures: Mapping[str, Any], path: str) -> tuple[bool, Any]:
+    """(found, value) of a dotted path in a nested mapping (``lateness_ms.p99``). Computed
+    measures (``faults.count``) are read from the lists they count."""
+    if path == "faults.count":
+        faults = measures.get("faults")
+        return (isinstance(faults, list), len(faults) if isinstance(faults, list) else None)
+    node: Any = measures
+    for part in path.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            return False, None
+        node = node[part]
+    return True, node
+
+
+def numeric_leaves(data: Mapping[str, Any], prefix: str = "") -> Iterable[str]:
+    """Dotted paths of every number or bool in a nested mapping (lists excluded)."""
+    for k, v in data.items():
+        p = f"{prefix}{k}"
+        if isinstance(v, Mapping):
+            yield from numeric_leaves(v, p + ".")
+        elif isinstance(v, bool | int | float) and not (isinstance(v, float) and math.isnan(v)):
+            yield p

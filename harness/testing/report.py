@@ -1,0 +1,371 @@
+"""A suite's report: ``results.json`` (machine-readable), ``report.md`` and ``report.html``
+(one self-contained page) in the suite's output folder.
+
+Per test: the verdict and its reason, every criterion's value against its limit and margin,
+for a run a plot of each checked channel (read back from its run.rrd) with the criterion's
+band shaded over its window, and relative links to run.rrd, can.blf, verdict.json and the
+run's folder. Plots are PNGs drawn by matplotlib and embedded as base64, so the page needs
+nothing beside it (the links need the run folders next to it).
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as dt
+import html
+import io
+import json
+import math
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from harness.testing.checks import worst
+
+OVERVIEW = ("/attitude/angle_deg", "/tip/accel_m_s2")
+COLORS = {"PASS": "#1a7f37", "MARGINAL": "#9a6700", "FAIL": "#cf222e", "ERROR": "#8250df",
+          "SKIPPED": "#6e7781"}
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else f"{v:.5g}"
+    if isinstance(v, dict):
+        return ", ".join(f"{k} {_fmt(x)}" for k, x in v.items())
+    return str(v)
+
+
+def _limit(limit: Any) -> str:
+    if not isinstance(limit, dict):
+        return _fmt(limit)
+    return ", ".join(f"{k} {_fmt(v)}" for k, v in limit.items() if k != "over")
+
+
+def channel_specs(run_dir: Path, criteria_results: list[dict[str, Any]]
+                  ) -> list[dict[str, Any]]:
+    """The run's channel criteria (verdict layer): channel, band (lo, hi) and window."""
+    import yaml
+
+    from harness.testing.evaluate import window_mask
+    from harness.testing.judge import criteria_of
+
+    cfg = yaml.safe_load((run_dir / "config.yaml").read_text()) or {}
+    summary = json.loads((run_dir / "summary.json").read_text())
+    verdicts = {c["name"]: c for c in criteria_results}
+    out = []
+    for c in criteria_of(run_dir, cfg)[0]:
+        if c.kind not in ("channel", "settles", "baseline"):
+            continue
+        lim = c.limit
+        if c.kind == "channel":
+            lo = -lim["max_abs"] if "max_abs" in lim else lim.get("min")
+            hi = lim["max_abs"] if "max_abs" in lim else lim.get("max")
+        elif c.kind == "settles":
+            lo = c.params["center"] - c.params["band"]
+            hi = c.params["center"] + c.params["band"]
+        else:
+            lo = hi = None
+        spec = {"name": c.name, "channel": c.target, "unit": c.unit if c.kind != "settles"
+                else c.params["channel_unit"], "lo": lo, "hi": hi, "reduce": c.reduce,
+                "kind": c.kind, "window": c.window.describe(),
+                "verdict": verdicts.get(c.name, {}).get("verdict"),
+                "worst_time_s": verdicts.get(c.name, {}).get("worst_time_s"),
+                "window_fn": (lambda t, w=c.window: window_mask(t, w, summary))}
+        if c.kind == "baseline":
+            spec["baseline"] = c.params["baseline"]
+        out.append(spec)
+    return out
+
+
+def _png(fig: Any) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=80)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _shade_band(ax: Any, s: dict[str, Any], t0: float, t1: float, v: np.ndarray) -> None:
+    """The criterion's band over its window. For ``reduce: each`` the band bounds every
+    sample; for rms / mean / final it bounds that one number, drawn as a thick line."""
+    lo, hi = s["lo"], s["hi"]
+    if lo is None and hi is None:
+        return
+    reduce = s.get("reduce") or "each"
+    if reduce == "rms":
+        value = float(np.sqrt(np.nanmean(v ** 2)))
+        lo = 0.0 if lo is None else lo
+    elif reduce == "mean":
+        value = float(np.nanmean(v))
+    elif reduce == "final":
+        value = float(v[-1])
+    else:
+        value = None
+    y_lo, y_hi = ax.get_ylim()
+    draw_lo = lo if lo is not None else min(y_lo, hi)
+    draw_hi = hi if hi is not None else max(y_hi, lo)
+    what = "band" if reduce == "each" else f"band of the {reduce}"
+    ax.fill_between([t0, t1], [draw_lo, draw_lo], [draw_hi, draw_hi], color="#2da44e",
+                    alpha=0.3, zorder=3, label=f"{what} ({s['window']})")
+    for y in (lo, hi):
+        if y is not None:
+            ax.hlines(y, t0, t1, colors="#2da44e", lw=0.8)
+    if value is not None:
+        ax.hlines(value, t0, t1, colors="#cf222e" if s["verdict"] in ("FAIL", "ERROR")
+                  else "#1f2328", lw=2.0, label=f"{reduce} {value:.4g}")
+    if reduce == "each":  # the band and the data, whichever is wider
+        ax.set_ylim(min(y_lo, draw_lo), max(y_hi, draw_hi))
+
+
+def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dict[str, str]]:
+    """[{title, png (base64)}]: each checked channel with its band over its window; the
+    angle and tip acceleration when no channel is checked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from harness.testing.judge import read_channels
+
+    rrd = run_dir / "run.rrd"
+    if not rrd.is_file():
+        return []
+    try:
+        specs = channel_specs(run_dir, criteria_results)
+    except (OSError, ValueError, KeyError) as exc:
+        specs = []
+        note = f"criteria not readable: {exc}"
+    else:
+        note = ""
+    data = read_channels(rrd, {s["channel"] for s in specs} | set(OVERVIEW))
+    plots = []
+    for s in specs:
+        if s["channel"] not in data:
+            continue
+        t, v = data[s["channel"]]
+        fig, ax = plt.subplots(figsize=(7.5, 2.6))
+        ax.plot(t, v, lw=0.6, color="#0969da", alpha=0.7, label=s["channel"])
+        try:
+            mask, _ = s["window_fn"](t)
+        except Exception:  # noqa: BLE001 - e.g. the window's event never happened
+            mask = np.zeros_like(t, dtype=bool)
+        if mask.any():
+            t0, t1 = float(t[mask][0]), float(t[mask][-1])
+            ax.axvspan(t0, t1, color="#eaeef2", alpha=0.35, zorder=0)
+            _shade_band(ax, s, t0, t1, v[mask])
+        if s["kind"] == "baseline":
+            try:
+                bt, bv = read_channels(Path(s["baseline"]) / "run.rrd" if Path(
+                    s["baseline"]).is_dir() else Path(s["baseline"]))[s["channel"]]
+                ax.plot(bt, bv, lw=0.8, color="#8c959f", label="baseline")
+            except Exception:  # noqa: BLE001 - the baseline may be on another machine
+                pass
+        if s["worst_time_s"] is not None:
+            ax.axvline(s["worst_time_s"], color=COLORS.get(s["verdict"] or "", "k"), lw=0.8,
+                       ls="--", label="worst")
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel(f"{s['channel'].rsplit('/', 1)[-1]}")
+        ax.set_title(f"{s['name']}: {s['channel']} ({s['verdict']})", fontsize=9)
+        ax.legend(fontsize=7, loc="best")
+        ax.grid(alpha=0.3)
+        fig.tight_layout()
+        plots.append({"title": f"{s['name']}: {s['channel']}", "png": _png(fig)})
+    if not plots:
+        chans = [c for c in OVERVIEW if c in data]
+        if chans:
+            fig, axes = plt.subplots(len(chans), 1, figsize=(7.5, 1.9 * len(chans)),
+                                     sharex=True, squeeze=False)
+            for ax, c in zip(axes[:, 0], chans, strict=True):
+                ax.plot(*data[c], lw=0.8, color="#0969da")
+                ax.set_ylabel(c.rsplit("/", 1)[-1], fontsize=8)
+                ax.grid(alpha=0.3)
+            axes[-1, 0].set_xlabel("time (s)")
+            axes[0, 0].set_title("no channel criterion: overview" + (f" ({note})" if note
+                                                                     else ""), fontsize=9)
+            fig.tight_layout()
+            plots.append({"title": "overview", "png": _png(fig)})
+    return plots
+
+
+def _counts(records: list[dict[str, Any]]) -> dict[str, int]:
+    return dict(Counter(r["verdict"] for r in records))
+
+
+def write_reports(out_dir: Path, records: list[dict[str, Any]], *, not_run: list[str],
+                  suites: list[Any], engine: str, bus: str | None,
+                  preflight: dict[str, Any] | None, refused: str | None,
+                  wall_s: float, interrupted: bool = False) -> dict[str, Any]:
+    from harness.testing.plugin import exit_code
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    verdicts = [r["verdict"] for r in records
+                if r["verdict"] != "SKIPPED" and r.get("reported", True)]
+    doc = {
+        "suites": [{"name": s.name, "description": s.description, "source": str(s.source)}
+                   for s in suites],
+        "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        "engine": engine, "bus": bus or "virtual (each run's own)",
+        "wall_time_s": round(wall_s, 2),
+        "verdict": worst(verdicts) if verdicts else ("ERROR" if refused else "PASS"),
+        "exit_code": 130 if interrupted else (
+            exit_code(records) if records else (2 if refused else 0)),
+        "interrupted": interrupted,
+        "counts": _counts(records), "refused": refused, "preflight": preflight,
+        "not_run": not_run, "tests": records,
+    }
+    (out_dir / "results.json").write_text(json.dumps(doc, indent=2, default=_json_default))
+    (out_dir / "report.md").write_text(_markdown(doc))
+    (out_dir / "report.html").write_text(_html(doc, out_dir))
+    return doc
+
+
+def _json_default(v: Any) -> Any:
+    if isinstance(v, np.generic):
+        return v.item()
+    return str(v)
+
+
+def _criteria_rows(criteria: list[dict[str, Any]]) -> list[list[str]]:
+    return [[c.get("name", ""), c.get("kind", ""), _fmt(c.get("value")), c.get("unit", ""),
+             _limit(c.get("limit")), _fmt(c.get("margin")), c.get("verdict", ""),
+             c.get("message", "")] for c in criteria]
+
+
+HEADER = ["criterion", "kind", "value", "unit", "limit", "margin", "verdict", "message"]
+
+
+def _md_table(rows: list[list[str]], header: list[str]) -> str:
+    def cell(x: str) -> str:
+        return str(x).replace("|", "\\|").replace("\n", " ")
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(cell(x) for x in r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def _markdown(doc: dict[str, Any]) -> str:
+    names = ", ".join(s["name"] for s in doc["suites"])
+    out = [f"# Suite {names}: {doc['verdict']}", "",
+           f"{doc['created_utc']}, {doc['engine']}, bus {doc['bus']}, "
+           f"{doc['wall_time_s']:.1f} s; " + ", ".join(f"{v} {n}" for v, n in
+                                                       doc["counts"].items()), ""]
+    if doc["refused"]:
+        out += [f"**Refused:** {doc['refused']}", ""]
+    out += [_md_table([[r["item"], r["verdict"], _fmt(r["wall_s"]), r["reason"]]
+                       for r in doc["tests"]], ["test", "verdict", "time (s)", "reason"]), ""]
+    if doc["not_run"]:
+        out += ["Not reported (the suite stopped early; finished ones are listed with "
+                "reported false): " + ", ".join(doc["not_run"]), ""]
+    for r in doc["tests"]:
+        out += [f"## {r['item']}: {r['verdict']}", "", r["reason"], ""]
+        if r.get("run_dir"):
+            d = r["run_dir"]
+            out += [f"[run.rrd]({d}/run.rrd) · [can.blf]({d}/can.blf) · "
+                    f"[verdict.json]({d}/verdict.json) · [folder]({d}/)", ""]
+        if r["criteria"]:
+            out += [_md_table(_criteria_rows(r["criteria"]), HEADER), ""]
+        if r.get("modes"):
+            out += [_md_table([[str(i + 1), _fmt(m.get("omega_rad_s")),
+                                _fmt(m.get("model_omega_rad_s")),
+                                _fmt(m.get("omega_error_percent")),
+                                _fmt(m.get("damping_ratio")), _fmt(m.get("model_damping_ratio")),
+                                _fmt(m.get("damping_error_percent"))]
+                               for i, m in enumerate(r["modes"])],
+                              ["mode", "rad/s", "model rad/s", "error %", "zeta",
+                               "model zeta", "error %"]), ""]
+    return "\n".join(out) + "\n"
+
+
+CSS = """
+body{font-family:system-ui,sans-serif;margin:1.5em;max-width:70em;color:#1f2328}
+table{border-collapse:collapse;margin:.5em 0;font-size:.85em}
+td,th{border:1px solid #d0d7de;padding:.2em .5em;text-align:left;vertical-align:top}
+th{background:#f6f8fa}.v{font-weight:bold;color:#fff;padding:.1em .5em;border-radius:.3em}
+section{border-top:1px solid #d0d7de;margin-top:1.2em}img{max-width:100%}
+.reason{font-family:monospace;white-space:pre-wrap}
+"""
+
+
+def _badge(v: str) -> str:
+    return f'<span class="v" style="background:{COLORS.get(v, "#000")}">{html.escape(v)}</span>'
+
+
+def _html_table(rows: list[list[str]], header: list[str], verdict_col: int | None = None) -> str:
+    h = "".join(f"<th>{html.escape(x)}</th>" for x in header)
+    body = []
+    for r in rows:
+        cells = [(_badge(x) if i == verdict_col and x in COLORS else html.escape(str(x)))
+                 for i, x in enumerate(r)]
+        body.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
+    return f"<table><tr>{h}</tr>{''.join(body)}</table>"
+
+
+def _anchor(item: str) -> str:
+    return "t-" + "".join(ch if ch.isalnum() else "-" for ch in item)
+
+
+def _html(doc: dict[str, Any], out_dir: Path) -> str:
+    names = ", ".join(s["name"] for s in doc["suites"])
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>Suite "
+             f"{html.escape(names)}</title><style>{CSS}</style></head><body>",
+             f"<h1>Suite {html.escape(names)} {_badge(doc['verdict'])}</h1>",
+             f"<p>{html.escape(doc['created_utc'])} &middot; {html.escape(doc['engine'])} "
+             f"&middot; bus {html.escape(doc['bus'])} &middot; {doc['wall_time_s']:.1f} s "
+             f"&middot; exit code {doc['exit_code']} &middot; "
+             + ", ".join(f"{html.escape(v)} {n}" for v, n in doc["counts"].items()) + "</p>"]
+    if doc["refused"]:
+        parts.append(f"<p><b>Refused:</b> {html.escape(doc['refused'])}</p>")
+    rows = [[f"<a href='#{_anchor(r['item'])}'>{html.escape(r['item'])}</a>",
+             _badge(r["verdict"]), html.escape(_fmt(r["wall_s"])),
+             html.escape(r.get("worker") or "-"), html.escape(r["reason"])]
+            for r in doc["tests"]]
+    parts.append("<table><tr><th>test</th><th>verdict</th><th>time (s)</th><th>worker</th>"
+                 "<th>reason</th></tr>" + "".join(
+                     "<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in rows)
+                 + "</table>")
+    if doc["not_run"]:
+        parts.append("<p>Not reported (the suite stopped early): "
+                     + html.escape(", ".join(doc["not_run"])) + "</p>")
+    for r in doc["tests"]:
+        parts.append(f"<section id='{_anchor(r['item'])}'><h2>{html.escape(r['item'])} "
+                     f"{_badge(r['verdict'])}</h2>")
+        if r.get("description"):
+            parts.append(f"<p>{html.escape(r['description'])}</p>")
+        parts.append(f"<p class='reason'>{html.escape(r['reason'])}</p>")
+        if r.get("run_dir"):
+            d = html.escape(r["run_dir"])
+            extra = (f" &middot; <a href='{d}/identify.json'>identify.json</a> &middot; "
+                     f"<a href='{d}/identify.rrd'>identify.rrd</a>"
+                     if r["kind"] == "identify" else "")
+            parts.append(f"<p><a href='{d}/run.rrd'>run.rrd</a> &middot; <a href='{d}/can.blf'>"
+                         f"can.blf</a> &middot; <a href='{d}/verdict.json'>verdict.json</a>"
+                         f"{extra} &middot; <a href='{d}/'>{d}/</a></p>")
+        if r["criteria"]:
+            parts.append(_html_table(_criteria_rows(r["criteria"]), HEADER, verdict_col=6))
+        if r.get("modes"):
+            parts.append(_html_table([[str(i + 1), _fmt(m.get("omega_rad_s")),
+                                       _fmt(m.get("model_omega_rad_s")),
+                                       _fmt(m.get("omega_error_percent")),
+                                       _fmt(m.get("damping_ratio")),
+                                       _fmt(m.get("model_damping_ratio")),
+                                       _fmt(m.get("damping_error_percent"))]
+                                      for i, m in enumerate(r["modes"])],
+                                     ["mode", "rad/s", "model rad/s", "error %", "zeta",
+                                      "model zeta", "error %"]))
+        if r.get("run_dir") and r["kind"] == "run":
+            try:
+                plots = run_plots(out_dir / r["run_dir"], r["criteria"])
+            except Exception as exc:  # noqa: BLE001 - a report must not die on one plot
+                plots = []
+                parts.append(f"<p>plots not drawn: {html.escape(type(exc).__name__)}: "
+                             f"{html.escape(str(exc))}</p>")
+            for p in plots:
+                parts.append(f"<figure><img alt='{html.escape(p['title'])}' "
+                             f"src='data:image/png;base64,{p['png']}'></figure>")
+        parts.append("</section>")
+    parts.append("</body></html>")
+    return "\n".join(parts)

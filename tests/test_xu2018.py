@@ -1,0 +1,34 @@
+"""`harness study xu2018` (paper 003 on the virtual rig): its parts and flat measures."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from harness.cli import main
+from harness.studies import xu2018
+
+
+def test_model_and_identify_parts(tmp_path):
+    out = xu2018.run_study(("model", "identify"), out_dir=tmp_path)
+    m = out["measures"]
+    # constrained frequencies within 0.9 % of the paper's, delta_1 within 0.2 %
+    for k in (1, 2, 3):
+        assert abs(m[f"model_constrained_mode{k}_error_percent"]) < 0.9
+    assert abs(m["model_coupling_mode1_error_percent"]) < 0.2
+    # the identified modes against the model's, from a free-decay run written to tmp_path
+    assert m["identified_mode_count"] == 3
+    assert m["identified_worst_omega_error_percent"] < 0.5
+    assert m["identified_worst_damping_error_percent"] < 10.0
+    assert {md["model_mode"] for md in out["identify"]["modes"]} == {1, 2, 3}
+    assert (tmp_path / out["identify"]["run_dir"].split("/")[-1] / "run.rrd").exists()
+    assert all(isinstance(v, bool | int | float) for v in m.values())
+    assert "cases" not in out and "sweep" not in out
+
+
+def test_cli_json(tmp_path, capsys):
+    assert main(["study", "xu2018", "--only", "model", "--json", "--out", str(tmp_path)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["measures"]["model_hub_free_mode1_vs_paper_calculated_percent"] == pytest.approx(
+        100 * (out["model"]["hub_free_omega_rad_s"][0] / 2.8081 - 1))
