@@ -62,6 +62,19 @@ def test_layout_holds_the_views_the_docs_describe(kind):
         assert p.title in views
 
 
+def test_every_built_in_run_gets_a_layout():
+    from harness.runs import list_runs
+
+    for name, _ in list_runs():
+        run = load_run(name).resolved()
+        views = views_by_name(L.layout_for_run(run, CHANNELS))
+        assert TEXT_VIEWS <= set(views), name
+    valve_decay = {"run": {"controller": {"type": "valve_bursts"}, "duration_s": 10,
+                           "actuators": ["thruster_valves"]}}
+    assert L.run_kind(valve_decay) == "free_decay"
+    assert L.PLOTS["valves"].title in views_by_name(L.layout_for_run(valve_decay, CHANNELS))
+
+
 def test_no_plot_mixes_units_or_scales():
     """The issue's complaints: error apart from the angle, torques apart from speeds,
     milliseconds apart from counts."""

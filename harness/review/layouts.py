@@ -26,7 +26,7 @@ KINDS = ("slew", "periodic", "free_decay", "thruster", "piezo")
 
 SLEW_CONTROLLERS = {"pd_wheel", "shaped_wheel_slew"}
 PERIODIC_CONTROLLERS = {"square_wave"}
-FREE_DECAY_CONTROLLERS = {"wheel_bursts", "wheel_pulse", "hold"}
+FREE_DECAY_CONTROLLERS = {"wheel_bursts", "wheel_pulse", "valve_bursts", "hold"}
 THRUSTER_PREFIX = "thruster_"
 
 
@@ -135,6 +135,17 @@ def run_kind(run: Mapping[str, Any]) -> str:
     if "disturbance_rotor" in actuators:
         return "periodic"
     return "slew" if "angle_deg" in (data.get("controller") or {}) else "free_decay"
+
+
+def main_plots(kind: str, actuators: Iterable[str]) -> tuple[str, ...]:
+    """The main plots of a kind of run; a free decay excited by the valves (no wheel) shows
+    the valves instead of the wheel."""
+    keys = MAIN_PLOTS[kind]
+    acts = set(actuators)
+    if kind == "free_decay" and "thruster_valves" in acts and "reaction_wheel" not in acts:
+        swap = {"wheel_torque": "valves", "wheel_speed": "on_time"}
+        keys = tuple(swap.get(k, k) for k in keys)
+    return keys
 
 
 def whole_run_axis(duration_s: float | None) -> rrb.TimeAxis | None:
@@ -305,8 +316,9 @@ def layout_for_run(run: Mapping[str, Any], channels: Iterable[str] | None = None
     duration = data.get("duration_s")
     chans = list(channels) if channels is not None else None
     corner = dict(legends or {})
+    keys = main_plots(kind, data.get("actuators") or ())
     main = [time_plot(PLOTS[k], duration, chans, ranges, corner.get(k, "LeftTop"))
-            for k in MAIN_PLOTS[kind]]
+            for k in keys]
     if kind == "free_decay":
         spec = spectrum_views()
         run_page: rrb.Container = rrb.Vertical(
@@ -314,7 +326,7 @@ def layout_for_run(run: Mapping[str, Any], channels: Iterable[str] | None = None
             row_shares=[3, 2], name="Run")
     else:
         run_page = rrb.Vertical(_grid(main), name="Run")
-    shown = set(MAIN_PLOTS[kind])
+    shown = set(keys)
     others = [time_plot(p, duration, chans, ranges, corner.get(k, "LeftTop"))
               for k, p in PLOTS.items() if k not in shown]
     bus = [time_plot(p, duration) for p in BUS_PLOTS]
