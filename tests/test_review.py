@@ -310,3 +310,21 @@ def test_judged_run_verdict_rrd_has_layout_events_and_markers(faulted, tmp_path)
     ours = read_blueprints(faulted.run_dir / "run.rrd")[-1]
     theirs = read_blueprints(path)[-1]
     assert sorted(v.name for v in ours) == sorted(v.name for v in theirs)
+
+
+def test_realtime_bus_frames_at_their_receive_time(tmp_path):
+    """On the real-time clock a frame sits at its own timestamp after the first SYNC: the
+    SYNCs near their ticks (the clock's lateness), telemetry just after its SYNC."""
+    from harness.recording_reader import read_scalar_channel
+
+    run = load_run("slew-rw", {"duration_s": 1.0})
+    res = execute_run(run, out_dir=tmp_path, clock="realtime", show_progress=False)
+    rrd = res.run_dir / "run.rrd"
+    t, tick = read_scalar_channel(rrd, "/bus/harness/sync/tick")
+    late = t - tick * run.dt_s
+    assert late.min() == pytest.approx(0.0, abs=1e-6)  # against the clock's schedule
+    assert np.median(late) < 0.005
+    th, _ = read_scalar_channel(rrd, "/bus/hub_sensor/tlm/angle_rad")
+    tr, rx_ms = read_scalar_channel(rrd, "/bus/hub_sensor/rx_after_sync_ms")
+    assert len(th) == len(tr) > 0.9 * len(t)
+    assert np.all(rx_ms >= 0) and np.median(rx_ms) < 0.7 * run.dt_s * 1e3
