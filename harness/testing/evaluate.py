@@ -291,7 +291,7 @@ def evaluate_settles(c: Criterion, facts: Facts) -> CriterionResult:
                        f"{what}: never settled after t = {trigger:.3f} s (worst "
                        f"{_fmt(float(x[i]))} {u} at t = {float(t[i]):.3f} s)",
                        [float(t[i])])
-    value = entry - trigger
+    value = round(entry - trigger, 9)  # sample times minus an event time: no float dust
     margin = c.limit["max"] - value
     verdict = grade(margin, c.marginal)
     return _result(c, value, margin, verdict, entry,

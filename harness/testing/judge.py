@@ -294,15 +294,21 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
                if c.kind == "scalar" and c.target in WORST_SAMPLE}
     facts = Facts(summary, ChannelCache(run_dir / "run.rrd", wanted), BaselineCache(wanted),
                   lambda: left_safe_problems(run_dir / "can.blf"))
-    dry = bool(summary.get("dry_run"))
-    if dry:  # nothing was commanded: only the rig left safe and the run's own checks
+    note = ""
+    if summary.get("dry_run"):  # nothing was commanded: only the safe state and the checks
         criteria = [c for c in criteria if c.kind == "left_safe"]
+        note = "dry run (nothing commanded): only left_safe and the run's own checks judged"
+    elif any(c.kind == "fault" for c in criteria):
+        # a fault test: the fault stops the run by design, so the nominal run's criteria
+        # (final error, settling, a clean bus) do not apply; the rig must see it and be safe
+        criteria = [c for c in criteria if c.kind in ("fault", "left_safe")]
+        note = "fault test: only its fault expectations, left_safe and the run's own checks " \
+               "judged"
     results = evaluate(criteria, facts) + results + (run_checks(criteria, summary)
                                                      if summary else [])
     verdict = make_verdict(results, identity_of(run_dir, cfg, summary, expect_file), run_dir)
-    if dry and verdict.verdict == "PASS":
-        verdict.reason = "dry run (nothing commanded): only left_safe and the run's own " \
-                         "checks judged; " + verdict.reason
+    if note and verdict.verdict == "PASS":
+        verdict.reason = f"{note}; {verdict.reason}"
     return verdict
 
 
