@@ -330,10 +330,10 @@ def _log_bus(recorder: Recorder, blf: Path, dt_s: float, realtime: bool,
             return
         bus = write_bus(recorder.rec, blf, dt_s, realtime, dividers)
         for t_s, text in bus.warnings:
-            log_event(recorder.rec, t_s, "/events/bus", text, "WARN")
+            log_event(recorder.rec, t_s, "/events/can_log", text, "WARN")
         if bus.late_or_missing > len(bus.warnings):
-            log_event(recorder.rec, bus.warnings[-1][0], "/events/bus",
-                      f"bus: {bus.late_or_missing} late or missing telemetry frames in all "
+            log_event(recorder.rec, bus.warnings[-1][0], "/events/can_log",
+                      f"can log: {bus.late_or_missing} late or missing telemetry frames in all "
                       f"(the first {len(bus.warnings)} ticks listed)", "WARN")
     except Exception as exc:  # the run's own recording is complete without it
         print(f"harness: could not decode the CAN log into the recording ({exc})",

@@ -127,7 +127,7 @@ def test_faulted_run_recording_holds_event_markers_summary_config_bus(faulted):
     assert len(fault) == 1 and fault[0].level == "ERROR" and "silent" in fault[0].text
     assert fault[0].time_s == pytest.approx(faulted.summary["faults"][0]["time_s"])
     # the bus pass saw the missing telemetry from the fault's start
-    bus = [e for e in events if e.entity == "/events/bus"]
+    bus = [e for e in events if e.entity == "/events/can_log"]
     assert bus and 0.99 < bus[0].time_s <= fault[0].time_s and "hub_sensor" in bus[0].text
     have = entities(rrd)
     for key in L.MAIN_PLOTS["slew"]:

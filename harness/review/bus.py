@@ -6,7 +6,7 @@ Entities (``time`` timeline, seconds): ``/bus/<device>/tlm/<signal>_<unit>`` (te
 ``/bus/harness/heartbeat/...``, ``/bus/<device>/rx_after_sync_ms`` (the frame's timestamp
 minus its tick's SYNC's, wall clock; a frame sent before the SYNC it was read after
 counts for the tick before, late) and ``/bus/late_or_missing`` (devices due at a tick
-whose telemetry did not come before the next SYNC), with a warning under ``/events/bus`` for
+whose telemetry did not come before the next SYNC), with a warning under ``/events/can_log`` for
 the first ticks that lack one.
 
 Where a frame is placed on the ``time`` timeline. The tick is the last SYNC before the frame
@@ -191,7 +191,7 @@ def write_bus(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime: bool,
         if missing:
             stats.late_or_missing += len(missing)
             if len(stats.warnings) < MAX_WARNINGS:
-                stats.warnings.append((t_tick, f"bus: no telemetry from {', '.join(missing)} "
+                stats.warnings.append((t_tick, f"can log: no telemetry from {', '.join(missing)} "
                                        f"before the next SYNC (tick {tick}, t = "
                                        f"{t_tick:.3f} s)"))
 

@@ -5,7 +5,7 @@ A marker is a point of the plot's own first signal at the event's time (so it si
 curve, at the plot's scale) in a series per kind of event (``/markers/<plot>/<kind>``), its
 name in the plot's legend. Kinds: ``fault`` (``/events/<device>``, level ERROR),
 ``interrupt`` / ``error`` (``/events/harness``), ``warning`` (``/events/monitor``,
-``/events/bus``) and ``verdict`` (``/events/verdict``).
+``/events/can_log``) and ``verdict`` (``/events/verdict``).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ def event_kind(entity: str, level: str) -> str:
     source = entity.rstrip("/").rsplit("/", 1)[-1]
     if source == "verdict":
         return "verdict"
-    if source in ("monitor", "bus"):
+    if source in ("monitor", "can_log"):
         return "warning"
     if source == "harness":
         return "error" if level in ("ERROR", "CRITICAL") else "interrupt"
