@@ -12,6 +12,7 @@ import hashlib
 import importlib.metadata
 import json
 import subprocess
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -121,7 +122,7 @@ def read_channels(rrd: Path, wanted: set[str] | None = None
                   ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """The scalar channels of a recording on the ``time`` timeline (``wanted`` ones, or
     all), in one pass."""
-    from harness.recording_reader import RrdReader
+    from harness.recording_reader import RrdReader  # quiet on footer-less files
 
     parts: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
     for chunk in RrdReader(rrd).stream().to_chunks():
@@ -342,7 +343,7 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
     out = run_dir / "verdict.json"
     out.write_text(json.dumps(v.to_dict(), indent=2) + "\n")
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=run_dir.name)
-    rec.save(str(run_dir / "verdict.rrd"))
+    rec.save(str(run_dir / "verdict.rrd"), default_blueprint=_run_layout(run_dir))
     rec.log("/run/verdict", rr.TextDocument(verdict_markdown(v), media_type="text/markdown"),
             static=True)
     events = sorted((t, c) for c in v.criteria for t in c.violations_s)
@@ -350,9 +351,33 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
         rec.set_time("time", duration=t)
         rec.log("/events/verdict", rr.TextLog(f"{c.name} {c.verdict}: {c.message}",
                                               level="ERROR" if c.verdict == ERROR else "WARN"))
+    _mark_on_plots(rec, run_dir, [(t, f"VERDICT {c.name} {c.verdict}") for t, c in events])
     rec.flush()
     rec.disconnect()
     return out
+
+
+def _run_layout(run_dir: Path) -> Any:
+    """run.rrd's layout (harness.review), so the files open together in any order."""
+    try:
+        from harness.review.layouts import blueprint_for_run_dir
+
+        return blueprint_for_run_dir(run_dir)
+    except Exception:  # no config.yaml (a bare recording): the viewer keeps run.rrd's
+        return None
+
+
+def _mark_on_plots(rec: Any, run_dir: Path, events: list[tuple[float, str]]) -> None:
+    """The violations marked on the run's plots at the run's values (harness.review)."""
+    if not events or not (run_dir / "run.rrd").exists():
+        return
+    try:
+        from harness.review.events import mark_events
+
+        mark_events(rec, run_dir / "run.rrd", [(t, "verdict", name) for t, name in events])
+    except Exception as exc:  # the verdict stands without its markers
+        print(f"harness judge: could not mark the violations on the plots ({exc})",
+              file=sys.stderr)
 
 
 UNIT_TEXT = {"n_m": "N m", "m_s2": "m/s^2", "deg_s": "deg/s", "rad_s": "rad/s", "m_s": "m/s",
