@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.engine import current_worker, stop_requested
+from harness.paths import safe_child
 from harness.testing.checks import combine, judge_check
 from harness.testing.suite import Case
 
@@ -188,12 +189,16 @@ def probe_verdict(report: dict[str, Any]) -> dict[str, Any]:
                        f"probe OK on {report['bus']}", [crit])
 
 
-def _study(case: Case) -> dict[str, Any]:
+def _study(case: Case, out_dir: Path) -> dict[str, Any]:
+    """The study as a subprocess whose working directory is a folder of its own inside the
+    suite's output folder, so whatever it writes (its runs under ./logs) stays there."""
     cmd = [sys.executable, "-m", "harness", "study", case.study, "--json", *case.study_args]
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    workdir = safe_child(out_dir, f"study-{case.id}")
+    workdir.mkdir(parents=True, exist_ok=True)
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=case.timeout_s,
-                              env=env, check=False)
+                              env=env, check=False, cwd=workdir)
     except subprocess.TimeoutExpired:
         return _error(f"study {case.study}: no answer within {case.timeout_s:g} s")
     if proc.returncode != 0:
@@ -233,7 +238,7 @@ def run_case(case: Case, out_dir: str, ship: bool = False,
             res = _with_checks(res, [judge_check(c, report) for c in case.checks])
             out["items"] = {case.id: {**res, "document": report}}
         elif case.kind == "study":
-            out["items"] = {case.id: _study(case)}
+            out["items"] = {case.id: _study(case, tmp or Path(out_dir))}
         else:  # pragma: no cover - the suite loader allows no other kind
             raise ValueError(f"unknown case kind {case.kind}")
     except Exception as exc:  # noqa: BLE001 - every failure becomes the test's ERROR
