@@ -2,7 +2,9 @@
 
 Accepted: ``virtual:NAME`` (python-can's in-process bus; the default, what CI uses),
 ``socketcan:vcan0`` / ``socketcan:can0`` (Linux lab machines), and
-``socketcand:HOST:PORT`` (a virtual rig in its own process serving socketcand on loopback).
+``socketcand:HOST:PORT`` (a virtual rig in its own process serving socketcand on loopback)
+and ``unix:NAME`` (a virtual rig in its own process on a Unix-domain socket of this machine,
+``harness.unixbus``).
 python-can's ``udp_multicast`` interface is refused: it sends on the real network.
 """
 
@@ -59,6 +61,8 @@ def parse_bus(text: str) -> BusSpec:
         return BusSpec("virtual", rest)
     if interface == "socketcan":
         return BusSpec("socketcan", rest)
+    if interface == "unix":
+        return BusSpec("unix", rest)
     if interface == "socketcand":
         host, _, port = rest.rpartition(":")
         if host not in LOOPBACK_HOSTS or not port.isdigit():
@@ -67,7 +71,8 @@ def parse_bus(text: str) -> BusSpec:
             )
         return BusSpec("socketcand", "can0", host=host, port=int(port))
     raise BusSpecError(
-        f"--bus {text!r}: unknown interface {interface!r} (use virtual, socketcan or socketcand)"
+        f"--bus {text!r}: unknown interface {interface!r} (use virtual, socketcan, socketcand "
+        "or unix)"
     )
 
 
@@ -159,6 +164,10 @@ def open_bus(spec: BusSpec, receive_own_messages: bool = False) -> can.BusABC:
         if spec.interface == "socketcan":
             return can.Bus(interface="socketcan", channel=spec.channel,
                            receive_own_messages=receive_own_messages)
+        if spec.interface == "unix":
+            from harness.unixbus import UnixCanBus
+
+            return UnixCanBus(spec.channel)
         _quiet_socketcand_client()
         return can.Bus(interface="socketcand", channel=spec.channel, host=spec.host,
                        port=spec.port, tcp_tune=True)

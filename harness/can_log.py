@@ -3,10 +3,18 @@
 BLF (Vector binary logging format) is read by python-can (``can.BLFReader``/``can.LogReader``)
 and by common CAN tools. ``log()`` only queues the frame (a list append, in the tick's
 critical path); ``drain()`` hands queued frames to python-can's writer and runs where the
-loop drains the Rerun recording, outside the critical path. The writer buffers and
-compresses; ``close()`` drains and finalises the file, and the session calls it on every
-exit path (faults, errors, Ctrl-C). Frames are held in memory either way until the writer
-fills a block, so queueing loses nothing that the writer alone would have kept.
+loop drains the Rerun recording, outside the critical path. ``close()`` drains and finalises
+the file, and the session calls it on every exit path (faults, errors, Ctrl-C).
+
+Bounded memory and SIGKILL: python-can's ``BLFWriter`` holds frames until a container
+(``CONTAINER_BYTES`` uncompressed) is full, then compresses and writes it, and writes the
+file header's counts only in ``stop()``. Here every ``flush_every_s`` of frame time (and at
+each full container) the writer's buffer is written as a complete container and the file is
+flushed to the OS, so memory holds at most one container and, after a SIGKILL, the file is a
+sequence of whole containers behind a provisional header: python-can's ``BLFReader`` reads it
+to the last flushed container (it reads objects to the end of the file; the header's counts
+are not used), so only the frames since the last flush are lost (tested). Compression level 1
+keeps a container's compression well under a tick's slack.
 """
 
 from __future__ import annotations
@@ -16,11 +24,16 @@ from pathlib import Path
 import can
 from can.util import channel2int
 
+CONTAINER_BYTES = 32 * 1024
+
 
 class CanLog:
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, flush_every_s: float = 1.0) -> None:
         self.path = path
-        self._writer = can.BLFWriter(str(path))
+        self._writer = can.BLFWriter(str(path), compression_level=1,
+                                     max_container_size=CONTAINER_BYTES)
+        self.flush_every_s = flush_every_s
+        self._last_flush_ts: float | None = None
         self.frames = 0
         self._closed = False
         self._numbered: dict[object, bool] = {}
@@ -46,13 +59,32 @@ class CanLog:
             if channel is not None:
                 numbered = numbered_of.get(channel)
                 if numbered is None:
-                    numbered = numbered_of[channel] = channel2int(channel) is not None
+                    number = channel2int(channel)
+                    # BLF keeps a channel number in 16 bits
+                    numbered = numbered_of[channel] = number is not None and 0 <= number < 65535
                 if not numbered:
                     # a channel name without a number ("sgsrt") is written as the writer's
                     # default channel either way; dropping it skips python-can's regex
                     msg.channel = None
             write(msg)
+        if pending:
+            ts = pending[-1].timestamp
+            if self._last_flush_ts is None:
+                self._last_flush_ts = ts
+            elif ts - self._last_flush_ts >= self.flush_every_s:
+                self.flush()
+                self._last_flush_ts = ts
         return len(pending)
+
+    def flush(self) -> None:
+        """Write the writer's buffered frames as whole containers and flush the file."""
+        writer = self._writer
+        while writer._buffer_size > 0:  # python-can writes one container per call
+            before = writer._buffer_size
+            writer._flush()
+            if writer._buffer_size >= before:
+                break
+        writer.file.flush()
 
     def close(self) -> None:
         if not self._closed:

@@ -137,13 +137,20 @@ class LocalEngine:
         self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx,
                                          initializer=_init_local_worker,
                                          initargs=(self._event,))
+        self._futures: list[Future] = []
 
     def submit(self, fn: Callable[..., Any], /, *args: Any) -> TaskFuture:
-        return self._pool.submit(fn, *args)
+        fut = self._pool.submit(fn, *args)
+        self._futures.append(fut)
+        return fut
 
     def stop(self) -> None:
+        """Running jobs stop at their next tick; queued ones are cancelled. (Not
+        ``shutdown(wait=False)``: after it, ``close`` could no longer wait for the running
+        jobs to end.)"""
         self._event.set()
-        self._pool.shutdown(wait=False, cancel_futures=True)
+        for fut in self._futures:
+            fut.cancel()
 
     def close(self) -> None:
         self._pool.shutdown(wait=True, cancel_futures=True)

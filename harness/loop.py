@@ -8,6 +8,7 @@ disarmed; the caller then closes the recording and the CAN log.
 
 from __future__ import annotations
 
+import gc
 import math
 import sys
 import time
@@ -15,12 +16,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from harness.clock import LockstepClock, RealTimeClock
 from harness.recording import Recorder
 from harness.rig_interface import RigInterface
 from harness.state import RigCommand
+from harness.streaming import LatencyHistogram
 
 # what the loop records every tick (entity path = channel; the unit is in the name)
 CHANNELS = [
@@ -50,22 +50,29 @@ CHANNELS = [
 
 @dataclass
 class LoopStats:
+    """The loop's counters; lateness and work per tick are streaming histograms
+    (``harness.streaming.LatencyHistogram``: fixed memory for any run length)."""
+
     ticks: int = 0
     overruns: int = 0
-    lateness_s: list[float] = field(default_factory=list)
-    work_s: list[float] = field(default_factory=list)
+    lateness_s: LatencyHistogram = field(default_factory=LatencyHistogram)
+    work_s: LatencyHistogram = field(default_factory=LatencyHistogram)
     missing_frames: int = 0
+    # telemetry frames missing in ticks that were not themselves late (the loop held its
+    # deadline, the frame still did not come)
+    missing_frames_on_time: int = 0
     wall_s: float = 0.0
     stopped_by: str = "completed"
     error: str = ""
     faults: list[Any] = field(default_factory=list)
 
-    def percentiles_ms(self, values: list[float]) -> dict[str, float]:
-        if not values:
-            return {"p50": 0.0, "p99": 0.0, "max": 0.0}
-        a = np.asarray(values) * 1e3
-        return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
-                "max": float(a.max())}
+    def percentiles_ms(self, values: LatencyHistogram | list[float]) -> dict[str, float]:
+        if isinstance(values, LatencyHistogram):
+            return values.percentiles_ms()
+        hist = LatencyHistogram()
+        for v in values:
+            hist.add(v)
+        return hist.percentiles_ms()
 
 
 CAN_LOG_MAX_PENDING = 20_000
@@ -100,6 +107,9 @@ def run_loop(
     cmd = RigCommand()
     sent = RigCommand()
     progress_every = max(1, n_ticks // 20)
+    collect_young = realtime and not gc.isenabled()
+    collect_every = max(1, round(1.0 / dt_s))
+    next_collect = collect_every
     wall0 = perf()
     clock.start()
     tick = 0
@@ -130,8 +140,10 @@ def run_loop(
             work = perf() - t_start
             if realtime and clock.time_left(tick) < 0:
                 stats.overruns += 1
-            stats.lateness_s.append(lateness)
-            stats.work_s.append(work)
+            elif missing > 0 and lateness < 0.5 * dt_s:
+                stats.missing_frames_on_time += missing
+            stats.lateness_s.add(lateness)
+            stats.work_s.add(work)
             ref = reference(t_s)[0] if reference is not None else math.nan
             row = recorder.row(t_s)
             row[:] = (
@@ -159,6 +171,12 @@ def run_loop(
                     recorder.drain(1)
                     if can_log is not None:
                         can_log.drain()
+                    if collect_young and tick >= next_collect:
+                        # the collector is off during a real-time run (RealTimeSetup): its
+                        # young generations are collected here, in the slack, about once a
+                        # second, so cyclic garbage cannot accumulate over a long run
+                        gc.collect(1)
+                        next_collect = tick + collect_every
                 elif can_log is not None and can_log.pending > CAN_LOG_MAX_PENDING:
                     can_log.drain()  # a loop that never has time left still bounds memory
             else:

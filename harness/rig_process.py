@@ -14,8 +14,11 @@ the run directory.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import queue
 import re
+import secrets
 import signal
 import subprocess
 import sys
@@ -29,7 +32,7 @@ import yaml
 from rig_models.faults import FaultSpec
 from rig_models.rig_file import RigConfig
 
-READY = re.compile(r" on (socketcand:127\.0\.0\.1:\d+) ")
+READY = re.compile(r" on (socketcand:127\.0\.0\.1:\d+|unix:\S+) ")
 START_TIMEOUT_S = 60.0
 
 
@@ -55,7 +58,17 @@ class RigProcess:
     """Context manager: start the rig process, yield its bus spec, stop it."""
 
     def __init__(self, rig: RigConfig, rate_hz: float, run_dir: Path,
-                 faults: list[FaultSpec] | None = None, lifetime_s: float = 0.0) -> None:
+                 faults: list[FaultSpec] | None = None, lifetime_s: float = 0.0,
+                 transport: str = "tcp", cpu: int | None = None, priority: int = 0) -> None:
+        """``transport`` "tcp" (socketcand on 127.0.0.1) or "unix" (``harness.unixbus``);
+        ``cpu`` pins the rig process, ``priority`` > 0 asks SCHED_FIFO for it (both set
+        from here once it runs; what was granted or refused is in ``measures``)."""
+        if transport not in ("tcp", "unix"):
+            raise RigProcessError(f"rig process transport {transport!r}: expected tcp or unix")
+        self.transport = transport
+        self.cpu = cpu
+        self.priority = priority
+        self.measures: dict[str, list[str]] = {"applied": [], "refused": []}
         self.rig_file = run_dir / "rig.yaml"
         self.log_path = run_dir / "rig.log"
         self.rate_hz = rate_hz
@@ -67,8 +80,10 @@ class RigProcess:
         self._pump: threading.Thread | None = None
 
     def __enter__(self) -> str:
+        serve = (["--serve-socketcand", "0"] if self.transport == "tcp" else
+                 ["--serve-unix", f"{os.getpid()}-{secrets.token_hex(4)}"])
         cmd = [sys.executable, "-m", "harness", "virtual-rig", "--rig", str(self.rig_file),
-               "--serve-socketcand", "0", "--rate-hz", f"{self.rate_hz:g}", *self.fault_args]
+               *serve, "--rate-hz", f"{self.rate_hz:g}", *self.fault_args]
         if self.lifetime_s > 0:  # if the harness is killed, the rig still exits by itself
             cmd += ["--duration-s", f"{self.lifetime_s:g}"]
         self._log = self.log_path.open("w")
@@ -86,6 +101,7 @@ class RigProcess:
                         f"see {self.log_path}")
                 m = READY.search(line)
                 if m:
+                    self._apply_measures()
                     return m.group(1)
         except queue.Empty:
             self._stop()
@@ -94,6 +110,30 @@ class RigProcess:
         except BaseException:
             self._stop()
             raise
+
+    def _apply_measures(self) -> None:
+        assert self.proc is not None
+        pid = self.proc.pid
+        tasks = [pid]
+        with contextlib.suppress(OSError):  # every thread of the rig process
+            tasks = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+        if self.cpu is not None:
+            try:
+                for task in tasks:
+                    os.sched_setaffinity(task, {self.cpu})
+                self.measures["applied"].append(f"rig process cpu affinity {self.cpu}")
+            except OSError as exc:
+                self.measures["refused"].append(f"rig process cpu affinity {self.cpu}: {exc}")
+        if self.priority > 0:
+            try:  # the rig's main thread (the one serving the bus)
+                os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(self.priority))
+                self.measures["applied"].append(f"rig process SCHED_FIFO priority "
+                                                f"{self.priority}")
+            except OSError as exc:
+                self.measures["refused"].append(f"rig process SCHED_FIFO priority "
+                                                f"{self.priority}: {exc}")
+        for line in self.measures["refused"]:
+            print(f"harness: WARNING: real-time measure not granted: {line}", file=sys.stderr)
 
     def _copy_stderr(self, lines: queue.Queue[str | None]) -> None:
         assert self.proc is not None and self.proc.stderr is not None and self._log is not None

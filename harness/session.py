@@ -25,15 +25,20 @@ from drivers.dbc import load_protocol
 from harness.bus import BusSpec, open_bus, parse_bus
 from harness.busload import compute_bus_load
 from harness.can_log import CanLog
-from harness.clock import LockstepClock, RealTimeClock, RealTimeSetup
+from harness.clock import LockstepClock, RealTimeClock, RealTimeSetup, choose_cpus
 from harness.loop import CHANNELS, LoopStats, run_loop
 from harness.monitor import FaultMonitor
 from harness.paths import safe_child, safe_name
 from harness.periodic import steady_state_amplitude
-from harness.recording import Recorder
+from harness.recording import ChannelRanges, Recorder
+from harness.recording_reader import RecordedColumns
+from harness.review.bus import write_bus
+from harness.review.events import log_event
+from harness.review.layouts import layout_for_run, write_layout_file
 from harness.rig_interface import RigInterface
 from harness.rig_process import RigProcess
 from harness.runs import RunConfig, build_controller
+from harness.streaming import RunningSummary
 from rig_models.faults import FaultSpec
 from rig_models.schema import ConfigError
 from rig_models.virtual_rig import VirtualRig
@@ -57,6 +62,15 @@ class RunResult:
     stats: LoopStats
     recorder: Recorder
     virtual_rig: VirtualRig | None
+
+    def columns(self) -> RecordedColumns:
+        """The whole run's channels, read back from run.rrd (the recorder keeps only a
+        tail in memory)."""
+        cached = getattr(self, "_columns", None)
+        if cached is None:
+            cached = RecordedColumns(self.run_dir / "run.rrd")
+            object.__setattr__(self, "_columns", cached)
+        return cached
 
 
 def bus_load_of(run: RunConfig):  # noqa: ANN201 - BusLoad
@@ -110,19 +124,61 @@ def execute_run(
     controller = build_controller(run)
     run_dir = make_run_dir(out_dir, run.name)
     (run_dir / "config.yaml").write_text(yaml.safe_dump(run.resolved(), sort_keys=False))
+    rig_mode = virtual_rig_mode(run, spec, clock_name, rig_process,
+                                run.faults + list(faults or []))
     with contextlib.ExitStack() as stack:
-        if rig_process:
-            where = stack.enter_context(RigProcess(
-                run.rig, run.data["rate_hz"], run_dir, run.faults + list(faults or []),
-                lifetime_s=run.data["duration_s"] + 60.0))
+        rig_measures: dict[str, list[str]] = {}
+        if rig_mode.startswith("process"):
+            rt = run.data["realtime"]
+            rig_cpu = (rt["rig_cpu"] if rt["rig_cpu"] >= 0 else choose_cpus(rt["cpu"])[1]) \
+                if rt["pin_cpu"] else None
+            proc = RigProcess(run.rig, run.data["rate_hz"], run_dir,
+                              run.faults + list(faults or []),
+                              lifetime_s=run.data["duration_s"] + 60.0,
+                              transport="tcp" if rig_mode == "process-tcp" else "unix",
+                              cpu=rig_cpu,
+                              priority=rt["rig_priority"] if rt["sched_fifo"] else 0)
+            where = stack.enter_context(proc)
+            rig_measures = proc.measures
             spec = parse_bus(where)
             faults = []
         try:
-            return _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
-                            show_progress, dry_run, faults, should_stop)
+            result = _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
+                              show_progress, dry_run, faults, should_stop)
         except Exception as exc:  # the run raised: its directory can still be judged (ERROR)
             exc.run_dir = run_dir  # type: ignore[attr-defined]
             raise
+        result.summary["virtual_rig_mode"] = rig_mode
+        if rig_measures:
+            m = result.summary["realtime_measures"]
+            m["applied"] += rig_measures["applied"]
+            m["refused"] += rig_measures["refused"]
+            (run_dir / "summary.json").write_text(json.dumps(result.summary, indent=2))
+        return result
+
+
+REALTIME_RIG_DEFAULT = "process-unix"
+"""How a real-time run on the virtual bus runs the virtual rig unless its run file says
+(``realtime.virtual_rig``): chosen by benchmarks/bench_rig_options.py (docs/realtime.md)."""
+
+
+def virtual_rig_mode(run: RunConfig, spec: BusSpec, clock_name: str,
+                     rig_process: bool = False, faults: list[FaultSpec] | None = None) -> str:
+    """"lockstep" (pumped in the loop), "thread", "process-unix", "process-tcp", or
+    "external" (the bus is not the in-process virtual bus: the rig is elsewhere). "auto"
+    falls back to "thread" for a fault with a duration (a rig process cannot take one)."""
+    if not spec.in_process:
+        return "external"
+    if clock_name != "realtime":
+        return "lockstep"
+    if rig_process:
+        return "process-tcp"
+    mode = run.data["realtime"]["virtual_rig"]
+    if mode == "auto":
+        timed = any(f.duration_s > 0 for f in faults or [])
+        return "thread" if timed and REALTIME_RIG_DEFAULT.startswith("process") \
+            else REALTIME_RIG_DEFAULT
+    return mode
 
 
 def make_monitor(run: RunConfig, interface: RigInterface, realtime: bool) -> FaultMonitor:
@@ -146,8 +202,15 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
     rig_thread: threading.Thread | None = None
     stop_rig = threading.Event()
     can_log = CanLog(run_dir / "can.blf")
+    running = running_summary_for(run)
+    ranges = ChannelRanges(CHANNELS)
     recorder = Recorder(run_dir / "run.rrd", CHANNELS, run.n_ticks, f"{run_dir.name}",
-                        live_view_url=live_view_url)
+                        live_view_url=live_view_url, retain_rows=retain_rows_for(run),
+                        observers=[running.update, ranges.update],
+                        # lockstep outruns the file sink: wait for it every 10 blocks so its
+                        # queue stays bounded; real time never waits (the sink keeps up)
+                        flush_every_blocks=0 if clock_name == "realtime" else 10,
+                        blueprint=layout_for_run(run.resolved(), CHANNELS))
     pump = None
     stats = LoopStats()
     setup = RealTimeSetup()
@@ -164,7 +227,10 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
         if clock_name == "realtime":
             rt = run.data["realtime"]
             setup = RealTimeSetup().apply(rt["sched_fifo"], rt["priority"], rt["cpu"],
-                                          rt["lock_memory"], rt["gc_freeze"])
+                                          rt["lock_memory"], rt["gc_freeze"], rt["pin_cpu"])
+            for line in setup.refused:
+                recorder.log_event(0.0, "/events/harness",
+                                   f"real-time measure not granted: {line}", "WARN")
             loop_clock: LockstepClock | RealTimeClock = RealTimeClock(dt_s)
         else:
             loop_clock = LockstepClock(dt_s)
@@ -185,8 +251,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
             if show_progress:
                 print("", file=sys.stderr)
             summary = summarise(run, recorder, stats, load.percent, interface, clock_name,
-                                str(spec), setup, rig)
-            summary.update(periodic_summary(run, recorder, controller))
+                                str(spec), setup, rig, running)
+            summary.update(periodic_summary(run, recorder, controller, running))
             design_report = getattr(controller, "design_report", None)
             if callable(design_report):
                 summary["controller_design"] = design_report()
@@ -194,17 +260,82 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
             summary["faults"] = [f.to_dict() for f in stats.faults]
             summary["injected_faults"] = [vars(f) for f in (rig.injector.faults if rig else [])]
             (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+            _log_end(recorder, stats, summary, dt_s)
+            _final_layout(recorder, run, run_dir, ranges)
     finally:
         setup.restore()
         stop_rig.set()
         if rig_thread is not None:
             rig_thread.join(timeout=2.0)
-        recorder.close()
         can_log.close()
+        _log_bus(recorder, can_log.path, dt_s, clock_name == "realtime",
+                 run.rig.data["bus"]["sync_divider"])
+        recorder.close()
         harness_bus.shutdown()
         if rig_bus is not None:
             rig_bus.shutdown()
     return RunResult(run_dir, summary, stats, recorder, rig)
+
+
+def retain_rows_for(run: RunConfig) -> int:
+    """Rows the recorder keeps for the summary: the longer of the residual and the steady
+    windows, plus one tick."""
+    window = max(run.data["residual_window_s"], run.data["steady_window_s"])
+    return int(math.ceil(window * run.data["rate_hz"])) + 2
+
+
+def running_summary_for(run: RunConfig) -> RunningSummary:
+    return RunningSummary(CHANNELS, run.controller.get("angle_deg"),
+                          run.data["settle_band_deg"])
+
+
+def _log_end(recorder: Recorder, stats: LoopStats, summary: dict[str, Any],
+             dt_s: float) -> None:
+    """The summary as text, and the end of a run the loop did not log (Ctrl-C, an error)."""
+    try:
+        t_end = max(0, stats.ticks - 1) * dt_s
+        if stats.stopped_by == "error":
+            recorder.log_event(t_end, "/events/harness", stats.error, "ERROR")
+        elif stats.stopped_by == "interrupted" and not stats.error:
+            recorder.log_event(t_end, "/events/harness", "interrupted (Ctrl-C or SIGTERM)",
+                               "WARN")
+        elif stats.stopped_by == "completed":  # no marker: the log says how the run ended
+            log_event(recorder.rec, t_end, "/events/harness",
+                      f"completed: {stats.ticks} ticks", "INFO")
+        recorder.log_summary(summary)
+    except Exception as exc:  # never lose the run for its text
+        print(f"harness: could not write the summary to the recording ({exc})",
+              file=sys.stderr)
+
+
+def _final_layout(recorder: Recorder, run: RunConfig, run_dir: Path,
+                  channel_ranges: ChannelRanges) -> None:
+    """The run's layout with each plot's y axis on its recorded range (layout.json keeps the
+    ranges for identify.rrd and verdict.rrd, harness.review.layouts)."""
+    try:
+        ranges = channel_ranges.ranges()
+        write_layout_file(run_dir, ranges)
+        recorder.send_layout(layout_for_run(run.resolved(), CHANNELS, ranges))
+    except Exception as exc:  # the layout of the start stays
+        print(f"harness: could not write the run's final layout ({exc})", file=sys.stderr)
+
+
+def _log_bus(recorder: Recorder, blf: Path, dt_s: float, realtime: bool,
+             dividers: dict[str, int]) -> None:
+    """The CAN log decoded into the recording (harness.review.bus), after the run."""
+    try:
+        if not blf.exists():
+            return
+        bus = write_bus(recorder.rec, blf, dt_s, realtime, dividers)
+        for t_s, text in bus.warnings:
+            log_event(recorder.rec, t_s, "/events/bus", text, "WARN")
+        if bus.late_or_missing > len(bus.warnings):
+            log_event(recorder.rec, bus.warnings[-1][0], "/events/bus",
+                      f"{bus.late_or_missing} late or missing telemetry frames in all "
+                      f"(the first {len(bus.warnings)} listed)", "WARN")
+    except Exception as exc:  # the run's own recording is complete without it
+        print(f"harness: could not decode the CAN log into the recording ({exc})",
+              file=sys.stderr)
 
 
 def _settle_time(t: np.ndarray, err_deg: np.ndarray, band_deg: float) -> float | None:
@@ -217,27 +348,34 @@ def _settle_time(t: np.ndarray, err_deg: np.ndarray, band_deg: float) -> float |
 
 def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent: float,
               interface: RigInterface, clock_name: str, bus: str, setup: RealTimeSetup,
-              rig: VirtualRig | None) -> dict[str, Any]:
-    t = rec.time_s[: rec.rows]
-    angle = rec.column("/attitude/angle_deg")
-    ref = rec.column("/attitude/reference_deg")
+              rig: VirtualRig | None, running: RunningSummary | None = None) -> dict[str, Any]:
+    """The run's summary from streaming figures (``running``, fed every recorded block)
+    and the recorder's retained tail (the residual window); memory does not grow with the
+    run. Without ``running``, one is built from the retained tail."""
+    rec.finish_rows()
+    t = rec.tail_time()
+    if running is None:
+        running = running_summary_for(run)
+        running.update(t, np.column_stack([rec.column(c) for c in CHANNELS])
+                       if len(t) else np.zeros((0, len(CHANNELS))))
+    ix = {c: i for i, c in enumerate(CHANNELS)}
+    last = running.last_row
     accel = rec.column("/tip/accel_m_s2")
-    torque_cmd = rec.column("/wheel/torque_cmd_n_m")
-    torque_tlm = rec.column("/wheel/torque_n_m")
     ctrl = run.controller
     target_deg = ctrl.get("angle_deg")
-    has_ref = len(ref) > 0 and not np.all(np.isnan(ref))
-    err = (ref - angle) if has_ref else np.zeros_like(angle)
-    window = t >= (t[-1] - run.data["residual_window_s"]) if len(t) else t.astype(bool)
+    has_ref = running.has_ref
+    t_end = running.t_last if running.t_last is not None else 0.0
+    window = t >= (t_end - run.data["residual_window_s"])
     t_max = run.rig.section("reaction_wheel")["max_torque_n_m"]
     sim_time = stats.ticks * run.dt_s
-    slew_end = None
-    if has_ref and target_deg is not None:
-        reach = np.nonzero(np.abs(ref - target_deg) < 1e-9)[0]
-        slew_end = float(t[reach[0]]) if len(reach) else None
+    slew_end = running.reach_t if has_ref and target_deg is not None else None
     # settle: from then on the hub stays within the band around the slew's target
-    settle = (_settle_time(t, target_deg - angle, run.data["settle_band_deg"])
-              if target_deg is not None and len(t) else None)
+    settle = running.settle_t if target_deg is not None and running.rows else None
+    max_cmd = running.max_abs.get("/wheel/torque_cmd_n_m", math.nan)
+    max_tlm = running.max_abs.get("/wheel/torque_n_m", math.nan)
+    final_angle = last[ix["/attitude/angle_deg"]] if last is not None else None
+    final_err = (last[ix["/attitude/reference_deg"]] - last[ix["/attitude/angle_deg"]]
+                 if last is not None and has_ref else None)
     lat = stats.percentiles_ms(stats.lateness_s)
     work = stats.percentiles_ms(stats.work_s)
     malformed = sum(d.counters.malformed for d in interface.drivers.values())
@@ -252,22 +390,22 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
         "stopped_by": stats.stopped_by,
         "error": stats.error,
         "target_angle_deg": target_deg,
-        "final_angle_deg": f(angle[-1]) if len(angle) else None,
-        "final_angle_error_deg": f(err[-1]) if len(err) and has_ref else None,
+        "final_angle_deg": f(final_angle),
+        "final_angle_error_deg": f(final_err),
         "slew_profile_end_s": slew_end,
         "settle_time_s": settle,
         "settle_band_deg": run.data["settle_band_deg"],
-        "peak_tip_accel_m_s2": f(np.max(np.abs(accel))) if len(accel) else None,
+        "peak_tip_accel_m_s2": f(running.max_abs.get("/tip/accel_m_s2"))
+        if running.rows else None,
         "residual_tip_accel_m_s2": f(np.max(np.abs(accel[window]))) if len(accel) else None,
         "residual_tip_accel_rms_m_s2": f(np.sqrt(np.mean(accel[window] ** 2)))
         if len(accel) else None,
         "residual_window_s": run.data["residual_window_s"],
-        "max_wheel_torque_cmd_n_m": f(np.max(np.abs(torque_cmd))) if len(t) else 0.0,
-        "max_wheel_torque_measured_n_m": f(np.max(np.abs(torque_tlm))) if len(t) else 0.0,
+        "max_wheel_torque_cmd_n_m": f(max_cmd) if running.rows else 0.0,
+        "max_wheel_torque_measured_n_m": f(max_tlm) if running.rows else 0.0,
         "wheel_torque_limit_n_m": t_max,
-        "wheel_torque_within_limit": bool(len(t) == 0 or (
-            np.max(np.abs(torque_cmd)) <= t_max + 1e-9
-            and np.max(np.abs(torque_tlm)) <= t_max + 1e-5)),
+        "wheel_torque_within_limit": bool(running.rows == 0 or (
+            max_cmd <= t_max + 1e-9 and max_tlm <= t_max + 1e-5)),
         "overruns": stats.overruns,
         "lateness_ms": lat,
         "work_ms": work,
@@ -278,12 +416,13 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
             "unknown": interface.counters.unknown,
             "malformed": malformed,
             "missing": stats.missing_frames,
+            "missing_in_ticks_on_time": stats.missing_frames_on_time,
             "error_frames": interface.counters.error_frames,
         },
         "wall_time_s": round(stats.wall_s, 3),
         "simulated_time_s": round(sim_time, 6),
         "real_time_factor": round(sim_time / stats.wall_s, 2) if stats.wall_s > 0 else None,
-        "realtime_measures": {"applied": setup.applied, "refused": setup.refused},
+        "realtime_measures": setup.to_dict(),
         "virtual_rig": None if rig is None else {
             "watchdog_trips": rig.counters.watchdog_trips,
             "steps": rig.counters.steps,
@@ -293,16 +432,24 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
     }
 
 
-def periodic_summary(run: RunConfig, rec: Recorder, controller: object) -> dict[str, Any]:
+def periodic_summary(run: RunConfig, rec: Recorder, controller: object,
+                     running: RunningSummary | None = None) -> dict[str, Any]:
     """For runs with a periodic disturbance: the steady-state tip acceleration amplitude,
     defined as half the peak-to-peak of a least-squares fit of harmonics 1-15 of the rotor
-    frequency to the tip acceleration over the last ``steady_window_s`` (whole periods)."""
+    frequency to the tip acceleration over the last ``steady_window_s`` (whole periods).
+    The hub angle is detrended by the whole run's least-squares line (``running``, from
+    streaming sums) before its fit; the windows come from the recorder's retained tail."""
     period = getattr(controller, "period_s", None)
     if period is None or rec.rows < 10:
         return {}
-    t = rec.time_s[: rec.rows]
+    rec.finish_rows()
+    t = rec.tail_time()
+    if running is None:
+        running = running_summary_for(run)
+        running.update(t, np.column_stack([rec.column(c) for c in CHANNELS]))
+    angle = rec.column("/attitude/angle_deg")
     omega = 2 * math.pi / period
-    window = min(run.data["steady_window_s"], 0.5 * t[-1])
+    window = min(run.data["steady_window_s"], 0.5 * t[-1], t[-1] - t[0])
     law = controller.law  # type: ignore[attr-defined]
     return {
         "rotor_speed_rad_s": omega,
@@ -315,8 +462,7 @@ def periodic_summary(run: RunConfig, rec: Recorder, controller: object) -> dict[
         "steady_tip_accel_amplitude_m_s2": steady_state_amplitude(
             t, rec.column("/tip/accel_m_s2"), omega, window),
         "steady_angle_amplitude_deg": steady_state_amplitude(
-            t, rec.column("/attitude/angle_deg") - np.polyval(np.polyfit(
-                t, rec.column("/attitude/angle_deg"), 1), t), omega, window),
+            t, angle - running.angle_trend(t), omega, window),
     }
 
 

@@ -7,8 +7,10 @@ import base64
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
+import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -52,11 +54,14 @@ def write_suite(tmp: Path) -> Path:
         "name": "mini",
         "tests": [
             {"probe": {"duration_s": 0.3}},
-            {"run": "slew-rw", "duration_s": 4,
+            {"run": "slew-rw", "duration_s": 4, "own_expect": False,
              "expect": {"tracking": {"channel": "/attitude/error_deg", "max_abs_deg": 0.1}}},
             {"run": str(tight)},
+            {"run": "slew-rw", "name": "slew-marginal", "duration_s": 2, "own_expect": False,
+             "expect": {"near": {"channel": "/attitude/error_deg", "max_abs_deg": 1.0,
+                                 "marginal_deg": 0.9999}}},
             {"run": "case-a", "duration_s": 6, "variants": ["beta-0.6", "beta-1.0"],
-             "set": {"steady_window_s": 3},
+             "set": {"steady_window_s": 3}, "own_expect": False,
              "compare": [{"measure": "compensation_amplitude_n_m", "largest": "beta-1.0"}]},
         ],
     }
@@ -81,15 +86,19 @@ def test_suite_runs_with_verdicts_junit_and_report(mini):
     tree = ET.parse(tmp / "junit.xml")
     cases = {c.get("name"): c for c in tree.iter("testcase")}
     # one testcase per run / variant (plus the probe and the comparison)
-    assert set(cases) == {"probe", "slew-rw", "slew-rw-tight", "case-a[beta-0.6]",
-                          "case-a[beta-1.0]", "compare[case-a]"}
+    assert set(cases) == {"probe", "slew-rw", "slew-rw-tight", "slew-marginal",
+                          "case-a[beta-0.6]", "case-a[beta-1.0]", "compare[case-a]"}
     failures = {n: c.find("failure") for n, c in cases.items() if c.find("failure") is not None}
     assert list(failures) == ["slew-rw-tight"]
     message = failures["slew-rw-tight"].get("message")
     assert message.startswith("FAIL") and "tracking" in message and "1e-06" in message
     assert not any(c.find("error") is not None for c in cases.values())
     # progress: one line per finished test with N/M
-    assert re.search(r"\[\d/6\] FAIL +mini::slew-rw-tight", proc.stderr)
+    assert re.search(r"\[\d/7\] FAIL +mini::slew-rw-tight", proc.stderr)
+    # MARGINAL passes in pytest, with its verdict as a JUnit property
+    marginal = cases["slew-marginal"]
+    assert marginal.find("failure") is None and marginal.find("error") is None
+    assert marginal.find("properties/property").get("value") == "MARGINAL"
     folder = suite_dir_of(out, "mini")
     results = json.loads((folder / "results.json").read_text())
     assert results["exit_code"] == 1 and results["verdict"] == "FAIL"
@@ -191,6 +200,58 @@ def test_json_checks_and_comparisons():
     assert cmp["verdict"] == "FAIL" and "x 3 is largest" in cmp["message"]
 
 
+def test_exit_code_is_the_most_severe():
+    from harness.testing.plugin import exit_code
+
+    def recs(*pairs):
+        return [{"verdict": v, "exit_code": c} for v, c in pairs]
+
+    assert exit_code(recs(("PASS", 0), ("MARGINAL", 5))) == 5
+    assert exit_code(recs(("MARGINAL", 5), ("FAIL", 1))) == 1
+    assert exit_code(recs(("FAIL", 1), ("ERROR", 4))) == 4
+    assert exit_code(recs(("ERROR", 3), ("FAIL", 1))) == 3
+    assert exit_code(recs(("ERROR", 4), ("ERROR", 3))) == 3
+    assert exit_code(recs(("ERROR", 2), ("ERROR", 3))) == 2
+    assert exit_code(recs(("ERROR", 130), ("ERROR", 2))) == 130
+    assert exit_code(recs(("SKIPPED", None), ("PASS", 0))) == 0
+    assert exit_code([{"verdict": "ERROR", "exit_code": 130, "reported": False},
+                      {"verdict": "FAIL", "exit_code": 1}]) == 1
+
+
+def test_a_study_that_fails_to_run_is_an_error(tmp_path):
+    from harness.testing.suite import Case
+    from harness.testing.work import run_case
+
+    case = Case(id="study-nope", kind="study", suite="s", test="study-nope", where="w",
+                study="nope")
+    out = run_case(case, str(tmp_path))
+    res = out["items"]["study-nope"]
+    assert res["verdict"] == "ERROR" and "harness study nope exited 2" in res["reason"]
+
+
+def test_interrupt_stops_the_runs_at_a_tick_and_exits_130(tmp_path):
+    suite = tmp_path / "long.yaml"
+    suite.write_text(yaml.safe_dump({"name": "long", "tests": [
+        {"run": "slew-rw", "own_expect": False,
+         "matrix": {"controller.torque_fraction": [0.5, 0.6]}}]}))
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "harness", "test", str(suite), "--out",
+                             str(out)], stderr=subprocess.PIPE, text=True, env=ENV)
+    deadline = time.monotonic() + 120
+    while not list(out.glob("*-long/*-slew-rw-*/run.rrd")) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err[-2000:]
+    folder = suite_dir_of(out, "long")
+    summaries = [json.loads(p.read_text()) for p in folder.glob("*/summary.json")]
+    assert summaries and all(s["stopped_by"] == "interrupted" for s in summaries)
+    assert all(s["ticks"] < 25001 for s in summaries)
+    results = json.loads((folder / "results.json").read_text())
+    assert results["exit_code"] == 130 and results["interrupted"]
+    assert results["tests"] and all(t["reported"] is False for t in results["tests"])
+
+
 def test_real_bus_refuses_when_the_probe_fails(tmp_path):
     """A rig in its own process whose hub sensor is silent: the pre-flight probe fails, no
     test arms anything (no run directory), every test is an error naming the probe."""
@@ -212,8 +273,39 @@ def test_real_bus_refuses_when_the_probe_fails(tmp_path):
     assert results["refused"] and not results["preflight"]["ok"]
     assert {t["verdict"] for t in results["tests"]} == {"ERROR"}
     errors = [c.find("error") for c in ET.parse(tmp_path / "j.xml").iter("testcase")]
-    assert len(errors) == 6 and all(e is not None and "hub_sensor: silent" in e.get("message")
+    assert len(errors) == 7 and all(e is not None and "hub_sensor: silent" in e.get("message")
                                     for e in errors)
+
+
+def test_real_bus_runs_one_at_a_time_after_a_good_probe(tmp_path):
+    """A healthy rig in its own process (socketcand on 127.0.0.1) as the 'real' bus: the
+    probe passes, the runs go over that bus on the real-time clock, inline, and the
+    fault-injection test is skipped."""
+    from harness.rig_process import RigProcess
+    from rig_models.rig_file import load_rig
+
+    suite = tmp_path / "on-rig.yaml"
+    suite.write_text(yaml.safe_dump({"name": "rig", "tests": [
+        {"run": "slew-rw", "name": "hold", "duration_s": 1.0, "own_expect": False,
+         "set": {"rate_hz": 100, "monitor": {"realtime_grace_s": 0.5}},
+         "expect": {"safe": {"left_safe": True}}},
+        {"run": "slew-rw", "name": "fault", "duration_s": 1.0, "own_expect": False,
+         "set": {"rate_hz": 100},
+         "faults": [{"kind": "silent_sensor", "at_s": 0.5, "device": "hub_sensor"}]}]}))
+    out = tmp_path / "out"
+    with RigProcess(load_rig("sgsrt"), 100.0, tmp_path, [], lifetime_s=120) as where:
+        proc = harness_test(str(suite), "--bus", where, "--out", str(out),
+                            "--junit", str(tmp_path / "j.xml"))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "pre-flight probe OK" in proc.stderr and "on inline" in proc.stderr
+    results = json.loads((suite_dir_of(out, "rig") / "results.json").read_text())
+    by_item = {t["item"]: t for t in results["tests"]}
+    assert by_item["hold"]["verdict"] == "PASS" and by_item["fault"]["verdict"] == "SKIPPED"
+    summary = json.loads((suite_dir_of(out, "rig") / by_item["hold"]["run_dir"]
+                          / "summary.json").read_text())
+    assert summary["clock"] == "realtime" and summary["bus"].startswith("socketcand:")
+    cases = {c.get("name"): c for c in ET.parse(tmp_path / "j.xml").iter("testcase")}
+    assert cases["fault"].find("skipped") is not None
 
 
 def test_builtin_suites_load_and_list():

@@ -28,7 +28,7 @@ def cluster():
 def test_suite_runs_on_two_dask_workers(tmp_path, cluster):
     suite = tmp_path / "cl.yaml"
     suite.write_text(yaml.safe_dump({"name": "cl", "tests": [
-        {"run": "slew-rw", "duration_s": 2,
+        {"run": "slew-rw", "duration_s": 2, "own_expect": False,
          "matrix": {"controller.torque_fraction": [0.5, 0.6, 0.7, 0.8]},
          "expect": {"safe": {"left_safe": True}}}]}))
     out = tmp_path / "out"

@@ -163,7 +163,7 @@ def test_oppf_gains_come_from_the_optimiser_with_eq7_met():
 def _ringing(result, channel: str = "/piezo/sensor_ch1_v") -> float:
     from harness.studies.hu2006_rig import firing_ringing
 
-    rec = result.recorder
+    rec = result.columns()
     return firing_ringing(rec.time_s[: rec.rows], rec.column("/thrusters/valve_cmd"),
                           rec.column(channel))
 

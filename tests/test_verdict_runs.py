@@ -294,3 +294,29 @@ def test_every_built_in_run_states_its_criteria():
             assert len(crits) >= 4, name
             assert all(c.why for c in crits), name
             assert any(c.kind == "left_safe" for c in crits), name
+
+
+def test_built_in_slew_passes_and_a_tightened_copy_fails_or_is_marginal(slew_result, tmp_path,
+                                                                        capsys):
+    """The full built-in slew-rw judged by its own criteria, then by copies of its run file
+    with one limit tightened beyond what the slew needs (its profile alone peaks at 0.052 N
+    m), and with a marginal band the measured peak (0.0532 N m) falls in."""
+    d = Path(shutil.copytree(slew_result.run_dir, tmp_path / slew_result.run_dir.name))
+    assert main(["judge", str(d)]) == 0, capsys.readouterr().out
+    raw = yaml.safe_load((RUNS_DIR / "slew-rw.yaml").read_text())
+    tight = tmp_path / "tight.yaml"
+    raw["expect"]["wheel_torque"]["max_n_m"] = 0.04
+    tight.write_text(yaml.safe_dump(raw))
+    capsys.readouterr()
+    assert main(["judge", str(d), "--expect", str(tight)]) == 1
+    out = capsys.readouterr().out
+    v = verdict_of(d)
+    [c] = [c for c in v["criteria"] if c["verdict"] != "PASS"]
+    assert c["name"] == "wheel_torque" and c["limit"] == {"max_n_m": 0.04}
+    assert c["value"] == pytest.approx(0.0532, abs=5e-4)
+    assert v["reason"].startswith("wheel_torque: max_wheel_torque_cmd_n_m = 0.05")
+    assert "outside max_n_m 0.04" in out and "VERDICT FAIL (exit 1)" in out
+    raw["expect"]["wheel_torque"].update(max_n_m=0.065, marginal_n_m=0.013)
+    tight.write_text(yaml.safe_dump(raw))
+    assert main(["judge", str(d), "--expect", str(tight)]) == 5
+    assert verdict_of(d)["verdict"] == "MARGINAL"

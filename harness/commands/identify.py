@@ -5,7 +5,8 @@ decay, interpolated) and a parametric fit of the free decay (matrix pencil, then
 least squares) with damping and 1-sigma uncertainties.
 
 Free-decay windows. For a run directory they come from its config.yaml: after a wheel pulse,
-one window from its end; after ``wheel_bursts``, one window in every zero-torque gap that a
+one window from its end; after ``wheel_bursts`` (or
+``valve_bursts``), one window in every zero-torque gap that a
 burst's ``free_decay_s`` leaves before the next burst, and one from the end of the last burst
 to the end of the record (each window starts 0.1 s after its burst, for the wheel's torque
 lag). Each window is fitted on its own. Windows after bursts of the same nominal frequency
@@ -28,7 +29,9 @@ parametric fit is the estimate.
 
 The model's true hub-free modes of the run's rig are printed beside ours (each identified
 mode against the nearest model mode). The spectra and the picked peaks are written to
-``identify.rrd`` in the run directory (open it together with run.rrd: same recording id).
+``identify.rrd`` in the run directory, as bar charts over frequency in Hz with every mode
+marked, with the run's own layout: open it together with run.rrd (same recording id), in
+either order (docs/review.md).
 """
 
 from __future__ import annotations
@@ -77,10 +80,10 @@ def analysis_windows(cfg: dict[str, Any] | None) -> list[AnalysisWindow] | None:
     c = cfg.get("run", {}).get("controller", {})
     if c.get("type") == "wheel_pulse":
         return [AnalysisWindow(float(c["start_s"] + c["width_s"] + SETTLE_S))]
-    if c.get("type") == "wheel_bursts":
+    if c.get("type") in ("wheel_bursts", "valve_bursts"):
         from harness.controllers.registry import WheelBursts, _bursts
 
-        wb = WheelBursts(c["torque_n_m"], c["start_s"], _bursts(c))
+        wb = WheelBursts(c.get("torque_n_m", 1.0), c["start_s"], _bursts(c))
         wins = [AnalysisWindow(t0 + SETTLE_S, t1, omega) for t0, t1, omega in wb.free_intervals
                 if t1 - t0 > 2 * SETTLE_S]
         return [*wins, AnalysisWindow(wb.end_s + SETTLE_S, None, wb.last_omega_rad_s)]
@@ -101,41 +104,14 @@ def model_modes(cfg: dict[str, Any] | None) -> dict[str, list[float]] | None:
     return {"omega_rad_s": wn.tolist(), "damping_ratio": zeta.tolist()}
 
 
-def write_spectrum_rrd(run_dir: Path, result: MultiWindowResult) -> Path:
-    """The long window's spectrum at /identify/spectrum (and its peaks), every other
-    window's at /identify/windows/<k>, the identified modes at their damped frequency."""
-    import rerun as rr
-    import rerun.blueprint as rrb
+def write_spectrum_rrd(run_dir: Path, result: MultiWindowResult,
+                       modes: list[dict[str, Any]] | None = None,
+                       cfg: dict[str, Any] | None = None) -> Path:
+    """identify.rrd in the run directory (harness.review.spectrum): the spectra over
+    frequency in Hz, every mode marked, the modes' table, with the run's own layout."""
+    from harness.review.spectrum import write_identify_rrd
 
-    path = run_dir / "identify.rrd"
-    rec = rr.RecordingStream("sgsrt-harness", recording_id=run_dir.name)
-    bp = rrb.Blueprint(rrb.Spatial2DView(origin="/identify", name="Spectrum (Hz, m/s^2)"))
-    rec.save(str(path), default_blueprint=bp)
-    f_top = max((m.freq_hz for m in result.modes), default=1.0)
-    primary = result.primary
-    for k, res in enumerate(result.results):
-        sp = res.spectrum
-        sel = sp.freq_hz <= max(10.0, 3 * f_top)
-        pts = np.column_stack([sp.freq_hz[sel], sp.amplitude[sel]])
-        if res is primary:
-            rec.log("/identify/spectrum", rr.LineStrips2D([pts], colors=[[80, 160, 255]]),
-                    static=True)
-            peaks = np.array([[p.freq_hz, p.amplitude] for p in res.fft_peaks]).reshape(-1, 2)
-            rec.log("/identify/fft_peaks", rr.Points2D(
-                peaks, radii=0.02, colors=[[255, 80, 80]],
-                labels=[f"{p.omega_rad_s:.4f} rad/s" for p in res.fft_peaks]), static=True)
-        else:
-            rec.log(f"/identify/windows/{k}", rr.LineStrips2D(
-                [pts], colors=[[255, 170, 60]],
-                labels=[f"window {k} {result.windows[k].label()}"]), static=True)
-    fits = np.array([[m.omega_damped_rad_s / (2 * math.pi), 0.0] for m in result.modes])
-    rec.log("/identify/fitted_modes", rr.Points2D(
-        fits.reshape(-1, 2), radii=0.03, colors=[[60, 200, 60]],
-        labels=[f"fit {m.omega_rad_s:.4f} rad/s, zeta {m.damping_ratio:.4f}"
-                for m in result.modes]), static=True)
-    rec.flush()
-    rec.disconnect()
-    return path
+    return write_identify_rrd(run_dir / "identify.rrd", run_dir, result, modes, cfg)
 
 
 def _window_arg(text: str) -> tuple[float, float | None]:
@@ -201,7 +177,7 @@ def identify_record(t: np.ndarray, a: np.ndarray, cfg: dict[str, Any] | None,
                 m["damping_ratio"] / truth["damping_ratio"][i] - 1)
     out["paper_003_table1_rad_s"] = PAPER_TABLE1
     if run_dir is not None:
-        out["spectrum_rrd"] = str(write_spectrum_rrd(run_dir, result))
+        out["spectrum_rrd"] = str(write_spectrum_rrd(run_dir, result, out["modes"], cfg))
     return out
 
 

@@ -47,9 +47,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dry-run", action="store_true",
                    help="read every sensor, never send a command frame (actuators stay at rest)")
     p.add_argument("--rig-process", action="store_true",
-                   help="real-time runs on the virtual bus: run the virtual rig as its own "
-                   "process (socketcand on 127.0.0.1) instead of a thread of this one, so the "
-                   "loop does not share the interpreter lock with the physics")
+                   help="real-time runs on the virtual bus: the virtual rig's own process "
+                   "serves socketcand on 127.0.0.1 (TCP, the lab's kind of transport) instead "
+                   "of the default Unix-domain socket (run file realtime.virtual_rig)")
     p.add_argument("--view", nargs="?", const="rerun+http://127.0.0.1:9876/proxy",
                    metavar="URL", help="also stream to a Rerun viewer you started with "
                    "'rerun --bind 127.0.0.1' (default URL rerun+http://127.0.0.1:9876/proxy)")

@@ -86,26 +86,50 @@ def save_plots(path_maps: Path, path_curves: Path, lambdas: np.ndarray, betas: n
     plt.close(fig)
 
 
+SWEEP_TIMELINE = "lambda_x1000"
+
+
+def sweep_blueprint() -> object:
+    """The sweep's layout (harness.review.layouts.study_layout): per output, the amplitude
+    and its log10 against lambda (one curve per beta), the lambda x beta maps, and the
+    description."""
+    from harness.review.layouts import study_layout
+
+    curves = {}
+    for out, title in zip(OUTPUTS, ("tip acceleration amplitude (m/s^2)",
+                                    "tip deflection amplitude (m)"), strict=True):
+        curves[f"{title[0].upper()}{title[1:]} vs lambda x 1000, one curve per beta"] = [
+            f"/sweep/curves/{out}/**"]
+        curves[f"log10 {title} vs lambda x 1000"] = [f"/sweep/log10/{out}/**"]
+    return study_layout(
+        curves, SWEEP_TIMELINE, texts={"Sweep": "/sweep/about"},
+        tensors={"Tip acceleration amplitude map (m/s^2) [lambda x beta]":
+                 "/sweep/map/tip_accel_m_s2",
+                 "Tip deflection amplitude map (m) [lambda x beta]":
+                 "/sweep/map/tip_deflection_m"})
+
+
 def save_rrd(path: Path, name: str, lambdas: np.ndarray, betas: np.ndarray,
              amps: np.ndarray) -> None:
     import rerun as rr
-    import rerun.blueprint as rrb
 
     rec = rr.RecordingStream("sgsrt-harness", recording_id=name)
-    bp = rrb.Blueprint(rrb.Horizontal(
-        rrb.TensorView(origin="/sweep/map/tip_accel_m_s2", name="accel map [lambda x beta]"),
-        rrb.TensorView(origin="/sweep/map/tip_deflection_m", name="deflection map"),
-        rrb.TimeSeriesView(origin="/sweep/curves", name="amplitude vs lambda (per beta)")))
-    rec.save(str(path), default_blueprint=bp)
+    rec.save(str(path), default_blueprint=sweep_blueprint())
     for o, out in enumerate(OUTPUTS):
         rec.log(f"/sweep/map/{out}", rr.Tensor(amps[:, :, o], dim_names=["lambda", "beta"]),
                 static=True)
         for j, b in enumerate(betas):
-            rec.send_columns(
-                f"/sweep/curves/{out}/beta_{b:.2f}",
-                indexes=[rr.TimeColumn("lambda_x1000", sequence=np.round(lambdas * 1000)
-                                       .astype(np.int64))],
-                columns=rr.Scalars.columns(scalars=amps[:, j, o]))
+            index = [rr.TimeColumn(SWEEP_TIMELINE, sequence=np.round(lambdas * 1000)
+                                   .astype(np.int64))]
+            rec.send_columns(f"/sweep/curves/{out}/beta_{b:.2f}", indexes=index,
+                             columns=rr.Scalars.columns(scalars=amps[:, j, o]))
+            rec.send_columns(f"/sweep/log10/{out}/beta_{b:.2f}", indexes=index,
+                             columns=rr.Scalars.columns(scalars=np.log10(amps[:, j, o])))
+    rec.log("/sweep/about", rr.TextDocument(
+        f"# Sweep {name}\n\nx axis: the `{SWEEP_TIMELINE}` timeline, lambda = w_m / w_ref "
+        f"times 1000 ({lambdas[0]:g} to {lambdas[-1]:g}, {len(lambdas)} points); one curve "
+        f"per beta = U / A ({betas[0]:g} to {betas[-1]:g}, {len(betas)} values). Maps: "
+        "rows lambda, columns beta.", media_type="text/markdown"), static=True)
     rec.flush()
     rec.disconnect()
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -64,6 +65,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-v", "--verbose", action="store_true", help="pytest's verbose output")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_test)
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
 
 
 def cmd_test(args: argparse.Namespace) -> int:
@@ -132,7 +137,11 @@ def cmd_test(args: argparse.Namespace) -> int:
         pargs.append(f"--junitxml={args.junit}")
     if args.collect_only:
         pargs.append("--collect-only")
-    ret = pytest.main(pargs, plugins=[plugin])
+    previous = signal.signal(signal.SIGTERM, _terminate)  # SIGTERM stops the suite as Ctrl-C
+    try:
+        ret = pytest.main(pargs, plugins=[plugin])
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     if ret == pytest.ExitCode.INTERRUPTED:
         return 130
     if ret == pytest.ExitCode.USAGE_ERROR:
@@ -147,7 +156,7 @@ def cmd_test(args: argparse.Namespace) -> int:
     code = exit_code(plugin.records) if plugin.records else (2 if plugin.refused else 4)
     if code == 0 and ret != pytest.ExitCode.OK:
         code = 4  # a failure outside any verdict (the plugin itself)
-    verdicts = [r["verdict"] for r in plugin.records]
+    verdicts = [r["verdict"] for r in plugin.records if r.get("reported", True)]
     counts = ", ".join(f"{v} {verdicts.count(v)}" for v in
                        ("PASS", "MARGINAL", "FAIL", "ERROR", "SKIPPED") if v in verdicts)
     print(f"harness test: {names}: {counts or 'nothing run'}; exit {code}; report "

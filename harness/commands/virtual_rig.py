@@ -2,7 +2,9 @@
 
 On a Linux lab machine it joins a SocketCAN channel (``--bus socketcan:vcan0``); on a machine
 without SocketCAN it serves the socketcand protocol on 127.0.0.1 (``--serve-socketcand
-PORT``) and the harness connects with ``--bus socketcand:127.0.0.1:PORT``.
+PORT``) and the harness connects with ``--bus socketcand:127.0.0.1:PORT``; ``--serve-unix
+NAME`` serves a Unix-domain socket of this machine (``--bus unix:NAME``, the cheaper
+transport a real-time run uses for its own rig process, see docs/realtime.md).
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     where.add_argument("--bus", help="INTERFACE:CHANNEL to join, e.g. socketcan:vcan0")
     where.add_argument("--serve-socketcand", type=int, metavar="PORT",
                        help="serve socketcand on 127.0.0.1:PORT (0: pick a free port)")
+    where.add_argument("--serve-unix", metavar="NAME",
+                       help="serve a Unix-domain socket bus NAME (abstract namespace)")
     p.add_argument("--rate-hz", type=float, default=500.0,
                    help="the harness loop rate: one physics step per SYNC (default 500)")
     p.add_argument("--duration-s", type=float, default=0.0,
@@ -46,6 +50,11 @@ def cmd_virtual_rig(args: argparse.Namespace) -> int:
 
             bus = SocketcandServerBus(host="127.0.0.1", port=args.serve_socketcand)
             where = f"socketcand:127.0.0.1:{bus.port}"
+        elif args.serve_unix is not None:
+            from harness.unixbus import UnixCanServerBus
+
+            bus = UnixCanServerBus(args.serve_unix)
+            where = f"unix:{args.serve_unix}"
         else:
             spec = parse_bus(args.bus)
             if spec.in_process:

@@ -29,19 +29,24 @@ from typing import Any
 import numpy as np
 
 from harness.shaping.impulse_shapers import ImpulseSequence, ShapedCommand, ei, multi_mode, zv, zvd
+from harness.shaping.robust import mode_band, si_for_band
 from harness.state import RigCommand, RigState
 from rig_models.rig_file import RigConfig
 from rig_models.schema import Field
 
-SHAPERS = ("none", "zv", "zvd", "ei")
+SHAPERS = ("none", "zv", "zvd", "ei", "si")
 
 
 @dataclass(frozen=True)
 class Mode:
-    """A vibration mode: undamped natural frequency (rad/s) and damping ratio."""
+    """A vibration mode: undamped natural frequency (rad/s) and damping ratio, and
+    optionally their 1-sigma uncertainties (from the identification; used by the ``si``
+    shaper's band)."""
 
     omega_rad_s: float
     damping_ratio: float = 0.0
+    sigma_omega_rad_s: float = 0.0
+    sigma_damping: float = 0.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.omega_rad_s) and self.omega_rad_s > 0):
@@ -51,31 +56,44 @@ class Mode:
             raise ValueError(f"damping_ratio: expected a value in [0, 1), got "
                              f"{self.damping_ratio!r}")
 
+        for name in ("sigma_omega_rad_s", "sigma_damping"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name}: expected a value >= 0, got {v!r}")
+
     def scaled(self, factor: float) -> Mode:
-        return Mode(self.omega_rad_s * factor, self.damping_ratio)
+        return Mode(self.omega_rad_s * factor, self.damping_ratio,
+                    self.sigma_omega_rad_s * factor, self.sigma_damping)
 
 
 def parse_modes(raw: Any, name: str = "modes") -> tuple[Mode, ...]:
-    """Modes from a run file: a list of {omega_rad_s: rad/s, damping_ratio: -}."""
+    """Modes from a run file: a list of {omega_rad_s: rad/s, damping_ratio: -} (optionally
+    with ``sigma_omega_rad_s`` and ``sigma_damping``, the identification's 1-sigma)."""
     if not isinstance(raw, list) or not raw:
         raise ValueError(f"{name}: expected a non-empty list of {{omega_rad_s, damping_ratio}}")
     out = []
+    keys = {"omega_rad_s", "damping_ratio", "sigma_omega_rad_s", "sigma_damping"}
     for i, m in enumerate(raw):
-        if not isinstance(m, dict) or not set(m) <= {"omega_rad_s", "damping_ratio"} \
-                or "omega_rad_s" not in m:
-            raise ValueError(f"{name}[{i}]: expected {{omega_rad_s: rad/s, damping_ratio: -}}, "
-                             f"got {m!r}")
+        if not isinstance(m, dict) or not set(m) <= keys or "omega_rad_s" not in m:
+            raise ValueError(f"{name}[{i}]: expected {{omega_rad_s: rad/s, damping_ratio: -"
+                             f"[, sigma_omega_rad_s: rad/s, sigma_damping: -]}}, got {m!r}")
         try:
-            out.append(Mode(float(m["omega_rad_s"]), float(m.get("damping_ratio", 0.0))))
+            out.append(Mode(float(m["omega_rad_s"]), float(m.get("damping_ratio", 0.0)),
+                            float(m.get("sigma_omega_rad_s", 0.0)),
+                            float(m.get("sigma_damping", 0.0))))
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{name}[{i}]: {exc}") from exc
     return tuple(out)
 
 
 def design_shaper(kind: str, modes: Sequence[Mode], mode_scale: float = 1.0,
-                  ei_tolerance: float = 0.05) -> ImpulseSequence:
+                  ei_tolerance: float = 0.05, si_tolerance: float = 0.05,
+                  band_sigmas: float = 3.0, band_min_rel: float = 0.05) -> ImpulseSequence:
     """Multi-mode shaper: one ``kind`` shaper per mode (frequencies x ``mode_scale``),
-    convolved. ``kind`` 'none' gives the identity (one unit impulse at 0)."""
+    convolved. ``kind`` 'none' gives the identity (one unit impulse at 0). ``si``: a
+    specified-insensitivity shaper per mode keeping the residual below ``si_tolerance`` over
+    the mode's band, +-max(``band_sigmas`` sigma, ``band_min_rel``) in frequency and
+    +-``band_sigmas`` sigma in damping (``harness.shaping.robust``)."""
     if kind not in SHAPERS:
         raise ValueError(f"shaper: expected one of {SHAPERS}, got {kind!r}")
     if not (math.isfinite(mode_scale) and mode_scale > 0):
@@ -84,6 +102,10 @@ def design_shaper(kind: str, modes: Sequence[Mode], mode_scale: float = 1.0,
         return ImpulseSequence(np.array([0.0]), np.array([1.0]))
     if not modes:
         raise ValueError(f"modes: shaper {kind} needs at least one mode")
+    if kind == "si":
+        return multi_mode([si_for_band(mode_band(
+            m.omega_rad_s * mode_scale, m.damping_ratio, m.sigma_omega_rad_s * mode_scale,
+            m.sigma_damping, band_sigmas, band_min_rel), si_tolerance) for m in modes])
     single = {"zv": zv, "zvd": zvd,
               "ei": lambda w, z: ei(w, z, ei_tolerance)}[kind]
     return multi_mode([single(m.omega_rad_s * mode_scale, m.damping_ratio) for m in modes])
@@ -203,6 +225,12 @@ SHAPED_WHEEL_SLEW_SCHEMA = {
     "mode_scale": Field("number", default=1.0, exclusive_minimum=0.0),
     "ei_tolerance_percent": Field("number", "%", default=5.0, exclusive_minimum=0.0,
                                   maximum=50.0),
+    # shaper si: residual below si_tolerance_percent over each mode's band, +-max(band_sigmas
+    # x its sigma_omega_rad_s, band_min_percent) in frequency, +-band_sigmas x sigma_damping
+    "si_tolerance_percent": Field("number", "%", default=5.0, exclusive_minimum=0.0,
+                                  maximum=50.0),
+    "band_sigmas": Field("number", default=3.0, minimum=0.0),
+    "band_min_percent": Field("number", "%", default=5.0, minimum=0.0, maximum=50.0),
 }
 
 
@@ -215,7 +243,8 @@ def build_shaped_wheel_slew(c: dict[str, Any], rig: RigConfig, dt_s: float) -> S
     if c["shaper"] != "none" or c["modes"] is not None:
         modes = parse_modes(c["modes"])
     shaper = design_shaper(c["shaper"], modes, c["mode_scale"],
-                           c["ei_tolerance_percent"] / 100.0)
+                           c["ei_tolerance_percent"] / 100.0, c["si_tolerance_percent"] / 100.0,
+                           c["band_sigmas"], c["band_min_percent"] / 100.0)
     return ShapedWheelSlew(math.radians(c["angle_deg"]), rig.plant.inertia_kg_m2,
                            c["torque_n_m"], c["start_s"], dt_s, shaper, c["shaper"])
 

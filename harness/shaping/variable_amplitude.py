@@ -39,22 +39,38 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import NonlinearConstraint, minimize
 from scipy.sparse.linalg import LinearOperator
 
-from rig_models.reference.wang2022_spacecraft import (
-    Wang2022Spacecraft,
+from rig_models.quaternion import (
     euler_321_to_quaternion,
     quaternion_angle_error,
     quaternion_multiply,
 )
 
 FloatArray = NDArray[np.float64]
+
+
+class FlexibleSpacecraft(Protocol):
+    """What the variable-amplitude design needs of a spacecraft model (paper 004's
+    ``rig_models.reference.wang2022_spacecraft.Wang2022Spacecraft`` is one, passed in by the
+    study): its modes, and its rigid-flexible coupling as the appendages turn."""
+
+    modal_omega: FloatArray  # rad/s, one per mode
+    modal_damping: FloatArray  # damping ratio, one per mode
+
+    def wing_angle(self, t: ArrayLike) -> FloatArray: ...
+
+    def coupling_rows(self, gamma: ArrayLike) -> FloatArray: ...
+
+    def inertia_and_coupling(self, t: float) -> tuple[FloatArray, FloatArray]: ...
+
 
 __all__ = [
     "FeedforwardTorque",
@@ -118,7 +134,7 @@ class ManeuverSpec:
         return euler_321_to_quaternion(self.target_euler_rad)
 
 
-def grid_multiples(model: Wang2022Spacecraft, spec: ManeuverSpec) -> list[int]:
+def grid_multiples(model: FlexibleSpacecraft, spec: ManeuverSpec) -> list[int]:
     """m_p = T_p / dt for the shaped modes (eq 24); each must be an even integer."""
     if spec.shaper == "none":
         return []
@@ -139,7 +155,7 @@ def grid_multiples(model: Wang2022Spacecraft, spec: ManeuverSpec) -> list[int]:
     return out
 
 
-def _mid_couplings(model: Wang2022Spacecraft, spec: ManeuverSpec) -> FloatArray:
+def _mid_couplings(model: FlexibleSpacecraft, spec: ManeuverSpec) -> FloatArray:
     """C^T at mid-interval wing angles, shape (n, 6, 3)."""
     n = spec.n_intervals
     t_mid = (np.arange(n) + 0.5) * spec.dt_s
@@ -159,7 +175,7 @@ def _class_rows(length: int, k_factor: float, shaper: str) -> FloatArray:
     return np.array(out)
 
 
-def vibration_constraint_matrix(model: Wang2022Spacecraft, spec: ManeuverSpec) -> sp.csr_matrix:
+def vibration_constraint_matrix(model: FlexibleSpacecraft, spec: ManeuverSpec) -> sp.csr_matrix:
     """Sparse rows (eqs 24-27) acting on chi flattened axis-major (x[axis * n + i])."""
     n = spec.n_intervals
     if spec.shaper == "none":
@@ -372,7 +388,7 @@ class _NullSpaceProjector:
 
 
 def solve_variable_amplitude(
-    model: Wang2022Spacecraft,
+    model: FlexibleSpacecraft,
     spec: ManeuverSpec,
     *,
     maxiter: int = 100,
@@ -504,7 +520,7 @@ def _modal_response(
 
 
 def _modal_states(
-    model: Wang2022Spacecraft, profile: VariableAmplitudeProfile, damping: FloatArray
+    model: FlexibleSpacecraft, profile: VariableAmplitudeProfile, damping: FloatArray
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     spec = profile.spec
     n = spec.n_intervals
@@ -520,7 +536,7 @@ def _modal_states(
 
 
 def design_modal_states(
-    model: Wang2022Spacecraft, profile: VariableAmplitudeProfile
+    model: FlexibleSpacecraft, profile: VariableAmplitudeProfile
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Design-model modal states at the grid (n+1, 6) each, and the modal forces (n, 6).
 
@@ -532,7 +548,7 @@ def design_modal_states(
 
 
 def prescribed_motion_residual(
-    plant: Wang2022Spacecraft, profile: VariableAmplitudeProfile
+    plant: FlexibleSpacecraft, profile: VariableAmplitudeProfile
 ) -> FloatArray:
     """Vibration amplitude of each plant mode left at t_f when the body follows the plan.
 
@@ -562,7 +578,7 @@ class FeedforwardTorque:
     times where tau jumps (pass them to the simulator).
     """
 
-    def __init__(self, design_model: Wang2022Spacecraft, profile: VariableAmplitudeProfile):
+    def __init__(self, design_model: FlexibleSpacecraft, profile: VariableAmplitudeProfile):
         self.model = design_model
         self.profile = profile
         self._eta, self._deta, self._force = design_modal_states(design_model, profile)
@@ -604,7 +620,7 @@ class PathTrackingTorque:
     the slew, so the residual vibration then moves the free body.
     """
 
-    def __init__(self, plant: Wang2022Spacecraft, profile: VariableAmplitudeProfile):
+    def __init__(self, plant: FlexibleSpacecraft, profile: VariableAmplitudeProfile):
         self.plant = plant
         self.profile = profile
         self._acc = profile.acceleration

@@ -3,7 +3,7 @@ through the harness over CAN (run files ``harness/runs/thruster-*.yaml``).
 
 Each run is executed with ``harness.session.execute_run`` (virtual rig in lockstep, every
 frame through python-can, recordings in ``--out``). The table is computed from what the
-harness recorded (``RunResult.recorder``, the same columns as ``run.rrd``):
+harness recorded (``RunResult.columns()``, read back from ``run.rrd``):
 
 - settle time: from the slew start, the hub stays within the run's ``settle_band_deg`` (1 % of
   the slew, as in ``harness study hu2006``);
@@ -150,7 +150,7 @@ class VibrationEnergyEstimator:
 
 def recorded_energy(result: RunResult, rig: RigConfig, dt_s: float) -> np.ndarray:
     """Estimated vibration energy at every tick of a run, from its recorded columns."""
-    rec = result.recorder
+    rec = result.columns()
     est = VibrationEnergyEstimator(rig, dt_s)
     n_ch = len(rig.piezo_gains)
     meas = np.column_stack(
@@ -185,7 +185,7 @@ def firing_ringing(t: np.ndarray, valve_cmd: np.ndarray, signal: np.ndarray,
 # ----------------------------------------------------------------------------- one run
 def analyse_run(result: RunResult, run: RunConfig) -> dict[str, Any]:
     """The table's row for one run, from its recorder (the columns of run.rrd)."""
-    rec = result.recorder
+    rec = result.columns()
     s = result.summary
     ctrl = run.controller
     t = rec.time_s[: rec.rows]

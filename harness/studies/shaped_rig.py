@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -41,8 +40,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import scipy.linalg as sla
 
+from harness.calibration.residual import fit_modal_residual, true_residual
 from harness.controllers.shaped_wheel_slew import Mode, parse_modes
 from harness.controllers.thruster_two_level import damped_residual_percent
 from harness.runs import RunConfig, build_controller, load_run
@@ -93,71 +92,6 @@ THRUSTER_SLEWS = (
 # --------------------------------------------------------------------------- residuals
 
 
-def fit_modal_residual(t: np.ndarray, accel: np.ndarray, modes: Sequence[Mode],
-                       t0_s: float) -> dict[str, float]:
-    """Least-squares fit of the modes' free decay to ``accel`` over t >= t0 (pure).
-
-    Model: c + sum_k exp(-zeta w tau) (a_k cos(w_d tau) + b_k sin(w_d tau)), tau = t - t0.
-    Returns the peak and rms of the fitted modal part, its worst 1-sigma uncertainty, the
-    rms of what the fit leaves (the noise) and, per mode, its amplitude at t0 (the envelope
-    sqrt(a_k^2 + b_k^2)) with its 1-sigma (first order)."""
-    t = np.asarray(t, dtype=float)
-    a = np.asarray(accel, dtype=float)
-    sel = t >= t0_s - 1e-9
-    if np.count_nonzero(sel) < 4 * len(modes) + 8:
-        raise ValueError(f"t0_s {t0_s}: too few samples after it to fit {len(modes)} modes")
-    tau, y = t[sel] - t0_s, a[sel]
-    cols = [np.ones_like(tau)]
-    for m in modes:
-        wd = m.omega_rad_s * math.sqrt(1 - m.damping_ratio**2)
-        env = np.exp(-m.damping_ratio * m.omega_rad_s * tau)
-        cols += [env * np.cos(wd * tau), env * np.sin(wd * tau)]
-    x = np.column_stack(cols)
-    coef, *_ = np.linalg.lstsq(x, y, rcond=None)
-    left = y - x @ coef
-    dof = max(1, len(y) - x.shape[1])
-    cov = float(left @ left) / dof * np.linalg.inv(x.T @ x)
-    xm = x[:, 1:]
-    modal = xm @ coef[1:]
-    var = np.einsum("ij,jk,ik->i", xm, cov[1:, 1:], xm)
-    by_mode = []
-    for k in range(len(modes)):
-        i = 1 + 2 * k
-        ab = coef[i:i + 2]
-        amp = float(np.hypot(*ab))
-        grad = ab / amp if amp > 0 else np.array([1.0, 0.0]) / math.sqrt(2)
-        by_mode.append({"amplitude_m_s2": amp,
-                        "sigma_m_s2": float(np.sqrt(grad @ cov[i:i + 2, i:i + 2] @ grad))})
-    return {"peak_m_s2": float(np.max(np.abs(modal))),
-            "rms_m_s2": float(np.sqrt(np.mean(modal**2))),
-            "sigma_m_s2": float(np.sqrt(np.max(var))),
-            "noise_rms_m_s2": float(np.sqrt(float(left @ left) / dof)),
-            "by_mode_at_start": by_mode}
-
-
-def true_residual(rig: Any, t0_s: float) -> dict[str, float]:
-    """Noise-free tip acceleration of a virtual rig over [t0, its last tick]: its final state
-    propagated back to t0 through the free plant, then forward tick by tick."""
-    dt = rig.dt_s
-    n = int(round((rig.time_s - t0_s) / dt))
-    if n < 1:
-        raise ValueError(f"t0_s {t0_s}: not before the rig's last tick {rig.time_s}")
-    a_cont = rig.rig.plant.a
-    x = sla.expm(-a_cont * n * dt) @ rig.x
-    c, ad = rig.plant.c[2], rig.plant.ad
-    # each hub-free mode's share at t0: envelope 2 |c v_i z_i| of its pole pair
-    poles, vec = np.linalg.eig(a_cont)
-    share = 2 * np.abs((c @ vec) * np.linalg.solve(vec, x))
-    osc = np.nonzero(poles.imag > 1e-9)[0]
-    by_mode = [float(share[i]) for i in osc[np.argsort(np.abs(poles[osc]))]]
-    out = np.empty(n + 1)
-    for k in range(n + 1):
-        out[k] = c @ x
-        x = ad @ x
-    return {"peak_m_s2": float(np.max(np.abs(out))), "rms_m_s2": float(np.sqrt(np.mean(out**2))),
-            "by_mode_at_start_m_s2": by_mode}
-
-
 # --------------------------------------------------------------------------- runs
 
 
@@ -197,7 +131,7 @@ def measure(slew: Slew, out_dir: Path, modes: Sequence[Mode] | None = None,
     if s["stopped_by"] != "completed":
         raise RuntimeError(f"{run.name}: stopped by {s['stopped_by']}: {s['error']} "
                            f"{s['faults']}")
-    rec = result.recorder
+    rec = result.columns()
     t = rec.time_s[: rec.rows]
     accel = rec.column("/tip/accel_m_s2")
     analysis_modes = parse_modes(run.controller["modes"])

@@ -200,14 +200,16 @@ class SuitePlugin:
             "variant": case.variant if case else None,
             "point": case.point if case else {},
             "verdict": res["verdict"], "reason": res["reason"],
+            "reported": res.get("reported", True),
             "criteria": res.get("criteria", []), "exit_code": res.get("exit_code"),
             "wall_s": out.get("wall_s") if out else None,
             "worker": out.get("worker") if out else None,
             "run_dir": out.get("run_dir") if out else None,
         }
-        for k in ("modes", "document"):
-            if k in res and k != "document":
-                rec[k] = res[k]
+        if "modes" in res:
+            rec["modes"] = res["modes"]
+        if "document" in res and item.item_kind in ("probe", "study"):
+            rec["document"] = res["document"]
         if out and out.get("summary") and item.item_kind == "run":
             s = out["summary"]
             rec["summary"] = {k: s.get(k) for k in (
@@ -229,10 +231,21 @@ class SuitePlugin:
 
         reported = {r["nodeid"] for r in self.records}
         not_run = [i.nodeid for i in self.selected if i.nodeid not in reported]
+        for item in self.selected:  # stopped early (-x, Ctrl-C): what finished anyway
+            if item.nodeid in reported or item.case is None:
+                continue
+            fut = self.futures.get(item.case_key)
+            if fut is None or not fut.done() or fut.cancelled():
+                continue
+            out = self.output(item.case_key)
+            res = out["items"].get(item.name)
+            if res is not None:
+                self.record(item, {**res, "reported": False}, out)
         write_reports(self.out_dir, self.records, not_run=not_run, suites=list(
             self.suites.values()), engine=self.engine_name, bus=self.bus,
             preflight=self.preflight, refused=self.refused,
-            wall_s=time.perf_counter() - self.t0)
+            wall_s=time.perf_counter() - self.t0,
+            interrupted=exitstatus == pytest.ExitCode.INTERRUPTED)
 
 
 class SuiteFile(pytest.File):
@@ -287,11 +300,13 @@ class SuiteItem(pytest.Item):
             res = item_result("ERROR", plugin.refused, exit_code=2)
             self.result = res
             plugin.record(self, res, None)
+            plugin._count(f"ERROR    {self.suite.name}::{self.name}: refused")
             raise SuiteError(plugin.refused)
         if plugin.real_bus and any(c.virtual_only for c in self.cases()):
             res = item_result("PASS", "skipped: injects faults, needs the virtual rig",
                               skipped=True)
             plugin.record(self, {**res, "verdict": "SKIPPED"}, None)
+            plugin._count(f"SKIPPED  {self.suite.name}::{self.name}: needs the virtual rig")
             pytest.skip("injects faults in the virtual rig; not on a real bus "
                         f"({plugin.bus})")
         if self.compare is not None:
@@ -362,6 +377,6 @@ def exit_code(records: list[dict[str, Any]]) -> int:
     """The exit code of the most severe test: interrupted 130, refused 2, ERROR by a fault
     nobody expected 3, ERROR 4, FAIL 1, MARGINAL 5, PASS 0."""
     codes = [r.get("exit_code") if r.get("exit_code") is not None else EXIT[r["verdict"]]
-             for r in records if r["verdict"] != "SKIPPED"]
+             for r in records if r["verdict"] != "SKIPPED" and r.get("reported", True)]
     return min(codes, key=lambda c: EXIT_ORDER.index(c) if c in EXIT_ORDER else 3,
                default=0)

@@ -135,7 +135,6 @@ def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dic
     rrd = run_dir / "run.rrd"
     if not rrd.is_file():
         return []
-    data = read_channels(rrd)
     try:
         specs = channel_specs(run_dir, criteria_results)
     except (OSError, ValueError, KeyError) as exc:
@@ -143,6 +142,7 @@ def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dic
         note = f"criteria not readable: {exc}"
     else:
         note = ""
+    data = read_channels(rrd, {s["channel"] for s in specs} | set(OVERVIEW))
     plots = []
     for s in specs:
         if s["channel"] not in data:
@@ -199,11 +199,12 @@ def _counts(records: list[dict[str, Any]]) -> dict[str, int]:
 def write_reports(out_dir: Path, records: list[dict[str, Any]], *, not_run: list[str],
                   suites: list[Any], engine: str, bus: str | None,
                   preflight: dict[str, Any] | None, refused: str | None,
-                  wall_s: float) -> dict[str, Any]:
+                  wall_s: float, interrupted: bool = False) -> dict[str, Any]:
     from harness.testing.plugin import exit_code
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    verdicts = [r["verdict"] for r in records if r["verdict"] != "SKIPPED"]
+    verdicts = [r["verdict"] for r in records
+                if r["verdict"] != "SKIPPED" and r.get("reported", True)]
     doc = {
         "suites": [{"name": s.name, "description": s.description, "source": str(s.source)}
                    for s in suites],
@@ -211,7 +212,9 @@ def write_reports(out_dir: Path, records: list[dict[str, Any]], *, not_run: list
         "engine": engine, "bus": bus or "virtual (each run's own)",
         "wall_time_s": round(wall_s, 2),
         "verdict": worst(verdicts) if verdicts else ("ERROR" if refused else "PASS"),
-        "exit_code": exit_code(records) if records else (2 if refused else 0),
+        "exit_code": 130 if interrupted else (
+            exit_code(records) if records else (2 if refused else 0)),
+        "interrupted": interrupted,
         "counts": _counts(records), "refused": refused, "preflight": preflight,
         "not_run": not_run, "tests": records,
     }
@@ -255,7 +258,8 @@ def _markdown(doc: dict[str, Any]) -> str:
     out += [_md_table([[r["item"], r["verdict"], _fmt(r["wall_s"]), r["reason"]]
                        for r in doc["tests"]], ["test", "verdict", "time (s)", "reason"]), ""]
     if doc["not_run"]:
-        out += ["Not run (stopped early): " + ", ".join(doc["not_run"]), ""]
+        out += ["Not reported (the suite stopped early; finished ones are listed with "
+                "reported false): " + ", ".join(doc["not_run"]), ""]
     for r in doc["tests"]:
         out += [f"## {r['item']}: {r['verdict']}", "", r["reason"], ""]
         if r.get("run_dir"):
@@ -324,8 +328,8 @@ def _html(doc: dict[str, Any], out_dir: Path) -> str:
                      "<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in rows)
                  + "</table>")
     if doc["not_run"]:
-        parts.append("<p>Not run (stopped early): " + html.escape(", ".join(doc["not_run"]))
-                     + "</p>")
+        parts.append("<p>Not reported (the suite stopped early): "
+                     + html.escape(", ".join(doc["not_run"])) + "</p>")
     for r in doc["tests"]:
         parts.append(f"<section id='{_anchor(r['item'])}'><h2>{html.escape(r['item'])} "
                      f"{_badge(r['verdict'])}</h2>")
@@ -334,9 +338,12 @@ def _html(doc: dict[str, Any], out_dir: Path) -> str:
         parts.append(f"<p class='reason'>{html.escape(r['reason'])}</p>")
         if r.get("run_dir"):
             d = html.escape(r["run_dir"])
+            extra = (f" &middot; <a href='{d}/identify.json'>identify.json</a> &middot; "
+                     f"<a href='{d}/identify.rrd'>identify.rrd</a>"
+                     if r["kind"] == "identify" else "")
             parts.append(f"<p><a href='{d}/run.rrd'>run.rrd</a> &middot; <a href='{d}/can.blf'>"
-                         f"can.blf</a> &middot; <a href='{d}/verdict.json'>verdict.json</a> "
-                         f"&middot; <a href='{d}/'>{d}/</a></p>")
+                         f"can.blf</a> &middot; <a href='{d}/verdict.json'>verdict.json</a>"
+                         f"{extra} &middot; <a href='{d}/'>{d}/</a></p>")
         if r["criteria"]:
             parts.append(_html_table(_criteria_rows(r["criteria"]), HEADER, verdict_col=6))
         if r.get("modes"):

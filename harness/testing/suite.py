@@ -9,6 +9,8 @@ A suite is a YAML file (built-ins in ``harness/suites/``, ``harness test --list`
       - probe: {duration_s: 1}               # every device answers (never arms)
       - run: slew-rw                         # a run file: built-in name or path
         expect: ...                          # extra criteria, added to the run file's expect
+        own_expect: true                     # false: only this test's expect (a fault test
+                                             # built on a run whose criteria no longer apply)
       - run: case-a
         variants: [beta-0.6, beta-1.0]       # default: every variant of the run file
         matrix: {controller.torque_fraction: [0.6, 0.8]}   # cartesian product of overrides
@@ -60,7 +62,7 @@ SUITES_DIR = Path(__file__).resolve().parent.parent / "suites"
 CHECK_RULES = ("min", "max", "max_abs", "equals", "len_min", "len_max")
 TEST_KEYS = {
     "run": ("name", "description", "run", "variants", "matrix", "set", "duration_s",
-            "expect", "faults", "virtual_only", "identify", "compare", "check"),
+            "expect", "own_expect", "faults", "virtual_only", "identify", "compare", "check"),
     "probe": ("name", "description", "probe", "check"),
     "study": ("name", "description", "study", "args", "check", "timeout_s"),
 }
@@ -199,6 +201,8 @@ def _set_path(data: dict[str, Any], dotted: str, value: Any) -> None:
 
 
 def _merge_expect(base: Any, extra: Any) -> Any:
+    if extra is None:
+        return copy.deepcopy(base)
     if base is None:
         return copy.deepcopy(extra)
     if isinstance(base, list) and isinstance(extra, list):
@@ -253,6 +257,9 @@ def _run_cases(t: dict[str, Any], where: str, suite: str, base_dir: Path) -> lis
     faults = t.get("faults")
     if faults is not None and not isinstance(faults, list):
         raise _err(f"{where}.faults", "expected a list of {kind, at_s, device?, ...}")
+    own_expect = t.get("own_expect", True)
+    if not isinstance(own_expect, bool):
+        raise _err(f"{where}.own_expect", f"expected true or false, got {own_expect!r}")
     virtual_only = t.get("virtual_only", False)
     if not isinstance(virtual_only, bool):
         raise _err(f"{where}.virtual_only", f"expected true or false, got {virtual_only!r}")
@@ -291,8 +298,12 @@ def _run_cases(t: dict[str, Any], where: str, suite: str, base_dir: Path) -> lis
                 over["duration_s"] = _number(t["duration_s"], f"{where}.duration_s", "s")
             if faults:
                 over["faults"] = [*(raw.get("faults") or []), *copy.deepcopy(faults)]
-            if "expect" in t:
-                over["expect"] = _merge_expect(raw.get("expect"), t["expect"])
+            if "expect" in t or not own_expect:
+                # the run file's criteria with the variant's changes, then the suite's
+                base = _merge_expect(raw.get("expect"), over.get("expect"))
+                if not own_expect:  # a null criterion is removed (load_run deep-merges)
+                    base = dict.fromkeys(base, None) if isinstance(base, dict) else None
+                over["expect"] = _merge_expect(base, t.get("expect"))
             case_id = f"{name}[{','.join(labels)}]" if labels else name
             over["name"] = safe_name("-".join([name, *(lb.replace("=", "-") for lb in labels)]))
             try:

@@ -26,7 +26,6 @@ from pathlib import Path
 from typing import Any
 
 from harness.engine import current_worker, stop_requested
-from harness.paths import safe_name
 from harness.testing.checks import combine, judge_check
 from harness.testing.suite import Case
 
@@ -65,6 +64,13 @@ def _judge(run_dir: Path) -> dict[str, Any]:
     return {**v.to_dict(), "exit_code": v.exit_code}
 
 
+def private_channel() -> str:
+    """A virtual bus of this job's own. python-can's virtual channels are per process: a
+    worker running two jobs at once (a Dask worker with several threads) must not join them
+    on one channel. (No trailing digits: the BLF writer reads them as a channel number.)"""
+    return f"virtual:job-{uuid.uuid4().hex[:12]}-sgsrt"
+
+
 def _run(case: Case, out_dir: Path, bus: str | None) -> tuple[dict[str, Any], Path | None]:
     from harness.bus import BusSpecError, parse_bus
     from harness.rig_process import RigProcessError
@@ -76,12 +82,10 @@ def _run(case: Case, out_dir: Path, bus: str | None) -> tuple[dict[str, Any], Pa
     try:
         run = load_run(case.run, case.overrides)
         clock = None
-        if bus is not None and not parse_bus(bus).in_process:
+        if parse_bus(bus or run.data["bus"]).in_process:
+            bus = private_channel()
+        else:
             clock = "realtime"  # a rig in its own process, or the real one: its own time
-        elif bus is None and parse_bus(run.data["bus"]).in_process:
-            # python-can's virtual channels are per process: a worker running two jobs at
-            # once (a Dask worker with several threads) must not join them on one channel
-            bus = f"virtual:{safe_name(case.suite)}-{uuid.uuid4().hex[:12]}"
         result = execute_run(run, out_dir=out_dir, bus=bus, clock=clock, show_progress=False,
                              should_stop=stop_requested)
     except (ConfigError, BusSpecError, RunRefused, RigProcessError) as exc:
@@ -145,6 +149,8 @@ def run_probe(opts: dict[str, Any], bus: str | None, rig: str = "sgsrt") -> dict
     from rig_models.virtual_rig import VirtualRig
 
     spec = parse_bus(bus or "virtual:sgsrt")
+    if spec.in_process:
+        spec = parse_bus(private_channel())
     rig_cfg = load_rig(rig)
     rate = float(opts.get("rate_hz", 100.0))
     buses = [open_bus(spec)]

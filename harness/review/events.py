@@ -1,0 +1,167 @@
+"""Events in a recording: the text log under ``/events/<source>`` and a marker on every time
+plot at the event's time, and the run's summary as a markdown table.
+
+A marker is a point of the plot's own first signal at the event's time (so it sits on the
+curve, at the plot's scale) in a series per kind of event (``/markers/<plot>/<kind>``), its
+name in the plot's legend. Kinds: ``fault`` (``/events/<device>``, level ERROR),
+``interrupt`` / ``error`` (``/events/harness``), ``warning`` (``/events/monitor``,
+``/events/bus``) and ``verdict`` (``/events/verdict``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import rerun as rr
+
+from harness.review.layouts import PLOTS
+
+MARKER_STYLE: dict[str, tuple[str, tuple[int, int, int], float]] = {
+    # kind: (marker shape, colour, size in ui points)
+    "fault": ("cross", (230, 20, 20), 14.0),
+    "error": ("cross", (230, 20, 20), 14.0),
+    "interrupt": ("diamond", (255, 140, 0), 12.0),
+    "warning": ("up", (240, 190, 0), 10.0),
+    "verdict": ("asterisk", (200, 0, 200), 14.0),
+}
+MAX_LABEL = 48
+
+
+def event_kind(entity: str, level: str) -> str:
+    source = entity.rstrip("/").rsplit("/", 1)[-1]
+    if source == "verdict":
+        return "verdict"
+    if source in ("monitor", "bus"):
+        return "warning"
+    if source == "harness":
+        return "error" if level in ("ERROR", "CRITICAL") else "interrupt"
+    return "fault" if level in ("ERROR", "CRITICAL") else "warning"
+
+
+def marker_name(kind: str, text: str) -> str:
+    """The legend's name of a marker: the kind and the event's source and what happened
+    (``FAULT hub_sensor: silent``), not its whole message (that is in the event log)."""
+    head = ": ".join(text.split(": ")[:2])
+    label = f"{kind.upper()} {head}"
+    return label if len(label) <= MAX_LABEL else label[: MAX_LABEL - 3] + "..."
+
+
+def log_event(rec: rr.RecordingStream, time_s: float, entity: str, text: str,
+              level: str = "WARN", values: Mapping[str, float] | None = None,
+              name: str | None = None) -> None:
+    """``text`` as a TextLog at ``entity`` (``/events/...``) at ``time_s`` on the ``time``
+    timeline, and a marker on every plot whose first signal's value at that time is in
+    ``values`` (channel -> value; NaN and missing channels are skipped)."""
+    rec.set_time("time", duration=time_s)
+    rec.log(entity, rr.TextLog(text, level=level))
+    if values:
+        kind = event_kind(entity, level)
+        log_markers(rec, time_s, kind, name or marker_name(kind, text), values)
+
+
+def log_markers(rec: rr.RecordingStream, time_s: float, kind: str, name: str,
+                values: Mapping[str, float]) -> int:
+    """One marker per plot at ``time_s`` (see module docstring); returns how many."""
+    shape, colour, size = MARKER_STYLE.get(kind, MARKER_STYLE["warning"])
+    rec.set_time("time", duration=time_s)
+    n = 0
+    for plot in PLOTS.values():
+        value = next((values[c] for c in plot.channels
+                      if c in values and not math.isnan(values[c])), None)
+        if value is None:
+            continue
+        rec.log(f"{plot.marker_path}/{kind}", rr.Scalars(float(value)), rr.SeriesPoints(
+            names=name, markers=shape, colors=[colour], marker_sizes=size))
+        n += 1
+    return n
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "-"
+        return f"{v:.6g}"
+    if isinstance(v, dict):
+        return ", ".join(f"{k} {_fmt(x)}" for k, x in v.items())
+    if isinstance(v, list):
+        return "; ".join(_fmt(x) for x in v) if v else "none"
+    return str(v).replace("|", "\\|").replace("\n", " ")
+
+
+# the rows of the summary table, in this order (others follow under "More")
+SUMMARY_ROWS: tuple[tuple[str, str], ...] = (
+    ("stopped_by", "ended by"),
+    ("error", "error"),
+    ("clock", "clock"),
+    ("bus", "bus"),
+    ("rate_hz", "rate (Hz)"),
+    ("simulated_time_s", "simulated time (s)"),
+    ("target_angle_deg", "target angle (deg)"),
+    ("final_angle_deg", "final angle (deg)"),
+    ("final_angle_error_deg", "final angle error (deg)"),
+    ("settle_time_s", "settle time (s)"),
+    ("settle_band_deg", "settle band (deg)"),
+    ("peak_tip_accel_m_s2", "peak tip acceleration (m/s^2)"),
+    ("residual_tip_accel_m_s2", "residual tip acceleration, peak (m/s^2)"),
+    ("residual_tip_accel_rms_m_s2", "residual tip acceleration, rms (m/s^2)"),
+    ("steady_tip_accel_amplitude_m_s2", "steady tip acceleration amplitude (m/s^2)"),
+    ("beta", "beta"),
+    ("frequency_ratio", "frequency ratio lambda"),
+    ("max_wheel_torque_cmd_n_m", "peak wheel torque commanded (N m)"),
+    ("max_wheel_torque_measured_n_m", "peak wheel torque measured (N m)"),
+    ("wheel_torque_limit_n_m", "wheel torque limit (N m)"),
+    ("overruns", "overruns"),
+    ("lateness_ms", "lateness (ms)"),
+    ("work_ms", "work per tick (ms)"),
+    ("bus_load_percent", "bus load, worst case (%)"),
+    ("frames", "frames"),
+    ("wall_time_s", "wall time (s)"),
+    ("real_time_factor", "real-time factor"),
+)
+HIDDEN = {"run", "ticks", "faults", "injected_faults", "controller_design", "virtual_rig",
+          "realtime_measures", "residual_window_s", "dry_run"}
+
+
+def summary_markdown(summary: Mapping[str, Any]) -> str:
+    """The run's summary (summary.json) as markdown: a headline saying how it ended, its
+    faults, then a table of the measured values with their units."""
+    name = summary.get("run", "run")
+    ended = summary.get("stopped_by", "?")
+    faults = summary.get("faults") or []
+    lines = [f"# {name}: {ended}"]
+    if faults:
+        lines.append("")
+        for f in faults:
+            lines.append(f"**FAULT** at {_fmt(f.get('time_s'))} s: {f.get('device')}: "
+                         f"{f.get('kind')}: {f.get('message')}" if isinstance(f, dict)
+                         else f"**FAULT** {f}")
+    if summary.get("error"):
+        lines += ["", f"**{summary['error']}**"]
+    injected = summary.get("injected_faults") or []
+    if injected:
+        lines += ["", "Injected: " + "; ".join(
+            f"{i.get('kind')} at {_fmt(i.get('at_s'))} s"
+            + (f" on {i['device']}" if i.get("device") else "") for i in injected)]
+    lines += ["", "| quantity | value |", "|---|---|"]
+    shown = set()
+    for key, label in SUMMARY_ROWS:
+        value = summary.get(key)
+        if value in (None, "", []):
+            pass
+        elif key == "frames" and isinstance(value, dict):
+            lines += [f"| frames {k.replace('_', ' ')} | {_fmt(v)} |" for k, v in value.items()]
+        else:
+            lines.append(f"| {label} | {_fmt(value)} |")
+        shown.add(key)
+    for key, v in summary.items():
+        if key in shown or key in HIDDEN or isinstance(v, dict | list):
+            continue
+        if v not in (None, ""):
+            lines.append(f"| {key} | {_fmt(v)} |")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,353 @@
+"""Default Rerun layouts (blueprints), one per kind of run, chosen from the run itself.
+
+Every plot holds signals of one quantity and one unit, named in its title, so that a small
+signal never lies flat under a large one (the error has its own plot, torques are apart from
+speeds, milliseconds apart from counts). Each plot lists its entities (``contents=``) instead
+of taking a device's whole subtree, and shows the whole run (time axis fixed to
+0..duration). Events (``/events/**``) are in a text log beside the plots and marked on the
+plots at their time (``/markers/<plot>/<kind>``, see ``harness.review.events``); the run's
+summary, its verdict (``/run/verdict``, from ``harness judge``) and its configuration are
+text views. Every file written for one run (run.rrd, identify.rrd, verdict.rrd) carries the
+same layout (``layout_for_run``), so opening them together in any order shows one layout.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import rerun.blueprint as rrb
+
+KINDS = ("slew", "periodic", "free_decay", "thruster", "piezo")
+
+SLEW_CONTROLLERS = {"pd_wheel", "shaped_wheel_slew"}
+PERIODIC_CONTROLLERS = {"square_wave"}
+FREE_DECAY_CONTROLLERS = {"wheel_bursts", "wheel_pulse", "hold"}
+THRUSTER_PREFIX = "thruster_"
+
+
+@dataclass(frozen=True)
+class Plot:
+    """One time plot: a key (also the marker group under ``/markers/<key>``), a title with
+    the unit, and the channels it draws (same quantity, same unit)."""
+
+    key: str
+    title: str
+    channels: tuple[str, ...]
+    from_zero: bool = False  # counts and durations: the y axis always shows 0
+
+    @property
+    def marker_path(self) -> str:
+        return f"/markers/{self.key}"
+
+
+# every plot a run may get; the first channel of each is where its event markers sit
+PLOTS: dict[str, Plot] = {p.key: p for p in (
+    Plot("angle", "Hub angle: measured and reference (deg)",
+         ("/attitude/angle_deg", "/attitude/reference_deg")),
+    Plot("error", "Angle error: reference - measured (deg)", ("/attitude/error_deg",)),
+    Plot("rate", "Hub rate (deg/s)", ("/attitude/rate_deg_s",)),
+    Plot("wheel_torque", "Wheel torque: commanded and measured (N m)",
+         ("/wheel/torque_cmd_n_m", "/wheel/torque_n_m")),
+    Plot("wheel_speed", "Wheel speed (rad/s)", ("/wheel/speed_rad_s",)),
+    Plot("tip", "Tip acceleration (m/s^2)", ("/tip/accel_m_s2",)),
+    Plot("valves", "Valves: command and state (-1 / 0 / +1)",
+         ("/thrusters/valve_cmd", "/thrusters/valve_state")),
+    Plot("firings", "Valve firings (count)", ("/thrusters/firings",), from_zero=True),
+    Plot("on_time", "Valve on-time, accumulated (s)", ("/thrusters/on_time_s",)),
+    Plot("piezo_cmd", "Piezo command ch1, ch2 (V)", ("/piezo/cmd_ch1_v", "/piezo/cmd_ch2_v")),
+    Plot("piezo_sensor", "Piezo sensor ch1, ch2 (V)",
+         ("/piezo/sensor_ch1_v", "/piezo/sensor_ch2_v")),
+    Plot("rotor_speed", "Disturbance rotor speed (rad/s)", ("/rotor/speed_rad_s",)),
+    Plot("rotor_angle", "Disturbance rotor angle (rad)", ("/rotor/angle_rad",)),
+    Plot("timing", "Loop timing: lateness and work (ms)",
+         ("/timing/lateness_ms", "/timing/work_ms"), from_zero=True),
+    Plot("frames", "Telemetry frames per tick: read, late or missing (count)",
+         ("/timing/frames_rx", "/bus/late_or_missing"), from_zero=True),
+)}
+
+# the main plots of each kind of run, top to bottom, left column then right
+MAIN_PLOTS: dict[str, tuple[str, ...]] = {
+    "slew": ("angle", "error", "rate", "tip", "wheel_torque", "wheel_speed", "timing",
+             "frames"),
+    "periodic": ("tip", "angle", "wheel_torque", "rotor_speed", "wheel_speed", "rate",
+                 "timing", "frames"),
+    "free_decay": ("tip", "wheel_torque", "wheel_speed", "angle", "timing", "frames"),
+    "thruster": ("angle", "error", "rate", "tip", "valves", "on_time", "timing", "frames"),
+    "piezo": ("angle", "error", "tip", "piezo_cmd", "piezo_sensor", "valves", "timing",
+              "frames"),
+}
+
+# the bus tab: telemetry decoded at its receive time, per device (harness.review.bus)
+BUS_PLOTS: tuple[Plot, ...] = (
+    Plot("bus_rx", "Telemetry receive time after its SYNC, per device (ms)",
+         ("/bus/hub_sensor/rx_after_sync_ms", "/bus/accelerometer/rx_after_sync_ms",
+          "/bus/reaction_wheel/rx_after_sync_ms", "/bus/thruster_valves/rx_after_sync_ms",
+          "/bus/piezo_amplifier/rx_after_sync_ms", "/bus/disturbance_rotor/rx_after_sync_ms")),
+    Plot("bus_missing", "Telemetry late or missing at its tick (count)",
+         ("/bus/late_or_missing",)),
+    Plot("bus_hub_angle", "HUB_TLM angle (rad)", ("/bus/hub_sensor/tlm/angle_rad",)),
+    Plot("bus_hub_rate", "HUB_TLM rate (rad/s)", ("/bus/hub_sensor/tlm/rate_rad_s",)),
+    Plot("bus_accel", "ACCEL_TLM accel (m/s^2)", ("/bus/accelerometer/tlm/accel_m_s2",)),
+    Plot("bus_wheel_torque", "WHEEL_CMD torque_cmd and WHEEL_TLM torque (N m)",
+         ("/bus/reaction_wheel/cmd/torque_cmd_n_m", "/bus/reaction_wheel/tlm/torque_n_m")),
+    Plot("bus_wheel_speed", "WHEEL_TLM speed (rad/s)", ("/bus/reaction_wheel/tlm/speed_rad_s",)),
+    Plot("bus_piezo", "PIEZO_CMD voltage (V)",
+         ("/bus/piezo_amplifier/cmd/voltage_ch1_v", "/bus/piezo_amplifier/cmd/voltage_ch2_v")),
+)
+
+EVENTS_VIEW = "Events (faults, warnings, interrupts, verdict)"
+SUMMARY_VIEW = "Run summary"
+VERDICT_VIEW = "Verdict"
+CONFIG_VIEW = "Configuration"
+SPECTRUM_VIEW = "Spectrum of the final free decay: amplitude (m/s^2) vs frequency (Hz)"
+WINDOWS_VIEW = "Spectra of the short free decays: amplitude (m/s^2) vs frequency (Hz)"
+IDENTIFY_VIEW = "Identified modes"
+
+
+def run_kind(run: Mapping[str, Any]) -> str:
+    """The kind of a run (one of ``KINDS``) from its resolved config (``config.yaml``, or
+    its ``run`` section): the controller type first (a controller with a ``piezo``
+    section naming channels is a piezo run), then the actuators."""
+    data = run.get("run", run)
+    controller = data.get("controller") or {}
+    ctype = str(controller.get("type", ""))
+    actuators = set(data.get("actuators") or ())
+    if ctype in SLEW_CONTROLLERS:
+        return "slew"
+    if ctype in PERIODIC_CONTROLLERS:
+        return "periodic"
+    if ctype in FREE_DECAY_CONTROLLERS:
+        return "free_decay"
+    piezo = controller.get("piezo")
+    piezo_control = ctype.startswith("piezo") or (
+        isinstance(piezo, dict) and bool(piezo.get("channels", True)))
+    if piezo_control:
+        return "piezo"
+    if ctype.startswith(THRUSTER_PREFIX) or "thruster_valves" in actuators:
+        return "thruster"
+    if "piezo_amplifier" in actuators:
+        return "piezo"
+    if "disturbance_rotor" in actuators:
+        return "periodic"
+    return "slew" if "angle_deg" in (data.get("controller") or {}) else "free_decay"
+
+
+def whole_run_axis(duration_s: float | None) -> rrb.TimeAxis | None:
+    """The time axis of a plot fixed on the whole run, 0 .. duration."""
+    if duration_s is None or duration_s <= 0:
+        return None
+    pad = 0.015 * float(duration_s)  # so that the last label is not clipped
+    return rrb.TimeAxis(view_range=rrb.TimeRange(
+        start=rrb.TimeRangeBoundary.absolute(seconds=0.0),
+        end=rrb.TimeRangeBoundary.absolute(seconds=float(duration_s) + pad)))
+
+
+MAX_STEPS = 6
+AXIS_MARGIN = 0.06
+
+
+def nice_range(lo: float, hi: float) -> tuple[float, float] | None:
+    """``[lo, hi]`` widened to whole multiples of a power of ten, at most ``MAX_STEPS`` of
+    them. The viewer labels a plot's y axis at powers of ten only and hides labels closer
+    than about 20 points, so a signal spanning +-0.09 in a small plot would show no label
+    but 0; on this range its ends are labelled."""
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return None
+    if hi < lo:
+        lo, hi = hi, lo
+    span = hi - lo
+    if span <= 0.0:
+        span = abs(hi) if hi != 0.0 else 1.0
+    step = 10.0 ** math.floor(math.log10(span))
+    while True:
+        a, b = math.floor(lo / step + 1e-9), math.ceil(hi / step - 1e-9)
+        if b == a:
+            b += 1
+        if b - a <= MAX_STEPS:
+            return a * step, b * step
+        step *= 10.0
+
+
+def y_range(plot: Plot, ranges: Mapping[str, Sequence[float]] | None
+            ) -> tuple[float, float] | None:
+    """The nice range of a plot's channels' recorded extremes (None: the viewer's own)."""
+    if not ranges:
+        return None
+    found = [ranges[c] for c in plot.channels if c in ranges]
+    if not found:
+        return None
+    lo = min(r[0] for r in found)
+    return nice_range(min(lo, 0.0) if plot.from_zero else lo, max(r[1] for r in found))
+
+
+def time_plot(plot: Plot, duration_s: float | None, channels: Iterable[str] | None = None,
+              ranges: Mapping[str, Sequence[float]] | None = None) -> rrb.TimeSeriesView:
+    """A plot of ``plot``'s channels (those recorded, if ``channels`` is given) and its event
+    markers, on the whole run; its y axis on ``ranges`` (channel -> recorded min, max)
+    widened by ``nice_range``, when given."""
+    recorded = None if channels is None else set(channels)
+    contents = [c for c in plot.channels
+                if recorded is None or c in recorded or c.startswith("/bus/")]
+    contents.append(f"{plot.marker_path}/**")
+    yr = y_range(plot, ranges)
+    if yr is not None:  # a margin, so that the labels at the ends are not clipped
+        pad = AXIS_MARGIN * (yr[1] - yr[0])
+        yr = (yr[0] - pad, yr[1] + pad)
+    return rrb.TimeSeriesView(
+        name=plot.title, contents=contents, axis_x=whole_run_axis(duration_s),
+        axis_y=None if yr is None else rrb.ScalarAxis(range=yr, zoom_lock=False),
+        plot_legend=rrb.PlotLegend(corner="LeftTop"))
+
+
+def events_view() -> rrb.TextLogView:
+    """Every event (``/events/**``), with its time, source, level and text."""
+    import rerun.blueprint.encodings as be
+
+    kinds = be.TextLogColumnKind
+    return rrb.TextLogView(
+        origin="/events", name=EVENTS_VIEW,
+        columns=rrb.TextLogColumns(
+            timeline_columns=[be.TimelineColumn("time")],
+            text_log_columns=[be.TextLogColumn(kinds.LogLevel),
+                              be.TextLogColumn(kinds.EntityPath),
+                              be.TextLogColumn(kinds.Body)]))
+
+
+def text_views(include_verdict: bool = True) -> rrb.Container:
+    """The verdict on top, then the summary and the configuration in tabs."""
+    docs = rrb.Tabs(
+        rrb.TextDocumentView(origin="/run/summary", name=SUMMARY_VIEW),
+        rrb.TextDocumentView(origin="/run/config", name=CONFIG_VIEW))
+    if not include_verdict:
+        return rrb.Vertical(docs)
+    return rrb.Vertical(rrb.TextDocumentView(origin="/run/verdict", name=VERDICT_VIEW), docs,
+                        row_shares=[1, 2])
+
+
+def spectrum_views() -> list[rrb.View]:
+    """The identification (``harness identify`` writes identify.rrd): spectra as bar charts
+    over frequency in Hz, one series per identified mode (its name in the legend)."""
+    return [
+        rrb.BarChartView(origin="/identify/spectrum", name=SPECTRUM_VIEW,
+                         plot_legend=rrb.PlotLegend(corner="RightTop")),
+        rrb.BarChartView(origin="/identify/windows", name=WINDOWS_VIEW,
+                         plot_legend=rrb.PlotLegend(corner="RightTop")),
+        rrb.TextDocumentView(origin="/identify/modes", name=IDENTIFY_VIEW),
+    ]
+
+
+def _grid(views: Sequence[rrb.View], columns: int = 2) -> rrb.Container:
+    cols = [rrb.Vertical(*views[i::columns]) for i in range(columns)]
+    return rrb.Horizontal(*cols)
+
+
+def layout_for_run(run: Mapping[str, Any], channels: Iterable[str] | None = None,
+                   ranges: Mapping[str, Sequence[float]] | None = None) -> rrb.Blueprint:
+    """The default layout of a run from its resolved config (``RunConfig.resolved()`` or
+    config.yaml, or its ``run`` section) and its recorded channels: the main plots of its
+    kind in two columns, the text views on the right; the bus, the other devices and the
+    identification in tabs."""
+    data = run.get("run", run)
+    kind = run_kind(data)
+    duration = data.get("duration_s")
+    chans = list(channels) if channels is not None else None
+    main = [time_plot(PLOTS[k], duration, chans, ranges) for k in MAIN_PLOTS[kind]]
+    if kind == "free_decay":
+        spec = spectrum_views()
+        run_page: rrb.Container = rrb.Vertical(
+            _grid(main), rrb.Horizontal(spec[0], spec[1], column_shares=[1, 1]),
+            row_shares=[3, 2], name="Run")
+    else:
+        run_page = rrb.Vertical(_grid(main), name="Run")
+    shown = set(MAIN_PLOTS[kind])
+    others = [time_plot(p, duration, chans, ranges) for k, p in PLOTS.items()
+              if k not in shown]
+    bus = [time_plot(p, duration) for p in BUS_PLOTS]
+    tabs = [run_page,
+            rrb.Vertical(_grid(bus), name="CAN bus (decoded at receive time)"),
+            rrb.Vertical(_grid(others), name="Other signals")]
+    if kind != "free_decay":
+        tabs.append(rrb.Vertical(*spectrum_views()[:2], name="Identification"))
+    left = rrb.Vertical(rrb.Tabs(*tabs, active_tab=0), events_view(), row_shares=[5, 1])
+    root = rrb.Horizontal(left, text_views(), column_shares=[3, 1])
+    return rrb.Blueprint(root, rrb.TimePanel(timeline="time", state="collapsed"),
+                         collapse_panels=True)
+
+
+LAYOUT_FILE = "layout.json"
+"""Beside run.rrd: the recorded extremes of each channel, so that every file written later
+for the run (identify.rrd, verdict.rrd) carries the very layout run.rrd has."""
+
+
+def channel_ranges(columns: Mapping[str, Any]) -> dict[str, list[float]]:
+    """channel -> [min, max] of its finite values (channels with none are left out)."""
+    import numpy as np
+
+    out: dict[str, list[float]] = {}
+    for c, v in columns.items():
+        a = np.asarray(v, dtype=float)
+        a = a[np.isfinite(a)]
+        if len(a):
+            out[c] = [float(a.min()), float(a.max())]
+    return out
+
+
+def write_layout_file(run_dir: Path, ranges: Mapping[str, Sequence[float]]) -> Path:
+    path = run_dir / LAYOUT_FILE
+    path.write_text(json.dumps({"y_ranges": {c: list(r) for c, r in ranges.items()}},
+                               indent=1))
+    return path
+
+
+def blueprint_for_run_dir(run_dir: Path) -> rrb.Blueprint:
+    """The layout of a recorded run from its config.yaml and layout.json: what run.rrd
+    carries. Writers of other files for the run (identify.rrd, verdict.rrd) pass it as their
+    ``default_blueprint`` so that the files open together in any order."""
+    import yaml
+
+    from harness.loop import CHANNELS
+
+    cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
+    layout = run_dir / LAYOUT_FILE
+    ranges = json.loads(layout.read_text())["y_ranges"] if layout.exists() else None
+    return layout_for_run(cfg, CHANNELS, ranges)
+
+
+def study_layout(curves: Mapping[str, Sequence[str]], timeline: str,
+                 texts: Mapping[str, str] | None = None,
+                 tensors: Mapping[str, str] | None = None) -> rrb.Blueprint:
+    """A layout for a sweep, study or calibration: one plot per entry of ``curves`` (title
+    with its unit -> entity paths, each plot one quantity) over ``timeline`` (the swept
+    variable as a sequence timeline, its scale in its name), optional tensor maps (title ->
+    entity) and text documents (title -> entity) on the right."""
+    plots: list[rrb.View] = [
+        rrb.TimeSeriesView(name=title, contents=list(paths),
+                           plot_legend=rrb.PlotLegend(corner="RightTop"))
+        for title, paths in curves.items()]
+    plots += [rrb.TensorView(origin=path, name=title) for title, path in (tensors or {}).items()]
+    left = _grid(plots, 2 if len(plots) > 2 else 1)
+    docs = [rrb.TextDocumentView(origin=path, name=title) for title, path in (texts or {}).items()]
+    root: rrb.Container = rrb.Horizontal(left, rrb.Vertical(*docs), column_shares=[3, 1]) \
+        if docs else left
+    return rrb.Blueprint(root, rrb.TimePanel(timeline=timeline, state="collapsed"),
+                         collapse_panels=True)
+
+
+def blueprint_views(bp: rrb.Blueprint) -> list[rrb.View]:
+    """Every view in a blueprint (depth first), for tests and docs."""
+    out: list[rrb.View] = []
+
+    def walk(node: Any) -> None:
+        if isinstance(node, rrb.View):
+            out.append(node)
+        elif isinstance(node, rrb.Container):
+            for c in node.contents:
+                walk(c)
+
+    walk(bp.root_container)
+    return out

@@ -1,0 +1,95 @@
+"""Reading back what a reviewer sees: the events, text documents and layouts of an .rrd
+(Rerun 0.41 ``rerun.chunk.RrdReader``), for tests and ``tools/make_screenshots``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from rerun.chunk import RrdReader
+
+
+@dataclass(frozen=True)
+class Event:
+    entity: str
+    time_s: float
+    level: str
+    text: str
+
+
+def _first(x: object) -> object:
+    return x[0] if isinstance(x, list) and x else x
+
+
+def read_events(rrd: Path) -> list[Event]:
+    """Every TextLog under ``/events`` with its time (s), by time."""
+    out: list[Event] = []
+    for chunk in RrdReader(rrd).stream().to_chunks():
+        if not chunk.entity_path.startswith("/events"):
+            continue
+        batch = chunk.to_record_batch()
+        if "TextLog:text" not in batch.schema.names:
+            continue
+        times = (batch.column("time").cast("int64").to_pylist()
+                 if "time" in batch.schema.names else [0] * batch.num_rows)
+        levels = (batch.column("TextLog:level").to_pylist()
+                  if "TextLog:level" in batch.schema.names else [None] * batch.num_rows)
+        for t, lv, tx in zip(times, levels, batch.column("TextLog:text").to_pylist(),
+                             strict=True):
+            out.append(Event(chunk.entity_path, (t or 0) * 1e-9, str(_first(lv) or ""),
+                             str(_first(tx))))
+    return sorted(out, key=lambda e: e.time_s)
+
+
+def read_text(rrd: Path, entity: str) -> str | None:
+    """The (last) TextDocument at ``entity``, or None."""
+    text = None
+    for chunk in RrdReader(rrd).stream().to_chunks():
+        if chunk.entity_path != entity:
+            continue
+        batch = chunk.to_record_batch()
+        if "TextDocument:text" in batch.schema.names:
+            text = str(_first(batch.column("TextDocument:text").to_pylist()[-1]))
+    return text
+
+
+def entities(rrd: Path) -> set[str]:
+    """Every entity path with data in the recording."""
+    return {c.entity_path for c in RrdReader(rrd).stream().to_chunks()}
+
+
+@dataclass(frozen=True)
+class SavedView:
+    name: str
+    kind: str
+    origin: str
+    contents: tuple[str, ...]
+
+
+def read_blueprints(rrd: Path) -> list[list[SavedView]]:
+    """The views of each blueprint stored in the file, in the order they were written."""
+    reader = RrdReader(rrd)
+    out: list[list[SavedView]] = []
+    for store in reader.blueprints():
+        views: dict[str, dict[str, object]] = {}
+        for chunk in reader.stream(store=store).to_chunks():
+            path = chunk.entity_path
+            if not path.startswith("/view/"):
+                continue
+            vid = path.split("/")[2]
+            batch = chunk.to_record_batch()
+            names = batch.schema.names
+            v = views.setdefault(vid, {})
+            if "ViewBlueprint:display_name" in names:
+                v["name"] = _first(batch.column("ViewBlueprint:display_name").to_pylist()[-1])
+            if "ViewBlueprint:class_identifier" in names:
+                v["kind"] = _first(
+                    batch.column("ViewBlueprint:class_identifier").to_pylist()[-1])
+            if "ViewBlueprint:space_origin" in names:
+                v["origin"] = _first(batch.column("ViewBlueprint:space_origin").to_pylist()[-1])
+            if "ViewContents:query" in names:
+                v["contents"] = tuple(batch.column("ViewContents:query").to_pylist()[-1])
+        out.append([SavedView(str(v.get("name", "")), str(v.get("kind", "")),
+                              str(v.get("origin", "")), tuple(v.get("contents", ())))  # type: ignore[arg-type]
+                    for v in views.values()])
+    return out

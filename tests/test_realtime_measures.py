@@ -1,0 +1,115 @@
+"""Real-time measures are requested by default in real-time runs; a refused one is a warning
+recorded in the summary; the virtual rig runs in its own process over a Unix socket."""
+
+from __future__ import annotations
+
+import os
+
+import can
+import pytest
+
+from harness.bus import parse_bus
+from harness.clock import RealTimeClock, RealTimeSetup
+from harness.runs import load_run
+from harness.session import REALTIME_RIG_DEFAULT, execute_run, virtual_rig_mode
+from harness.unixbus import UnixCanBus, UnixCanServerBus
+
+
+def _rt_run(tmp_path, over=None, **kw):
+    data = {"duration_s": 1.0, "monitor": {"realtime_grace_s": 1.0}}
+    data.update(over or {})
+    return execute_run(load_run("slew-rw", data), out_dir=tmp_path, clock="realtime",
+                       show_progress=False, **kw)
+
+
+def test_measures_requested_by_default_and_recorded(tmp_path):
+    s = _rt_run(tmp_path).summary
+    m = s["realtime_measures"]
+    assert any(r.startswith("SCHED_FIFO priority 50") for r in m["requested"])
+    assert "mlockall" in m["requested"]
+    assert any(r.startswith("cpu affinity") for r in m["requested"])
+    for r in m["requested"]:  # each one granted or refused, never lost
+        assert any(x.startswith(r) for x in m["applied"] + m["refused"]), r
+    assert s["virtual_rig_mode"] == REALTIME_RIG_DEFAULT
+    assert s["stopped_by"] == "completed"
+    assert s["frames"]["received"] > 0.8 * 5 * s["ticks"]
+    # everything undone after the run
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER
+
+
+def test_refused_measure_is_a_warning_and_recorded(tmp_path, monkeypatch, capsys):
+    def refuse(*_a, **_k):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    res = _rt_run(tmp_path, {"realtime": {"virtual_rig": "thread"}})
+    s = res.summary
+    assert s["stopped_by"] == "completed"  # the run goes on without it
+    refused = s["realtime_measures"]["refused"]
+    assert refused and refused[0].startswith("SCHED_FIFO priority 50: ")
+    assert "Operation not permitted" in refused[0]
+    assert "WARNING: real-time measure not granted: SCHED_FIFO" in capsys.readouterr().err
+
+
+def test_measures_opt_out(tmp_path):
+    s = _rt_run(tmp_path, {"realtime": {"sched_fifo": False, "lock_memory": False,
+                                        "pin_cpu": False, "gc_freeze": False,
+                                        "virtual_rig": "thread"}}).summary
+    assert s["realtime_measures"] == {"requested": [], "applied": [], "refused": []}
+    assert s["virtual_rig_mode"] == "thread"
+
+
+def test_rig_mode_choice():
+    run = load_run("slew-rw")
+    virt = parse_bus("virtual:sgsrt")
+    assert virtual_rig_mode(run, virt, "lockstep") == "lockstep"
+    assert virtual_rig_mode(run, virt, "realtime") == REALTIME_RIG_DEFAULT
+    assert virtual_rig_mode(run, virt, "realtime", rig_process=True) == "process-tcp"
+    assert virtual_rig_mode(run, parse_bus("socketcan:vcan0"), "realtime") == "external"
+
+
+def test_clock_never_spins_a_whole_period(monkeypatch):
+    clock = RealTimeClock(0.002)
+    assert clock.spin_s <= 0.0002
+    sleeps = []
+    monkeypatch.setattr("time.sleep", lambda s: sleeps.append(s))
+    clock.t0 = __import__("time").perf_counter() + 0.0015
+    clock.wait(0)
+    assert sleeps and sleeps[0] > 0.001  # slept, then spun at most spin_s
+
+
+def test_setup_restores_what_it_changed(monkeypatch):
+    before = os.sched_getaffinity(0)
+    setup = RealTimeSetup().apply(False, 50, -1, False, True)
+    assert len(os.sched_getaffinity(0)) == 1
+    import gc
+
+    assert not gc.isenabled()
+    setup.restore()
+    assert gc.isenabled() and os.sched_getaffinity(0) == before
+
+
+def test_unix_bus_keeps_frame_semantics():
+    server = UnixCanServerBus("test-" + str(os.getpid()))
+    client = UnixCanBus("test-" + str(os.getpid()))
+    try:
+        sent = [can.Message(arbitration_id=0x123, data=b"\x01\x02", is_extended_id=False),
+                can.Message(arbitration_id=0x1ABCDEF0, data=bytes(8), is_extended_id=True),
+                can.Message(arbitration_id=0x7FF, is_remote_frame=True, dlc=4,
+                            is_extended_id=False)]
+        for m in sent:
+            client.send(m)
+        got = [server.recv(1.0) for _ in sent]
+        for a, b in zip(sent, got, strict=True):
+            assert b is not None and a.equals(b, timestamp_delta=None, check_channel=False,
+                                              check_direction=False)
+        server.send(can.Message(arbitration_id=0x80, data=b"\x05\x00\x00\x00",
+                                is_extended_id=False))
+        back = client.recv(1.0)
+        assert back is not None and back.arbitration_id == 0x80 and back.data == b"\x05\0\0\0"
+        assert client.recv(0) is None
+        with pytest.raises(ValueError, match="CAN FD"):
+            client.send(can.Message(arbitration_id=1, is_fd=True, data=bytes(12)))
+    finally:
+        client.shutdown()
+        server.shutdown()

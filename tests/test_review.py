@@ -1,0 +1,228 @@
+"""What a reviewer sees in the Rerun viewer (harness/review, docs/review.md): the layout of
+each kind of run, events and markers, the summary, the decoded bus, the identification's
+spectrum, and one layout for run.rrd, identify.rrd and verdict.rrd together."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rerun as rr
+import rerun.blueprint as rrb
+
+from harness.loop import CHANNELS
+from harness.recording import APPLICATION_ID
+from harness.review import layouts as L
+from harness.review.reader import entities, read_blueprints, read_events, read_text
+from harness.runs import load_run
+from harness.session import execute_run
+from rig_models.faults import parse_fault
+
+RUN_KINDS = {
+    "slew-rw": "slew", "slew-rw-zv": "slew", "case-a": "periodic", "free-decay": "free_decay",
+    "slew-thruster-bangbang": "thruster", "thruster-pd-pwpf": "thruster",
+    "thruster-oppf": "piezo",
+}
+TEXT_VIEWS = {L.EVENTS_VIEW, L.SUMMARY_VIEW, L.VERDICT_VIEW, L.CONFIG_VIEW}
+
+
+def views_by_name(bp: rrb.Blueprint) -> dict[str, rrb.View]:
+    return {str(v.name): v for v in L.blueprint_views(bp)}
+
+
+@pytest.mark.parametrize(("name", "kind"), sorted(RUN_KINDS.items()))
+def test_kind_of_each_built_in_run(name, kind):
+    assert L.run_kind(load_run(name).resolved()) == kind
+
+
+@pytest.mark.parametrize("kind", L.KINDS)
+def test_layout_holds_the_views_the_docs_describe(kind):
+    run = {"run": {"duration_s": 60.0, "controller": {"type": {
+        "slew": "pd_wheel", "periodic": "square_wave", "free_decay": "wheel_bursts",
+        "thruster": "thruster_two_level", "piezo": "thruster_pd_pwpf"}[kind]}
+        | ({"piezo": {"channels": [1]}} if kind == "piezo" else {}),
+        "actuators": ["piezo_amplifier", "thruster_valves"] if kind == "piezo" else []}}
+    assert L.run_kind(run) == kind
+    views = views_by_name(L.layout_for_run(run, CHANNELS))
+    assert TEXT_VIEWS <= set(views)
+    assert isinstance(views[L.EVENTS_VIEW], rrb.TextLogView)
+    assert views[L.EVENTS_VIEW].origin == "/events"  # faults, interrupts, verdict alike
+    assert views[L.VERDICT_VIEW].origin == "/run/verdict"
+    assert views[L.SUMMARY_VIEW].origin == "/run/summary"
+    # every plot of the run's kind, each with its unit in the title and its markers
+    for key in L.MAIN_PLOTS[kind]:
+        plot = L.PLOTS[key]
+        assert "(" in plot.title and plot.title.endswith(")")
+        contents = views[plot.title].contents
+        assert list(plot.channels) + [f"/markers/{key}/**"] == list(contents) or \
+            set(contents) >= {f"/markers/{key}/**"}
+    assert {L.SPECTRUM_VIEW, L.WINDOWS_VIEW} <= set(views)  # identify.rrd has a place
+    for p in L.BUS_PLOTS:
+        assert p.title in views
+
+
+def test_no_plot_mixes_units_or_scales():
+    """The issue's complaints: error apart from the angle, torques apart from speeds,
+    milliseconds apart from counts."""
+    def unit(channel: str) -> str:
+        units = ("_deg_s", "_deg", "_n_m", "_rad_s", "_rad", "_m_s2", "_v", "_ms", "_s")
+        return next((u for u in units if channel.endswith(u)), "")
+
+    by_channel = {c: p.key for p in L.PLOTS.values() for c in p.channels}
+    assert by_channel["/attitude/error_deg"] != by_channel["/attitude/reference_deg"]
+    assert by_channel["/wheel/torque_n_m"] != by_channel["/wheel/speed_rad_s"]
+    assert by_channel["/timing/frames_rx"] != by_channel["/timing/work_ms"]
+    assert by_channel["/attitude/angle_deg"] == by_channel["/attitude/reference_deg"]
+    assert by_channel["/wheel/torque_cmd_n_m"] == by_channel["/wheel/torque_n_m"]
+    for p in L.PLOTS.values():
+        units = {unit(c) for c in p.channels if not c.startswith(("/bus/", "/timing/frames"))}
+        assert len(units) <= 1, (p.key, units)
+    assert set(CHANNELS) <= set(by_channel)  # every recorded channel has a plot
+
+
+@pytest.mark.parametrize(("lo", "hi", "want"), [
+    (-4.2e-4, 3.5e-4, (-1e-3, 1e-3)), (-0.09, 0.09, (-0.1, 0.1)), (-260.0, 0.0, (-300.0, 0.0)),
+    (0.0, 20.0, (0.0, 20.0)), (0.0, 0.0, (0.0, 1.0)), (19.99985, 19.99985, None)])
+def test_nice_range_puts_labelled_ticks_at_its_ends(lo, hi, want):
+    a, b = L.nice_range(lo, hi)
+    assert a <= lo and b >= hi and b > a
+    def multiple(x: float, step: float) -> bool:
+        return abs(x / step - round(x / step)) < 1e-6
+
+    # both ends on one power of ten, few enough steps apart for the viewer to label them
+    assert any(multiple(a, 10.0 ** k) and multiple(b, 10.0 ** k)
+               and (b - a) / 10.0 ** k <= L.MAX_STEPS + 1e-9 for k in range(-12, 12))
+    if want is not None:
+        assert (a, b) == pytest.approx(want)
+
+
+@pytest.fixture(scope="module")
+def faulted(tmp_path_factory):
+    """A 3 s slew with the hub sensor silent from 1 s: stopped by the monitor."""
+    out = tmp_path_factory.mktemp("review_fault")
+    run = load_run("slew-rw", {"duration_s": 3.0})
+    return execute_run(run, out_dir=out, show_progress=False,
+                       faults=[parse_fault("silent_sensor@1:hub_sensor")])
+
+
+def test_faulted_run_recording_holds_event_markers_summary_config_bus(faulted):
+    rrd = faulted.run_dir / "run.rrd"
+    assert faulted.summary["stopped_by"] == "fault"
+    events = read_events(rrd)
+    fault = [e for e in events if e.entity == "/events/hub_sensor"]
+    assert len(fault) == 1 and fault[0].level == "ERROR" and "silent" in fault[0].text
+    assert fault[0].time_s == pytest.approx(faulted.summary["faults"][0]["time_s"])
+    # the bus pass saw the missing telemetry from the fault's start
+    bus = [e for e in events if e.entity == "/events/bus"]
+    assert bus and 0.99 < bus[0].time_s <= fault[0].time_s and "hub_sensor" in bus[0].text
+    have = entities(rrd)
+    for key in L.MAIN_PLOTS["slew"]:
+        if key != "frames":  # its channels have no value at the fault's tick in lockstep
+            assert f"/markers/{key}/fault" in have, key
+    summary = read_text(rrd, "/run/summary")
+    assert summary.startswith("# slew-rw: fault") and "**FAULT**" in summary
+    assert "| final angle (deg) |" in summary
+    assert "controller:" in read_text(rrd, "/run/config")
+    for e in ("/bus/hub_sensor/tlm/angle_rad", "/bus/reaction_wheel/cmd/torque_cmd_n_m",
+              "/bus/harness/sync/tick", "/bus/late_or_missing",
+              "/bus/accelerometer/rx_after_sync_ms"):
+        assert e in have, e
+    # the last layout in the file is the one with the plots' ranges; it holds the views
+    saved = read_blueprints(rrd)
+    assert len(saved) == 2
+    names = {v.name for v in saved[-1]}
+    assert TEXT_VIEWS <= names and L.PLOTS["error"].title in names
+    assert (faulted.run_dir / L.LAYOUT_FILE).exists()
+
+
+def test_bus_frames_sit_at_their_tick(faulted):
+    from harness.recording_reader import read_scalar_channel
+
+    t, tick = read_scalar_channel(faulted.run_dir / "run.rrd", "/bus/harness/sync/tick")
+    dt = faulted.summary["rate_hz"] ** -1
+    assert np.allclose(t, tick * dt)
+    t, angle = read_scalar_channel(faulted.run_dir / "run.rrd", "/bus/hub_sensor/tlm/angle_rad")
+    k = np.floor(t / dt + 1e-9)
+    assert np.all(t - k * dt < 0.9 * dt + 1e-12)  # lockstep: in its own tick
+    assert t[-1] < 1.0 + 2 * dt  # silent from 1 s
+    # decoded as the drivers decode them: the hub angle the loop recorded at that tick
+    ta, angle_deg = read_scalar_channel(faulted.run_dir / "run.rrd", "/attitude/angle_deg")
+    at_tick = np.interp(k * dt, ta, angle_deg)
+    assert np.abs(np.degrees(angle) - at_tick).max() < 1e-5
+    tw, torque = read_scalar_channel(faulted.run_dir / "run.rrd",
+                                     "/bus/reaction_wheel/cmd/torque_cmd_n_m")
+    assert torque.min() < 0 < torque.max()  # signed fields
+    t2, missing = read_scalar_channel(faulted.run_dir / "run.rrd", "/bus/late_or_missing")
+    assert missing[t2 < 0.99].max() == 0 and missing[t2 >= 1.0].min() >= 1
+
+
+def _tiny_verdict_rrd(run_dir: Path) -> Path:
+    """verdict.rrd as the verdict layer writes it (COMMON_BRIEF contract)."""
+    path = run_dir / "verdict.rrd"
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id=run_dir.name)
+    rec.save(str(path), default_blueprint=L.blueprint_for_run_dir(run_dir))
+    rec.log("/run/verdict", rr.TextDocument("# FAIL\n\nsettle time", media_type="text/markdown"),
+            static=True)
+    rec.set_time("time", duration=0.5)
+    rec.log("/events/verdict", rr.TextLog("settle_time_s 30 > 25", level="ERROR"))
+    rec.flush()
+    rec.disconnect()
+    return path
+
+
+def test_verdict_rrd_opens_with_the_runs_layout(faulted):
+    verdict = _tiny_verdict_rrd(faulted.run_dir)
+    ev = read_events(verdict)
+    assert [(e.entity, e.level) for e in ev] == [("/events/verdict", "ERROR")]
+    assert read_text(verdict, "/run/verdict").startswith("# FAIL")
+    ours = read_blueprints(faulted.run_dir / "run.rrd")[-1]
+    theirs = read_blueprints(verdict)[-1]
+    key = sorted((v.name, v.kind, v.origin, v.contents) for v in ours)
+    assert key == sorted((v.name, v.kind, v.origin, v.contents) for v in theirs)
+
+
+def test_identify_rrd_spectrum_marks_every_mode_with_the_runs_layout(faulted, tmp_path):
+    from harness.identification.windows import AnalysisWindow, identify_windows
+    from harness.review.spectrum import write_identify_rrd
+
+    fs = 500.0
+    t = np.arange(0, 30, 1 / fs)
+    modes = [(2.88, 0.05, 0.02), (13.3, 0.03, 0.01), (36.9, 0.02, 0.006)]
+    a = sum(amp * np.exp(-z * w * t) * np.sin(w * np.sqrt(1 - z * z) * t)
+            for w, z, amp in modes)
+    a = a + np.random.default_rng(1).normal(0, 1e-4, len(t))
+    result = identify_windows(t, a, [AnalysisWindow(0.0)])
+    assert len(result.modes) == 3
+    path = write_identify_rrd(faulted.run_dir / "identify.rrd", faulted.run_dir, result,
+                              cfg={"run": {}})
+    have = entities(path)
+    for view in ("/identify/spectrum/", ):
+        marks = sorted(e for e in have if e.startswith(view + "mode_"))
+        assert len(marks) == 3, marks
+        for m, (w, _, _) in zip(marks, modes, strict=True):
+            f_hz = float(m.split("_")[2])
+            assert f_hz == pytest.approx(w / (2 * np.pi), rel=0.01)
+    assert "/identify/spectrum/amplitude" in have and "/identify/spectrum/fft_peaks" in have
+    assert "| 3 |" in read_text(path, "/identify/modes")
+    ours = read_blueprints(faulted.run_dir / "run.rrd")[-1]
+    theirs = read_blueprints(path)[-1]
+    assert sorted(v.name for v in ours) == sorted(v.name for v in theirs)
+
+
+def test_sweep_rrd_has_its_layout(tmp_path):
+    from harness.commands.sweep import save_rrd
+
+    lambdas = np.linspace(0.5, 1.5, 4)
+    betas = np.array([0.6, 1.0])
+    amps = np.random.default_rng(0).uniform(0.01, 1.0, (4, 2, 2))
+    path = tmp_path / "sweep.rrd"
+    save_rrd(path, "sweep-test", lambdas, betas, amps)
+    have = entities(path)
+    assert {"/sweep/curves/tip_accel_m_s2/beta_0.60", "/sweep/log10/tip_deflection_m/beta_1.00",
+            "/sweep/map/tip_accel_m_s2", "/sweep/about"} <= have
+    views = {v.name: v for v in read_blueprints(path)[-1]}
+    curves = [v for v in views.values() if v.kind == "TimeSeries"]
+    assert len(curves) == 4 and all("(" in v.name for v in curves)
+    assert sum(v.kind == "Tensor" for v in views.values()) == 2
+    assert "Sweep" in views
