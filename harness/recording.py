@@ -49,31 +49,6 @@ def default_blueprint(extra_views: list[rrb.View] | None = None) -> rrb.Blueprin
 BlockObserver = Callable[[np.ndarray, np.ndarray], None]
 
 
-class ChannelRanges:
-    """Each channel's [min, max] over the whole run, fed block by block (a recorder
-    observer), so a layout can scale its plots without keeping the run in memory."""
-
-    def __init__(self, channels: list[str]) -> None:
-        self.channels = list(channels)
-        self.lo = np.full(len(self.channels), np.inf)
-        self.hi = np.full(len(self.channels), -np.inf)
-
-    def update(self, t: np.ndarray, rows: np.ndarray) -> None:
-        if len(rows) == 0:
-            return
-        with np.errstate(invalid="ignore"):
-            self.lo = np.fmin(self.lo, np.nanmin(np.where(np.isfinite(rows), rows, np.inf),
-                                                 axis=0))
-            self.hi = np.fmax(self.hi, np.nanmax(np.where(np.isfinite(rows), rows, -np.inf),
-                                                 axis=0))
-
-    def ranges(self) -> dict[str, list[float]]:
-        """channel -> [min, max] of its finite values (channels with none are left out)."""
-        return {c: [float(lo), float(hi)] for c, lo, hi in zip(self.channels, self.lo, self.hi,
-                                                                strict=True)
-                if np.isfinite(lo) and np.isfinite(hi)}
-
-
 class _Block:
     __slots__ = ("t", "data", "next_channel")
 

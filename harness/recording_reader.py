@@ -78,7 +78,10 @@ class RecordedColumns:
         self._channels = read_scalar_channels(rrd)
         if not self._channels:
             raise ValueError(f"{rrd}: no scalar channels on the 'time' timeline")
-        longest = max(self._channels.values(), key=lambda tv: len(tv[0]))
+        # the loop's rows; decoded bus frames (/bus/...) are logged per frame, not per row
+        # (a wheel run's safe command at the end is one frame more than the loop's rows)
+        rows = {k: tv for k, tv in self._channels.items() if not k.startswith("/bus/")}
+        longest = max((rows or self._channels).values(), key=lambda tv: len(tv[0]))
         self.time_s = longest[0]
         self.rows = len(self.time_s)
 

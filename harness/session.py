@@ -30,11 +30,11 @@ from harness.loop import CHANNELS, LoopStats, run_loop
 from harness.monitor import FaultMonitor
 from harness.paths import safe_child, safe_name
 from harness.periodic import steady_state_amplitude
-from harness.recording import ChannelRanges, Recorder
+from harness.recording import Recorder
 from harness.recording_reader import RecordedColumns
 from harness.review.bus import write_bus
 from harness.review.events import log_event
-from harness.review.layouts import layout_for_run, write_layout_file
+from harness.review.layouts import PlotStats, layout_for_run, write_layout_file
 from harness.rig_interface import RigInterface
 from harness.rig_process import RigProcess
 from harness.runs import RunConfig, build_controller
@@ -203,10 +203,10 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
     stop_rig = threading.Event()
     can_log = CanLog(run_dir / "can.blf")
     running = running_summary_for(run)
-    ranges = ChannelRanges(CHANNELS)
+    plot_stats = PlotStats(CHANNELS)
     recorder = Recorder(run_dir / "run.rrd", CHANNELS, run.n_ticks, f"{run_dir.name}",
                         live_view_url=live_view_url, retain_rows=retain_rows_for(run),
-                        observers=[running.update, ranges.update],
+                        observers=[running.update, plot_stats.add],
                         # lockstep outruns the file sink: wait for it every 10 blocks so its
                         # queue stays bounded; real time never waits (the sink keeps up)
                         flush_every_blocks=0 if clock_name == "realtime" else 10,
@@ -261,7 +261,7 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
             summary["injected_faults"] = [vars(f) for f in (rig.injector.faults if rig else [])]
             (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
             _log_end(recorder, stats, summary, dt_s)
-            _final_layout(recorder, run, run_dir, ranges)
+            _final_layout(recorder, run, run_dir, plot_stats)
     finally:
         setup.restore()
         stop_rig.set()
@@ -295,13 +295,14 @@ def _log_end(recorder: Recorder, stats: LoopStats, summary: dict[str, Any],
     try:
         t_end = max(0, stats.ticks - 1) * dt_s
         if stats.stopped_by == "error":
-            recorder.log_event(t_end, "/events/harness", stats.error, "ERROR")
+            recorder.log_event(t_end, "/events/harness",
+                               f"harness: error: {stats.error} (t = {t_end:.3f} s)", "ERROR")
         elif stats.stopped_by == "interrupted" and not stats.error:
-            recorder.log_event(t_end, "/events/harness", "interrupted (Ctrl-C or SIGTERM)",
-                               "WARN")
+            recorder.log_event(t_end, "/events/harness", "harness: interrupted (Ctrl-C or "
+                               f"SIGTERM) (t = {t_end:.3f} s)", "WARN")
         elif stats.stopped_by == "completed":  # no marker: the log says how the run ended
             log_event(recorder.rec, t_end, "/events/harness",
-                      f"completed: {stats.ticks} ticks", "INFO")
+                      f"harness: completed, {stats.ticks} ticks (t = {t_end:.3f} s)", "INFO")
         recorder.log_summary(summary)
     except Exception as exc:  # never lose the run for its text
         print(f"harness: could not write the summary to the recording ({exc})",
@@ -309,13 +310,14 @@ def _log_end(recorder: Recorder, stats: LoopStats, summary: dict[str, Any],
 
 
 def _final_layout(recorder: Recorder, run: RunConfig, run_dir: Path,
-                  channel_ranges: ChannelRanges) -> None:
-    """The run's layout with each plot's y axis on its recorded range (layout.json keeps the
-    ranges for identify.rrd and verdict.rrd, harness.review.layouts)."""
+                  plot_stats: PlotStats) -> None:
+    """The run's layout with each plot's y axis on its recorded range and its legend in the
+    emptiest corner (``plot_stats``, a recorder observer, saw every row; layout.json keeps
+    both for identify.rrd and verdict.rrd, harness.review.layouts)."""
     try:
-        ranges = channel_ranges.ranges()
-        write_layout_file(run_dir, ranges)
-        recorder.send_layout(layout_for_run(run.resolved(), CHANNELS, ranges))
+        ranges, legends = plot_stats.ranges(), plot_stats.legends(run.data["duration_s"])
+        write_layout_file(run_dir, ranges, legends)
+        recorder.send_layout(layout_for_run(run.resolved(), CHANNELS, ranges, legends))
     except Exception as exc:  # the layout of the start stays
         print(f"harness: could not write the run's final layout ({exc})", file=sys.stderr)
 
@@ -328,11 +330,11 @@ def _log_bus(recorder: Recorder, blf: Path, dt_s: float, realtime: bool,
             return
         bus = write_bus(recorder.rec, blf, dt_s, realtime, dividers)
         for t_s, text in bus.warnings:
-            log_event(recorder.rec, t_s, "/events/bus", text, "WARN")
+            log_event(recorder.rec, t_s, "/events/can_log", text, "WARN")
         if bus.late_or_missing > len(bus.warnings):
-            log_event(recorder.rec, bus.warnings[-1][0], "/events/bus",
-                      f"{bus.late_or_missing} late or missing telemetry frames in all "
-                      f"(the first {len(bus.warnings)} listed)", "WARN")
+            log_event(recorder.rec, bus.warnings[-1][0], "/events/can_log",
+                      f"can log: {bus.late_or_missing} late or missing telemetry frames in all "
+                      f"(the first {len(bus.warnings)} ticks listed)", "WARN")
     except Exception as exc:  # the run's own recording is complete without it
         print(f"harness: could not decode the CAN log into the recording ({exc})",
               file=sys.stderr)

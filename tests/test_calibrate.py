@@ -259,9 +259,12 @@ def test_recommendation_is_the_cheapest_meeting_the_target() -> None:
     assert c.target_met and c.verified["zv"]["confirmed"]
 
 
-def test_safe_name_keeps_names_inside_the_folder() -> None:
-    assert safe_name("../../etc/passwd") == "_.._etc_passwd"
-    assert "/" not in safe_name("a/b\\c d") and not safe_name("..x").startswith(".")
+def test_output_folder_stays_inside_out(tmp_path: Path) -> None:
+    from harness.calibration.workflow import output_folder
+
+    folder = output_folder(tmp_path, "../../etc/passwd", "wheel")
+    assert folder.parent == tmp_path and folder.is_dir()
+    assert "/" not in safe_name("a/b\\c d") and ".." not in safe_name("../x")
 
 
 # --------------------------------------------------------------------------- command
@@ -322,10 +325,14 @@ def test_calibrate_sgsrt_wheel_end_to_end(tmp_path: Path, capsys) -> None:
     ident = [m["omega_rad_s"] for m in data["identified_modes"]]
     wn, _ = load_rig("sgsrt").plant.hub_free_modal_damping()
     assert ident == pytest.approx(list(wn), rel=0.01)
-    # the recommended run file runs as it is
+    # the recommended run file runs as it is, and its expect: (the measured claim) holds
+    from harness.testing import judge_run
+
     run = load_run(data["run_file"])
+    assert "residual_below_unshaped" in run.data["expect"]
     result = execute_run(run, out_dir=tmp_path / "rerun", show_progress=False)
     assert result.summary["stopped_by"] == "completed"
+    assert judge_run(result.run_dir).verdict == "PASS"
 
 
 @pytest.mark.slow

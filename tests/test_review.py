@@ -62,6 +62,19 @@ def test_layout_holds_the_views_the_docs_describe(kind):
         assert p.title in views
 
 
+def test_every_built_in_run_gets_a_layout():
+    from harness.runs import list_runs
+
+    for name, _ in list_runs():
+        run = load_run(name).resolved()
+        views = views_by_name(L.layout_for_run(run, CHANNELS))
+        assert TEXT_VIEWS <= set(views), name
+    valve_decay = {"run": {"controller": {"type": "valve_bursts"}, "duration_s": 10,
+                           "actuators": ["thruster_valves"]}}
+    assert L.run_kind(valve_decay) == "free_decay"
+    assert L.PLOTS["valves"].title in views_by_name(L.layout_for_run(valve_decay, CHANNELS))
+
+
 def test_no_plot_mixes_units_or_scales():
     """The issue's complaints: error apart from the angle, torques apart from speeds,
     milliseconds apart from counts."""
@@ -114,7 +127,7 @@ def test_faulted_run_recording_holds_event_markers_summary_config_bus(faulted):
     assert len(fault) == 1 and fault[0].level == "ERROR" and "silent" in fault[0].text
     assert fault[0].time_s == pytest.approx(faulted.summary["faults"][0]["time_s"])
     # the bus pass saw the missing telemetry from the fault's start
-    bus = [e for e in events if e.entity == "/events/bus"]
+    bus = [e for e in events if e.entity == "/events/can_log"]
     assert bus and 0.99 < bus[0].time_s <= fault[0].time_s and "hub_sensor" in bus[0].text
     have = entities(rrd)
     for key in L.MAIN_PLOTS["slew"]:
@@ -166,6 +179,9 @@ def _tiny_verdict_rrd(run_dir: Path) -> Path:
             static=True)
     rec.set_time("time", duration=0.5)
     rec.log("/events/verdict", rr.TextLog("settle_time_s 30 > 25", level="ERROR"))
+    from harness.review.events import mark_events
+
+    assert mark_events(rec, run_dir / "run.rrd", [(0.5, "verdict", "VERDICT settle")]) >= 8
     rec.flush()
     rec.disconnect()
     return path
@@ -180,6 +196,15 @@ def test_verdict_rrd_opens_with_the_runs_layout(faulted):
     theirs = read_blueprints(verdict)[-1]
     key = sorted((v.name, v.kind, v.origin, v.contents) for v in ours)
     assert key == sorted((v.name, v.kind, v.origin, v.contents) for v in theirs)
+    # its violation is marked on the plots at the run's values at 0.5 s
+    from harness.recording_reader import read_scalar_channel
+    from harness.review.events import values_at
+
+    t, angle = read_scalar_channel(verdict, "/markers/angle/verdict")
+    assert t == pytest.approx([0.5])
+    t_run, a_run = read_scalar_channel(faulted.run_dir / "run.rrd", "/attitude/angle_deg")
+    assert angle[0] == pytest.approx(a_run[np.searchsorted(t_run, 0.5 + 1e-9) - 1])
+    assert values_at(faulted.run_dir / "run.rrd", [0.5])[0]["/attitude/angle_deg"] == angle[0]
 
 
 def test_identify_rrd_spectrum_marks_every_mode_with_the_runs_layout(faulted, tmp_path):
@@ -226,3 +251,81 @@ def test_sweep_rrd_has_its_layout(tmp_path):
     assert len(curves) == 4 and all("(" in v.name for v in curves)
     assert sum(v.kind == "Tensor" for v in views.values()) == 2
     assert "Sweep" in views
+
+
+def test_legend_goes_where_it_hides_no_curve():
+    """A slew stopped at 12 s of 50: its angle rises in the left of the plot, so the legend
+    must not sit at the left top (where it hid the curve in the viewer)."""
+    t = np.arange(0, 12, 0.002)
+    angle = 7.5 * (t / 12) ** 2
+    cols = {"/attitude/angle_deg": angle, "/attitude/reference_deg": angle}
+    ranges = L.channel_ranges(cols)
+    corners = L.legend_corners(t, cols, 50.0, ranges)
+    assert corners["angle"] in ("RightTop", "RightBottom")
+    # a full-length slew to 20 deg holds at the top right: the bottom right is free
+    t = np.arange(0, 50, 0.002)
+    angle = 20 * np.clip(t / 25, 0, 1)
+    cols = {"/attitude/angle_deg": angle}
+    assert L.legend_corners(t, cols, 50.0, L.channel_ranges(cols))["angle"] == "RightBottom"
+
+
+def test_plot_stats_in_blocks_match_the_whole_run():
+    """Fed block by block (as a streaming recorder would) with bounded memory, the same
+    ranges as the whole columns and a decimated copy that still spans the run."""
+    rng = np.random.default_rng(2)
+    t = np.arange(0, 100, 0.002)
+    data = np.column_stack([np.sin(t), 1e-3 * rng.normal(size=len(t)), np.full(len(t), np.nan)])
+    stats = L.PlotStats(["/attitude/angle_deg", "/attitude/error_deg", "/piezo/cmd_ch1_v"],
+                        max_rows=1000)
+    for k in range(0, len(t), 500):
+        stats.add(t[k:k + 500], data[k:k + 500])
+    whole = L.channel_ranges({"/attitude/angle_deg": data[:, 0],
+                              "/attitude/error_deg": data[:, 1]})
+    assert stats.ranges() == whole
+    assert len(stats.t) <= 1000 and stats.t[0] == 0.0 and stats.t[-1] > 99.0
+    assert np.all(np.diff(stats.t) > 0)
+    assert set(stats.legends(100.0)) >= {"angle", "error"}
+
+
+def test_judged_run_verdict_rrd_has_layout_events_and_markers(faulted, tmp_path):
+    """harness judge's verdict.rrd (the verdict layer) carries run.rrd's layout, the
+    verdict text, its violation as an event and a marker on the plots at its time."""
+    import shutil
+
+    from harness.testing import judge_run
+    from harness.testing.judge import write_verdict
+
+    run_dir = tmp_path / faulted.run_dir.name  # a copy: the fixture's verdict.rrd is ours
+    shutil.copytree(faulted.run_dir, run_dir)
+    (run_dir / "verdict.rrd").unlink(missing_ok=True)
+    v = judge_run(run_dir)
+    assert v.verdict == "ERROR"  # a fault the run did not expect
+    write_verdict(v, run_dir)
+    path = run_dir / "verdict.rrd"
+    ev = [e for e in read_events(path) if e.entity == "/events/verdict"]
+    fault_t = faulted.summary["faults"][0]["time_s"]
+    assert ev and ev[0].time_s == pytest.approx(fault_t)
+    assert read_text(path, "/run/verdict")
+    assert {"/markers/angle/verdict", "/markers/tip/verdict"} <= entities(path)
+    ours = read_blueprints(faulted.run_dir / "run.rrd")[-1]
+    theirs = read_blueprints(path)[-1]
+    assert sorted(v.name for v in ours) == sorted(v.name for v in theirs)
+
+
+def test_realtime_bus_frames_at_their_receive_time(tmp_path):
+    """On the real-time clock a frame sits at its own timestamp after the first SYNC: the
+    SYNCs near their ticks (the clock's lateness), telemetry just after its SYNC."""
+    from harness.recording_reader import read_scalar_channel
+
+    run = load_run("slew-rw", {"duration_s": 1.0})
+    res = execute_run(run, out_dir=tmp_path, clock="realtime", show_progress=False)
+    rrd = res.run_dir / "run.rrd"
+    t, tick = read_scalar_channel(rrd, "/bus/harness/sync/tick")
+    late = t - tick * run.dt_s
+    assert late.min() == pytest.approx(0.0, abs=1e-6)  # against the clock's schedule
+    assert np.all(np.diff(t) > 0)
+    th, _ = read_scalar_channel(rrd, "/bus/hub_sensor/tlm/angle_rad")
+    tr, rx_ms = read_scalar_channel(rrd, "/bus/hub_sensor/rx_after_sync_ms")
+    assert len(th) == len(tr) > 0.5 * len(t)  # every frame has its receive offset
+    assert np.all(rx_ms >= 0)  # a frame read after a later SYNC counts for its own tick
+    assert np.median(rx_ms) < run.dt_s * 1e3  # telemetry comes within its tick

@@ -286,6 +286,9 @@ def test_real_bus_runs_one_at_a_time_after_a_good_probe(tmp_path):
 
     suite = tmp_path / "on-rig.yaml"
     suite.write_text(yaml.safe_dump({"name": "rig", "tests": [
+        # the pre-flight takes the suite's probe settings: 10 Hz, telemetry awaited 60 ms,
+        # keeps this real-time test independent of the shared machine's load
+        {"probe": {"rate_hz": 10, "duration_s": 2.0, "receive_timeout_ms": 60}},
         {"run": "slew-rw", "name": "hold", "duration_s": 1.0, "own_expect": False,
          "set": {"rate_hz": 100, "monitor": {"realtime_grace_s": 0.5}},
          "expect": {"safe": {"left_safe": True}}},
@@ -301,6 +304,8 @@ def test_real_bus_runs_one_at_a_time_after_a_good_probe(tmp_path):
     results = json.loads((suite_dir_of(out, "rig") / "results.json").read_text())
     by_item = {t["item"]: t for t in results["tests"]}
     assert by_item["hold"]["verdict"] == "PASS" and by_item["fault"]["verdict"] == "SKIPPED"
+    assert by_item["probe"]["verdict"] == "PASS"
+    assert by_item["probe"]["reason"].startswith("pre-flight")  # not probed twice
     summary = json.loads((suite_dir_of(out, "rig") / by_item["hold"]["run_dir"]
                           / "summary.json").read_text())
     assert summary["clock"] == "realtime" and summary["bus"].startswith("socketcand:")

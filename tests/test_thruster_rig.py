@@ -24,7 +24,6 @@ from harness.controllers.thruster_slew import (
     THRUSTER_SLEW_SCHEMA,
     build_thruster_slew,
     linear_closed_loop,
-    paper_plant_scale,
     rig_ppf_design_model,
     scaled_pd_gains,
 )
@@ -38,6 +37,7 @@ from harness.studies.hu2006_rig import (
     ordering,
     recorded_energy,
 )
+from rig_models.reference.hu2006_hub_beam import Hu2006HubBeam
 from rig_models.rig_file import load_rig
 from rig_models.schema import ConfigError, validate
 from rig_models.virtual_rig import VirtualRig
@@ -192,6 +192,23 @@ def test_energy_estimate_matches_the_rig_truth(runs):
         assert np.max(np.abs(energy - truth)) < 0.05 * truth.max(), name
 
 
+def paper_plant_scale() -> tuple[float, float]:
+    """(inertia kg m^2, thruster torque N m) of the paper's plant, from our reference model."""
+    plant = Hu2006HubBeam()
+    return float(plant.inertia), float(plant.params.thruster_torque)
+
+
+def test_run_files_give_the_paper_plant_of_the_reference_model():
+    # the controller takes the paper plant's scale from the run file (it does not import the
+    # paper's model); every built-in run's values are the reference model's
+    for name in RUN_NAMES:
+        pd = load_run(name).controller["pd"]
+        if pd["gains"] == "paper_scaled":
+            assert (pd["paper_inertia_kg_m2"], pd["paper_torque_n_m"]) == paper_plant_scale()
+    with pytest.raises(ValueError, match="pd.paper_inertia_kg_m2"):
+        _controller(pd={"gains": "paper_scaled"})
+
+
 def test_scaled_pd_gains_keep_the_paper_loop_dimensionless():
     rig = load_rig("sgsrt")
     j_p, u_p = paper_plant_scale()
@@ -208,6 +225,8 @@ def test_scaled_pd_gains_keep_the_paper_loop_dimensionless():
 
 def _controller(**section):
     rig = load_rig("sgsrt")
+    j_p, u_p = paper_plant_scale()
+    section.setdefault("pd", {"paper_inertia_kg_m2": j_p, "paper_torque_n_m": u_p})
     c = validate({"type": "thruster_pd_pwpf", "angle_deg": 60.0, **section},
                  THRUSTER_SLEW_SCHEMA, "test")
     return build_thruster_slew(c, rig, 0.002)

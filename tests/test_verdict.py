@@ -194,8 +194,12 @@ def test_settles_within_and_stays():
     y[(T > 4.0) & (T < 4.5)] = 1.0
     [r] = evaluate(parse_criteria({"s": crit}, "t"), facts_with({"/attitude/error_deg": (T, y)}))
     assert r.value == pytest.approx(4.5, abs=0.011)
-    [r] = evaluate(parse_criteria({"s": dict(crit, stays_s=20.0)}, "t"), f)
+    never = facts_with({"/attitude/error_deg": (T, 2.0 + 0.0 * T)})
+    [r] = evaluate(parse_criteria({"s": crit}, "t"), never)
     assert r.verdict == FAIL and r.value is None and "never settled" in r.message
+    # in the band at the end but the record is shorter than stays_s: too short to judge
+    [r] = evaluate(parse_criteria({"s": dict(crit, stays_s=20.0)}, "t"), f)
+    assert r.verdict == ERROR and "judging needs the run to last until" in r.message
 
 
 def test_baseline_tolerance_and_time_shift(tmp_path):

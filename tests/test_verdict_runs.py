@@ -320,3 +320,17 @@ def test_built_in_slew_passes_and_a_tightened_copy_fails_or_is_marginal(slew_res
     tight.write_text(yaml.safe_dump(raw))
     assert main(["judge", str(d), "--expect", str(tight)]) == 5
     assert verdict_of(d)["verdict"] == "MARGINAL"
+
+
+def test_fault_test_reusing_a_run_file_is_judged_on_its_fault(tmp_path):
+    """slew-rw's own criteria (a clean bus, settling) plus a fault expectation: the run
+    stops at the fault by design, so only the fault and the safe state are judged."""
+    raw = yaml.safe_load((RUNS_DIR / "slew-rw.yaml").read_text())
+    expect = dict(raw["expect"], detected={"fault": "accelerometer", "kind": "malformed frame",
+                                           "within_ticks": 1})
+    faults = [{"kind": "wrong_length", "at_s": 1.0, "device": "accelerometer"}]
+    code, d = run(run_file(tmp_path, expect, "fault-test", faults=faults), tmp_path / "logs")
+    v = verdict_of(d)
+    assert code == 0, v["reason"]
+    assert sorted(c["name"] for c in v["criteria"]) == ["detected", "safe"]
+    assert v["reason"].startswith("fault test")

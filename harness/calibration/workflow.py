@@ -24,7 +24,6 @@ from __future__ import annotations
 import datetime as dt
 import json
 import math
-import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,6 +53,7 @@ from harness.calibration.plan import (
 )
 from harness.calibration.residual import fit_modal_residual, true_residual
 from harness.controllers.shaped_wheel_slew import Mode
+from harness.paths import safe_child, safe_name
 from harness.runs import RunConfig, run_from_dict
 from harness.session import RunResult, execute_run
 from rig_models.rig_file import RigConfig, load_rig
@@ -154,17 +154,10 @@ class Calibration:
         return out
 
 
-def safe_name(text: str) -> str:
-    """Letters, digits, '.', '_' and '-' only (anything else becomes '_'); no leading dot."""
-    name = re.sub(r"[^A-Za-z0-9._-]", "_", text).lstrip(".") or "rig"
-    return name[:80]
-
-
 def output_folder(out: Path, rig_name: str, actuator: str) -> Path:
+    """``out/<UTC time>-calibrate-<rig>-<actuator>`` (a safe name, inside ``out``)."""
     stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-    folder = out / safe_name(f"{stamp}-calibrate-{rig_name}-{actuator}")
-    if folder.resolve().parent != out.resolve():
-        raise ConfigError(f"--out {out}: the calibration folder would leave it")
+    folder = safe_child(out, f"{stamp}-calibrate-{rig_name}-{actuator}")
     folder.mkdir(parents=True, exist_ok=False)
     return folder
 
@@ -314,6 +307,30 @@ def recommend(c: Calibration) -> None:
             f"{c.verified[c.recommended].get('ratio_resolvable', math.nan):.1f}x)")
 
 
+def residual_expect(c: Calibration, row: dict[str, Any], label: str) -> dict[str, Any]:
+    """The run file's ``expect:`` (docs/criteria.md) stating what the calibration measured
+    of this slew that its own recording can show: the raw tip acceleration over the residual
+    window stays below the unshaped slew's raw peak over the same window (the fitted
+    residual, the calibration's main reading, is not a recorded channel; the accelerometer's
+    noise keeps the raw peak near its noise floor). Empty when the raw peak was not below
+    the unshaped one."""
+    assert c.baseline is not None
+    base_raw = c.baseline["raw"]["peak_m_s2"]
+    if not row["raw"]["peak_m_s2"] < base_raw:
+        return {}
+    truth = (f"; noise-free truth {row['ratio_truth']:.1f}x" if "ratio_truth" in row else "")
+    return {"residual_below_unshaped": {
+        "channel": "/tip/accel_m_s2", "max_abs_m_s2": round(base_raw, 5),
+        "from_s": round(row["window_s"][0], 4),
+        "why": (f"harness calibrate measured, over this window: raw peak "
+                f"{row['raw']['peak_m_s2']:.4f} m/s^2 for the {label} slew against "
+                f"{base_raw:.4f} m/s^2 for the unshaped slew of the same angle; the identified "
+                f"modes fitted to the residual: {row['fitted']['peak_m_s2']:.3g} +- "
+                f"{row['fitted']['sigma_m_s2']:.2g} m/s^2, {row['ratio_fitted']:.1f}x below "
+                f"unshaped{truth}. The limit is the unshaped slew's raw peak: the raw channel, "
+                f"near the accelerometer's noise, can show no more than that.")}}
+
+
 def _dump(path: Path, data: dict[str, Any], header: str) -> None:
     text = "".join(f"# {line}\n" for line in header.splitlines())
     path.write_text(text + yaml.safe_dump(data, sort_keys=False))
@@ -420,6 +437,9 @@ def calibrate(opts: Options, progress: Callable[[str], None] = lambda m: None) -
         if row["truth"] is not None:
             row["ratio_truth"] = ref["truth"]["peak_m_s2"] / row["truth"]["peak_m_s2"]
         judge(c, row)
+        claim = residual_expect(c, row, cand.label)
+        if claim:
+            row["run"]["expect"] = claim
         c.verified[cand.key] = row
         truth = (f", truth {row['truth']['peak_m_s2']:.2e} ({row['ratio_truth']:.1f}x)"
                  if row["truth"] is not None else "")

@@ -109,8 +109,8 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
             s["run_dir"] = str(result.run_dir)
             summaries.append(s)
             print(f"harness: {s['run']} {s['stopped_by']}: final angle error "
-                  f"{s['final_angle_error_deg']} deg, settle {s['settle_time_s']} s, "
-                  f"residual tip accel {s['residual_tip_accel_m_s2']} m/s^2"
+                  f"{_g(s['final_angle_error_deg'])} deg, settle {_g(s['settle_time_s'])} s, "
+                  f"residual tip accel {_g(s['residual_tip_accel_m_s2'])} m/s^2"
                   + (f", steady tip accel amplitude {s['steady_tip_accel_amplitude_m_s2']:.4f}"
                      " m/s^2" if "steady_tip_accel_amplitude_m_s2" in s else "")
                   + f", {s['real_time_factor']}x real time; recording in {result.run_dir}",
@@ -150,3 +150,8 @@ def _judge(run_dir: Path, summary: dict | None) -> int:
     if summary is not None:
         summary["verdict"] = verdict.verdict
     return verdict.exit_code
+
+
+def _g(x: object) -> str:
+    """A summary number for the status line: 4 significant digits, '-' when absent."""
+    return "-" if x is None else f"{x:.4g}" if isinstance(x, float) else str(x)

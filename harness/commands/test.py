@@ -17,9 +17,9 @@ Writes ``<out>/<UTC time>-<suite>/`` with each test's run directory, ``results.j
 ``report.md`` and ``report.html`` (self-contained: verdicts, criteria against their limits,
 plots of the checked channels with their bands, links to run.rrd and can.blf).
 
-Exit status: 0 all PASS, 5 the worst is MARGINAL, 1 a FAIL, 4 an ERROR (3 if only by faults
-nobody expected), 2 bad suite file / no test selected / refused (probe failed), 130
-interrupted.
+Exit status, the most severe test's (as ``harness run``'s variants): 130 interrupted, 2
+refused (bad suite file, no test selected, the pre-flight probe failed), 3 an ERROR by a
+fault nobody expected, 4 another ERROR, 1 a FAIL, 5 the worst is MARGINAL, 0 all PASS.
 """
 
 from __future__ import annotations

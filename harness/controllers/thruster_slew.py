@@ -10,7 +10,9 @@ Run-file controller type ``thruster_pd_pwpf`` (keys in ``THRUSTER_SLEW_SCHEMA``)
     piezo_v   = -PPF_ch(sensor_ch)  for each channel with a bank (rate- and voltage-limited)
 
 **PD gains.** The paper's 15 / 50 are for its plant (J_p = 8.92 kg m^2 in our reference model
-``rig_models/reference/hu2006_hub_beam``, thruster torque U_p = 1 N m). ``pd.gains:
+``rig_models/reference/hu2006_hub_beam``, thruster torque U_p = 1 N m; the run file gives them
+as ``pd.paper_inertia_kg_m2`` / ``pd.paper_torque_n_m``, so this controller does not depend on
+the paper's model). ``pd.gains:
 paper_scaled`` keeps the paper's loop in dimensionless form on the rig (J_r, couple U_r): the
 torque demand in units of the couple, the angle in rad and time scaled by
 ``s = sqrt((U_p/J_p) / (U_r/J_r))`` (4.1 for the SGSRT: the rig has 1/16.8 of the paper's
@@ -41,7 +43,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -71,6 +72,11 @@ THRUSTER_SLEW_SCHEMA: dict[str, Any] = {
         "kp_paper": Field("number", "N m/rad", default=PAPER_KP_N_M_PER_RAD,
                           exclusive_minimum=0.0),
         "kd_paper": Field("number", "N m s/rad", default=PAPER_KD_N_M_S_PER_RAD, minimum=0.0),
+        # the paper's plant that kp_paper / kd_paper were tuned on (paper_scaled only): our
+        # reference model of it (rig_models/reference/hu2006_hub_beam) gives J 8.9236 kg m^2
+        # and U_m 1 N m; tests/test_thruster_rig.py checks the run files against it
+        "paper_inertia_kg_m2": Field("number", "kg m^2", default=0.0, minimum=0.0),
+        "paper_torque_n_m": Field("number", "N m", default=0.0, minimum=0.0),
         "kp_n_m_per_rad": Field("number", "N m/rad", default=0.0, minimum=0.0),
         "kd_n_m_s_per_rad": Field("number", "N m s/rad", default=0.0, minimum=0.0),
     },
@@ -100,15 +106,6 @@ THRUSTER_SLEW_SCHEMA: dict[str, Any] = {
 
 
 # ----------------------------------------------------------------------------- design pieces
-@lru_cache(maxsize=1)
-def paper_plant_scale() -> tuple[float, float]:
-    """(inertia kg m^2, thruster torque N m) of the paper's plant, from our reference model."""
-    from rig_models.reference.hu2006_hub_beam import Hu2006HubBeam
-
-    plant = Hu2006HubBeam()
-    return float(plant.inertia), float(plant.params.thruster_torque)
-
-
 @dataclass(frozen=True)
 class PDGains:
     kp_n_m_per_rad: float
@@ -384,7 +381,11 @@ def build_thruster_slew(c: dict[str, Any], rig: RigConfig, dt_s: float) -> Thrus
                              "given")
         gains = PDGains(pd["kp_n_m_per_rad"], pd["kd_n_m_s_per_rad"], "given")
     else:
-        j_p, u_p = paper_plant_scale()
+        j_p, u_p = pd["paper_inertia_kg_m2"], pd["paper_torque_n_m"]
+        if not (j_p > 0 and u_p > 0):
+            raise ValueError("pd.paper_inertia_kg_m2 and pd.paper_torque_n_m: expected the "
+                             "paper plant's inertia (> 0 kg m^2) and thruster torque (> 0 N m) "
+                             "with gains: paper_scaled")
         gains = scaled_pd_gains(pd["kp_paper"], pd["kd_paper"], inertia, couple, j_p, u_p)
     pw = c["pwpf"]
     pwpf = PWPFParameters(k_m=pw["k_m"], tau_m=pw["tau_m_s"], u_on=pw["u_on"],

@@ -4,13 +4,16 @@ own time, per device, and the telemetry that came late or not at all at each tic
 Entities (``time`` timeline, seconds): ``/bus/<device>/tlm/<signal>_<unit>`` (telemetry),
 ``/bus/<device>/cmd/<signal>_<unit>`` (commands), ``/bus/harness/sync/tick`` and
 ``/bus/harness/heartbeat/...``, ``/bus/<device>/rx_after_sync_ms`` (the frame's timestamp
-minus its tick's SYNC's, wall clock) and ``/bus/late_or_missing`` (devices due at a tick
-whose telemetry did not come before the next SYNC), with a warning under ``/events/bus`` for
+minus its tick's SYNC's, wall clock; a frame sent before the SYNC it was read after
+counts for the tick before, late) and ``/bus/late_or_missing`` (devices due at a tick
+whose telemetry did not come before the next SYNC), with a warning under ``/events/can_log`` for
 the first ticks that lack one.
 
 Where a frame is placed on the ``time`` timeline. The tick is the last SYNC before the frame
-(its ``tick`` signal). On the real-time clock a frame sits at its timestamp minus the first
-SYNC's, plus that SYNC's tick time: a late frame shows where it really came. In lockstep the
+(its ``tick`` signal). On the real-time clock a frame sits at its timestamp minus the time
+tick 0 was due, taken as the smallest (SYNC timestamp - tick x period) over the log (a
+first pass over the SYNCs; the first SYNC is often the latest of all): a late frame, or a
+late SYNC, shows where it really came. In lockstep the
 wall clock is not simulated time (a tick takes microseconds of wall time, or longer), so a
 frame sits at its tick's time plus its wall-clock offset after that SYNC, clamped below 90 %
 of the period: it stays in its own tick, and ``rx_after_sync_ms`` keeps the true wall
@@ -129,6 +132,19 @@ class _Series:
         self.v = array("d")
 
 
+def _sync_origin(blf: Path, sync_id: int, tick_mask: int, dt_s: float) -> float | None:
+    """min over the SYNCs of (timestamp - tick x period): when tick 0 was due."""
+    best: float | None = None
+    with can.BLFReader(str(blf)) as reader:
+        for msg in reader:
+            if msg.arbitration_id == sync_id and not msg.is_error_frame and len(msg.data) >= 4:
+                tick = int.from_bytes(msg.data, "little") & tick_mask
+                o = float(msg.timestamp) - tick * dt_s
+                if best is None or o < best:
+                    best = o
+    return best
+
+
 def write_bus(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime: bool,
               dividers: Mapping[str, int], protocol: Protocol | None = None,
               block_rows: int = 10_000) -> BusStats:
@@ -155,10 +171,13 @@ def write_bus(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime: bool,
     due = {d: int(dividers.get(d, 1)) for d in DEVICES if d in dividers}
     tick_mask = sync.signals[0].mask
     stats = BusStats()
+    # real time: the schedule's start, from the SYNC least late against it (a first pass
+    # over the SYNCs only; tick 0's own SYNC is often the latest of all)
+    origin = _sync_origin(blf, sync_id, tick_mask, dt_s) if realtime else None
     first_sync_ts: float | None = None
-    first_tick_t = 0.0
     tick = -1
     sync_ts = 0.0
+    prev_sync_ts: float | None = None
     seen: set[str] = set()
     clamp = LOCKSTEP_CLAMP * dt_s
 
@@ -172,8 +191,9 @@ def write_bus(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime: bool,
         if missing:
             stats.late_or_missing += len(missing)
             if len(stats.warnings) < MAX_WARNINGS:
-                stats.warnings.append((t_tick, f"tick {tick}: no telemetry before the next "
-                                       f"SYNC from {', '.join(missing)}"))
+                stats.warnings.append((t_tick, f"can log: no telemetry from {', '.join(missing)} "
+                                       f"before the next SYNC (tick {tick}, t = "
+                                       f"{t_tick:.3f} s)"))
 
     with can.BLFReader(str(blf)) as reader:
         for msg in reader:
@@ -194,21 +214,24 @@ def write_bus(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime: bool,
             if fid == sync_id:
                 close_tick()
                 tick = int.from_bytes(data, "little") & tick_mask
+                prev_sync_ts = sync_ts if first_sync_ts is not None else None
                 sync_ts = ts
                 seen = set()
                 if first_sync_ts is None:
                     first_sync_ts = ts
-                    first_tick_t = tick * dt_s
-            if first_sync_ts is None:
+            if origin is not None:
+                t = max(0.0, ts - origin)
+            elif first_sync_ts is None:
                 t = 0.0
-            elif realtime:
-                t = first_tick_t + (ts - first_sync_ts)
             else:
                 t = tick * dt_s + min(max(ts - sync_ts, 0.0), clamp)
             rx = rx_after.get(fid)
             if rx is not None and tick >= 0:
-                seen.add(tlm_device[fid])
-                rx.add(t, (ts - sync_ts) * 1e3)
+                if ts >= sync_ts or prev_sync_ts is None:
+                    seen.add(tlm_device[fid])
+                    rx.add(t, (ts - sync_ts) * 1e3)
+                else:  # sent before this tick's SYNC, read after it: late for its own tick
+                    rx.add(t, (ts - prev_sync_ts) * 1e3)
             out.add(t, bytes(data))
             stats.decoded += 1
     close_tick()

@@ -5,15 +5,17 @@ A marker is a point of the plot's own first signal at the event's time (so it si
 curve, at the plot's scale) in a series per kind of event (``/markers/<plot>/<kind>``), its
 name in the plot's legend. Kinds: ``fault`` (``/events/<device>``, level ERROR),
 ``interrupt`` / ``error`` (``/events/harness``), ``warning`` (``/events/monitor``,
-``/events/bus``) and ``verdict`` (``/events/verdict``).
+``/events/can_log``) and ``verdict`` (``/events/verdict``).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
+import numpy as np
 import rerun as rr
 
 from harness.review.layouts import PLOTS
@@ -33,7 +35,7 @@ def event_kind(entity: str, level: str) -> str:
     source = entity.rstrip("/").rsplit("/", 1)[-1]
     if source == "verdict":
         return "verdict"
-    if source in ("monitor", "bus"):
+    if source in ("monitor", "can_log"):
         return "warning"
     if source == "harness":
         return "error" if level in ("ERROR", "CRITICAL") else "interrupt"
@@ -165,3 +167,45 @@ def summary_markdown(summary: Mapping[str, Any]) -> str:
         if v not in (None, ""):
             lines.append(f"| {key} | {_fmt(v)} |")
     return "\n".join(lines) + "\n"
+
+
+def values_at(rrd: Path, times_s: Sequence[float]) -> list[dict[str, float]]:
+    """For each time, every plotted channel's recorded value at the last row at or before it
+    (one streaming pass over the recording; memory bounded by the chunk size)."""
+    from harness.recording_reader import RrdReader
+
+    wanted = {c for p in PLOTS.values() for c in p.channels if not c.startswith("/bus/")}
+    times = np.asarray(times_s, dtype=float)
+    out: list[dict[str, float]] = [{} for _ in times]
+    best: list[dict[str, float]] = [{} for _ in times]  # channel -> time of the value kept
+    for chunk in RrdReader(rrd).stream().to_chunks():
+        entity = chunk.entity_path
+        if entity not in wanted or chunk.is_static or "time" not in chunk.timeline_names:
+            continue
+        batch = chunk.to_record_batch()
+        t = batch.column("time").cast("int64").to_numpy(zero_copy_only=False) * 1e-9
+        if not len(t):
+            continue
+        v = batch.column("Scalars:scalars").to_pylist()
+        order = np.argsort(t, kind="stable")
+        t = t[order]
+        for i, ti in enumerate(times):
+            k = int(np.searchsorted(t, ti + 1e-9, side="right")) - 1
+            if k < 0 or best[i].get(entity, -np.inf) >= t[k]:
+                continue
+            x = v[int(order[k])]
+            best[i][entity] = float(t[k])
+            out[i][entity] = float(x[0] if isinstance(x, list) else x)
+    return out
+
+
+def mark_events(rec: rr.RecordingStream, run_rrd: Path,
+                events: Sequence[tuple[float, str, str]]) -> int:
+    """Markers for events written into another file of the run (verdict.rrd): each
+    ``(time_s, kind, name)`` marked on every plot at the run's signal values at that time
+    (read from ``run_rrd``). Returns how many markers were logged."""
+    if not events:
+        return 0
+    vals = values_at(run_rrd, [e[0] for e in events])
+    return sum(log_markers(rec, t, kind, name, v)
+               for (t, kind, name), v in zip(events, vals, strict=True))

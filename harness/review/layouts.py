@@ -26,7 +26,7 @@ KINDS = ("slew", "periodic", "free_decay", "thruster", "piezo")
 
 SLEW_CONTROLLERS = {"pd_wheel", "shaped_wheel_slew"}
 PERIODIC_CONTROLLERS = {"square_wave"}
-FREE_DECAY_CONTROLLERS = {"wheel_bursts", "wheel_pulse", "hold"}
+FREE_DECAY_CONTROLLERS = {"wheel_bursts", "wheel_pulse", "valve_bursts", "hold"}
 THRUSTER_PREFIX = "thruster_"
 
 
@@ -137,6 +137,17 @@ def run_kind(run: Mapping[str, Any]) -> str:
     return "slew" if "angle_deg" in (data.get("controller") or {}) else "free_decay"
 
 
+def main_plots(kind: str, actuators: Iterable[str]) -> tuple[str, ...]:
+    """The main plots of a kind of run; a free decay excited by the valves (no wheel) shows
+    the valves instead of the wheel."""
+    keys = MAIN_PLOTS[kind]
+    acts = set(actuators)
+    if kind == "free_decay" and "thruster_valves" in acts and "reaction_wheel" not in acts:
+        swap = {"wheel_torque": "valves", "wheel_speed": "on_time"}
+        keys = tuple(swap.get(k, k) for k in keys)
+    return keys
+
+
 def whole_run_axis(duration_s: float | None) -> rrb.TimeAxis | None:
     """The time axis of a plot fixed on the whole run, 0 .. duration."""
     if duration_s is None or duration_s <= 0:
@@ -185,8 +196,57 @@ def y_range(plot: Plot, ranges: Mapping[str, Sequence[float]] | None
     return nice_range(min(lo, 0.0) if plot.from_zero else lo, max(r[1] for r in found))
 
 
+def axis_range(plot: Plot, ranges: Mapping[str, Sequence[float]] | None
+               ) -> tuple[float, float] | None:
+    """The y axis of a plot: ``y_range`` with a margin, so that the end labels show."""
+    yr = y_range(plot, ranges)
+    if yr is None:
+        return None
+    pad = AXIS_MARGIN * (yr[1] - yr[0])
+    return yr[0] - pad, yr[1] + pad
+
+
+CORNERS = ("LeftTop", "RightTop", "LeftBottom", "RightBottom")
+LEGEND_BOX = (0.4, 0.5)  # share of a plot's width and height a legend may cover
+
+
+def legend_corners(time_s: Any, columns: Mapping[str, Any], duration_s: float,
+                   ranges: Mapping[str, Sequence[float]], max_points: int = 4000
+                   ) -> dict[str, str]:
+    """For each plot, the corner where its legend hides the fewest of its samples (an
+    opaque legend over the curve hid a faulted slew's angle): plot key -> corner."""
+    import numpy as np
+
+    t = np.asarray(time_s, dtype=float)
+    if len(t) == 0 or duration_s <= 0:
+        return {}
+    step = max(1, len(t) // max_points)
+    x = t[::step] / (duration_s * 1.015)
+    w, h = LEGEND_BOX
+    out: dict[str, str] = {}
+    for plot in PLOTS.values():
+        yr = axis_range(plot, ranges)
+        cols = [np.asarray(columns[c], dtype=float)[::step] for c in plot.channels
+                if c in columns]
+        if yr is None or not cols:
+            continue
+        counts = dict.fromkeys(CORNERS, 0)
+        for v in cols:
+            y = (v - yr[0]) / (yr[1] - yr[0])
+            ok = np.isfinite(y)
+            left, right = x < w, x > 1 - w
+            top, bottom = y > 1 - h, y < h
+            counts["LeftTop"] += int(np.sum(ok & left & top))
+            counts["RightTop"] += int(np.sum(ok & right & top))
+            counts["LeftBottom"] += int(np.sum(ok & left & bottom))
+            counts["RightBottom"] += int(np.sum(ok & right & bottom))
+        out[plot.key] = min(CORNERS, key=lambda c: counts[c])  # ties: the earlier corner
+    return out
+
+
 def time_plot(plot: Plot, duration_s: float | None, channels: Iterable[str] | None = None,
-              ranges: Mapping[str, Sequence[float]] | None = None) -> rrb.TimeSeriesView:
+              ranges: Mapping[str, Sequence[float]] | None = None,
+              legend: str = "LeftTop") -> rrb.TimeSeriesView:
     """A plot of ``plot``'s channels (those recorded, if ``channels`` is given) and its event
     markers, on the whole run; its y axis on ``ranges`` (channel -> recorded min, max)
     widened by ``nice_range``, when given."""
@@ -194,18 +254,16 @@ def time_plot(plot: Plot, duration_s: float | None, channels: Iterable[str] | No
     contents = [c for c in plot.channels
                 if recorded is None or c in recorded or c.startswith("/bus/")]
     contents.append(f"{plot.marker_path}/**")
-    yr = y_range(plot, ranges)
-    if yr is not None:  # a margin, so that the labels at the ends are not clipped
-        pad = AXIS_MARGIN * (yr[1] - yr[0])
-        yr = (yr[0] - pad, yr[1] + pad)
+    yr = axis_range(plot, ranges)
     return rrb.TimeSeriesView(
         name=plot.title, contents=contents, axis_x=whole_run_axis(duration_s),
         axis_y=None if yr is None else rrb.ScalarAxis(range=yr, zoom_lock=False),
-        plot_legend=rrb.PlotLegend(corner="LeftTop"))
+        plot_legend=rrb.PlotLegend(corner=legend))
 
 
 def events_view() -> rrb.TextLogView:
-    """Every event (``/events/**``), with its time, source, level and text."""
+    """Every event (``/events/**``): its time, level and text (the viewer keeps the time
+    and source columns narrow, so each text names its source and time itself)."""
     import rerun.blueprint.encodings as be
 
     kinds = be.TextLogColumnKind
@@ -214,8 +272,8 @@ def events_view() -> rrb.TextLogView:
         columns=rrb.TextLogColumns(
             timeline_columns=[be.TimelineColumn("time")],
             text_log_columns=[be.TextLogColumn(kinds.LogLevel),
-                              be.TextLogColumn(kinds.EntityPath),
-                              be.TextLogColumn(kinds.Body)]))
+                              be.TextLogColumn(kinds.Body),
+                              be.TextLogColumn(kinds.EntityPath, visible=False)]))
 
 
 def text_views(include_verdict: bool = True) -> rrb.Container:
@@ -247,7 +305,8 @@ def _grid(views: Sequence[rrb.View], columns: int = 2) -> rrb.Container:
 
 
 def layout_for_run(run: Mapping[str, Any], channels: Iterable[str] | None = None,
-                   ranges: Mapping[str, Sequence[float]] | None = None) -> rrb.Blueprint:
+                   ranges: Mapping[str, Sequence[float]] | None = None,
+                   legends: Mapping[str, str] | None = None) -> rrb.Blueprint:
     """The default layout of a run from its resolved config (``RunConfig.resolved()`` or
     config.yaml, or its ``run`` section) and its recorded channels: the main plots of its
     kind in two columns, the text views on the right; the bus, the other devices and the
@@ -256,7 +315,10 @@ def layout_for_run(run: Mapping[str, Any], channels: Iterable[str] | None = None
     kind = run_kind(data)
     duration = data.get("duration_s")
     chans = list(channels) if channels is not None else None
-    main = [time_plot(PLOTS[k], duration, chans, ranges) for k in MAIN_PLOTS[kind]]
+    corner = dict(legends or {})
+    keys = main_plots(kind, data.get("actuators") or ())
+    main = [time_plot(PLOTS[k], duration, chans, ranges, corner.get(k, "LeftTop"))
+            for k in keys]
     if kind == "free_decay":
         spec = spectrum_views()
         run_page: rrb.Container = rrb.Vertical(
@@ -264,9 +326,9 @@ def layout_for_run(run: Mapping[str, Any], channels: Iterable[str] | None = None
             row_shares=[3, 2], name="Run")
     else:
         run_page = rrb.Vertical(_grid(main), name="Run")
-    shown = set(MAIN_PLOTS[kind])
-    others = [time_plot(p, duration, chans, ranges) for k, p in PLOTS.items()
-              if k not in shown]
+    shown = set(keys)
+    others = [time_plot(p, duration, chans, ranges, corner.get(k, "LeftTop"))
+              for k, p in PLOTS.items() if k not in shown]
     bus = [time_plot(p, duration) for p in BUS_PLOTS]
     tabs = [run_page,
             rrb.Vertical(_grid(bus), name="CAN bus (decoded at receive time)"),
@@ -280,8 +342,9 @@ def layout_for_run(run: Mapping[str, Any], channels: Iterable[str] | None = None
 
 
 LAYOUT_FILE = "layout.json"
-"""Beside run.rrd: the recorded extremes of each channel, so that every file written later
-for the run (identify.rrd, verdict.rrd) carries the very layout run.rrd has."""
+"""Beside run.rrd: the recorded extremes of each channel and each plot's legend corner, so
+that every file written later for the run (identify.rrd, verdict.rrd) carries the very
+layout run.rrd has."""
 
 
 def channel_ranges(columns: Mapping[str, Any]) -> dict[str, list[float]]:
@@ -297,10 +360,11 @@ def channel_ranges(columns: Mapping[str, Any]) -> dict[str, list[float]]:
     return out
 
 
-def write_layout_file(run_dir: Path, ranges: Mapping[str, Sequence[float]]) -> Path:
+def write_layout_file(run_dir: Path, ranges: Mapping[str, Sequence[float]],
+                      legends: Mapping[str, str] | None = None) -> Path:
     path = run_dir / LAYOUT_FILE
-    path.write_text(json.dumps({"y_ranges": {c: list(r) for c, r in ranges.items()}},
-                               indent=1))
+    path.write_text(json.dumps({"y_ranges": {c: list(r) for c, r in ranges.items()},
+                                "legends": dict(legends or {})}, indent=1))
     return path
 
 
@@ -314,8 +378,8 @@ def blueprint_for_run_dir(run_dir: Path) -> rrb.Blueprint:
 
     cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
     layout = run_dir / LAYOUT_FILE
-    ranges = json.loads(layout.read_text())["y_ranges"] if layout.exists() else None
-    return layout_for_run(cfg, CHANNELS, ranges)
+    saved = json.loads(layout.read_text()) if layout.exists() else {}
+    return layout_for_run(cfg, CHANNELS, saved.get("y_ranges"), saved.get("legends"))
 
 
 def study_layout(curves: Mapping[str, Sequence[str]], timeline: str,
@@ -351,3 +415,62 @@ def blueprint_views(bp: rrb.Blueprint) -> list[rrb.View]:
 
     walk(bp.root_container)
     return out
+
+
+class PlotStats:
+    """What a run's final layout needs, gathered block by block in bounded memory: each
+    channel's extremes, and a decimated copy of the rows (at most ``max_rows``; when full,
+    every other row is dropped and the stride doubles) for ``legend_corners``. Feed it with
+    ``add(time_s, rows)`` (rows: one column per channel), e.g. as a Recorder block
+    observer, then ``ranges()`` and ``legends(duration_s)``."""
+
+    def __init__(self, channels: Sequence[str], max_rows: int = 4096) -> None:
+        import numpy as np
+
+        self.channels = list(channels)
+        self.max_rows = max_rows
+        self.lo = np.full(len(self.channels), np.inf)
+        self.hi = np.full(len(self.channels), -np.inf)
+        self.stride = 1
+        self._skip = 0  # rows to skip before the next one kept
+        self.t: list[float] = []
+        self.rows: list[Any] = []
+
+    def add(self, time_s: Any, rows: Any) -> None:
+        import numpy as np
+
+        t = np.asarray(time_s, dtype=float)
+        data = np.asarray(rows, dtype=float).reshape(len(t), len(self.channels))
+        if not len(t):
+            return
+        with np.errstate(invalid="ignore"):
+            self.lo = np.fmin(self.lo, np.nanmin(np.where(np.isfinite(data), data, np.nan),
+                                                 axis=0, initial=np.inf))
+            self.hi = np.fmax(self.hi, np.nanmax(np.where(np.isfinite(data), data, np.nan),
+                                                 axis=0, initial=-np.inf))
+        i = self._skip
+        while i < len(t):
+            self.t.append(float(t[i]))
+            self.rows.append(data[i].copy())
+            if len(self.t) >= self.max_rows:
+                self.t = self.t[::2]
+                self.rows = self.rows[::2]
+                self.stride *= 2
+            i += self.stride
+        self._skip = i - len(t)
+
+    def ranges(self) -> dict[str, list[float]]:
+        import math as m
+
+        return {c: [float(a), float(b)] for c, a, b in zip(self.channels, self.lo, self.hi,
+                                                          strict=True)
+                if m.isfinite(a) and m.isfinite(b)}
+
+    def legends(self, duration_s: float) -> dict[str, str]:
+        import numpy as np
+
+        if not self.t:
+            return {}
+        data = np.array(self.rows)
+        cols = {c: data[:, i] for i, c in enumerate(self.channels)}
+        return legend_corners(np.array(self.t), cols, duration_s, self.ranges())

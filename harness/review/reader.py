@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from rerun.chunk import RrdReader
+from harness.recording_reader import RrdReader
 
 
 @dataclass(frozen=True)

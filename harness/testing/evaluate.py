@@ -282,6 +282,14 @@ def evaluate_settles(c: Criterion, facts: Facts) -> CriterionResult:
             entry = float(t[a])
             break
     what = f"{c.target} within {center:g} +- {band:g} {u} for {stays:g} s"
+    if entry is None and len(starts) and ends[-1] == len(t) - 1 \
+            and t[starts[-1]] - trigger <= c.limit["max"] + 1e-9:
+        # in the band in time and still in it at the end, but the run ended before it had
+        # stayed stays_s: too short to judge, not a failure to settle
+        a = float(t[starts[-1]])
+        raise MissingData(
+            f"{what}: in the band from t = {a:.3f} s to the run's end at t = "
+            f"{float(t[-1]):.3f} s; judging needs the run to last until t = {a + stays:.3f} s")
     if entry is None:
         dev = np.abs(x - center)
         late = t >= trigger + c.limit["max"] - 1e-9
@@ -291,7 +299,7 @@ def evaluate_settles(c: Criterion, facts: Facts) -> CriterionResult:
                        f"{what}: never settled after t = {trigger:.3f} s (worst "
                        f"{_fmt(float(x[i]))} {u} at t = {float(t[i]):.3f} s)",
                        [float(t[i])])
-    value = entry - trigger
+    value = round(entry - trigger, 9)  # sample times minus an event time: no float dust
     margin = c.limit["max"] - value
     verdict = grade(margin, c.marginal)
     return _result(c, value, margin, verdict, entry,

@@ -12,6 +12,7 @@ import hashlib
 import importlib.metadata
 import json
 import subprocess
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -121,7 +122,7 @@ def read_channels(rrd: Path, wanted: set[str] | None = None
                   ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """The scalar channels of a recording on the ``time`` timeline (``wanted`` ones, or
     all), in one pass."""
-    from rerun.chunk import RrdReader
+    from harness.recording_reader import RrdReader  # quiet on footer-less files
 
     parts: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
     for chunk in RrdReader(rrd).stream().to_chunks():
@@ -293,15 +294,21 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
                if c.kind == "scalar" and c.target in WORST_SAMPLE}
     facts = Facts(summary, ChannelCache(run_dir / "run.rrd", wanted), BaselineCache(wanted),
                   lambda: left_safe_problems(run_dir / "can.blf"))
-    dry = bool(summary.get("dry_run"))
-    if dry:  # nothing was commanded: only the rig left safe and the run's own checks
+    note = ""
+    if summary.get("dry_run"):  # nothing was commanded: only the safe state and the checks
         criteria = [c for c in criteria if c.kind == "left_safe"]
+        note = "dry run (nothing commanded): only left_safe and the run's own checks judged"
+    elif any(c.kind == "fault" for c in criteria):
+        # a fault test: the fault stops the run by design, so the nominal run's criteria
+        # (final error, settling, a clean bus) do not apply; the rig must see it and be safe
+        criteria = [c for c in criteria if c.kind in ("fault", "left_safe")]
+        note = "fault test: only its fault expectations, left_safe and the run's own checks " \
+               "judged"
     results = evaluate(criteria, facts) + results + (run_checks(criteria, summary)
                                                      if summary else [])
     verdict = make_verdict(results, identity_of(run_dir, cfg, summary, expect_file), run_dir)
-    if dry and verdict.verdict == "PASS":
-        verdict.reason = "dry run (nothing commanded): only left_safe and the run's own " \
-                         "checks judged; " + verdict.reason
+    if note and verdict.verdict == "PASS":
+        verdict.reason = f"{note}; {verdict.reason}"
     return verdict
 
 
@@ -336,7 +343,7 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
     out = run_dir / "verdict.json"
     out.write_text(json.dumps(v.to_dict(), indent=2) + "\n")
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=run_dir.name)
-    rec.save(str(run_dir / "verdict.rrd"))
+    rec.save(str(run_dir / "verdict.rrd"), default_blueprint=_run_layout(run_dir))
     rec.log("/run/verdict", rr.TextDocument(verdict_markdown(v), media_type="text/markdown"),
             static=True)
     events = sorted((t, c) for c in v.criteria for t in c.violations_s)
@@ -344,9 +351,38 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
         rec.set_time("time", duration=t)
         rec.log("/events/verdict", rr.TextLog(f"{c.name} {c.verdict}: {c.message}",
                                               level="ERROR" if c.verdict == ERROR else "WARN"))
+    _mark_on_plots(rec, run_dir, [(t, f"VERDICT {c.name} {c.verdict}") for t, c in events])
     rec.flush()
     rec.disconnect()
     return out
+
+
+def _run_layout(run_dir: Path) -> Any:
+    """run.rrd's layout (harness.review), so the files open together in any order."""
+    try:
+        from harness.review.layouts import blueprint_for_run_dir
+
+        return blueprint_for_run_dir(run_dir)
+    except Exception:  # no config.yaml (a bare recording): the viewer keeps run.rrd's
+        return None
+
+
+def _mark_on_plots(rec: Any, run_dir: Path, events: list[tuple[float, str]]) -> None:
+    """The violations marked on the run's plots at the run's values (harness.review)."""
+    if not events or not (run_dir / "run.rrd").exists():
+        return
+    try:
+        from harness.review.events import mark_events
+
+        mark_events(rec, run_dir / "run.rrd", [(t, "verdict", name) for t, name in events])
+    except Exception as exc:  # the verdict stands without its markers
+        print(f"harness judge: could not mark the violations on the plots ({exc})",
+              file=sys.stderr)
+
+
+UNIT_TEXT = {"n_m": "N m", "m_s2": "m/s^2", "deg_s": "deg/s", "rad_s": "rad/s", "m_s": "m/s",
+             "n_m_s": "N m s", "percent": "%", "bool": "", "count": "", "ratio": ""}
+"""How a unit suffix reads in the printed block (the keys keep the suffix)."""
 
 
 def format_block(v: Verdict, path: Path | None = None) -> str:
@@ -360,7 +396,8 @@ def format_block(v: Verdict, path: Path | None = None) -> str:
                         for k, val_ in c.limit.items())
         margin = "" if c.margin is None else f"  margin {c.margin:.4g}"
         at = "" if c.worst_time_s is None else f"  worst at t = {c.worst_time_s:.3f} s"
-        lines.append(f"  {c.verdict:<8} {c.name:<{w}}  {val} {c.unit}".rstrip()
+        unit = UNIT_TEXT.get(c.unit, c.unit)
+        lines.append(f"  {c.verdict:<8} {c.name:<{w}}  {val} {unit}".rstrip()
                      + (f"  limit {lim}" if lim else "") + margin + at)
         if c.verdict != "PASS":
             lines.append(f"  {'':<8} {'':<{w}}  {c.message}")

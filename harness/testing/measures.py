@@ -50,6 +50,7 @@ SUMMARY_MEASURES: dict[str, str] = {
     "frames.unknown": "count",
     "frames.malformed": "count",
     "frames.missing": "count",
+    "frames.missing_in_ticks_on_time": "count",
     "frames.error_frames": "count",
     "wall_time_s": "s",
     "simulated_time_s": "s",

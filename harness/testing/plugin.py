@@ -106,6 +106,13 @@ class SuitePlugin:
         for key, case in needed.items():
             if self.real_bus and case.virtual_only:
                 continue
+            if self.real_bus and case.kind == "probe" and self.preflight is not None:
+                # on a real bus the pre-flight is the suite's probe: judged, not repeated
+                self.cases[key] = case
+                self.futures[key] = self.engine.submit(_preflight_case, case,
+                                                       self.preflight)
+                self.futures[key].add_done_callback(lambda f, k=key: self._finished(k, f))
+                continue
             self.cases[key] = case
             fut = self.engine.submit(run_case, case, str(self.out_dir),
                                      self.engine.ships_files, self.bus)
@@ -113,9 +120,12 @@ class SuitePlugin:
             fut.add_done_callback(lambda f, k=key: self._finished(k, f))
 
     def _preflight(self) -> None:
+        """The probe before anything is armed, with the first probe test's settings."""
+        opts = next((c.probe for s in self.suites.values() for c in s.cases
+                     if c.kind == "probe"), {})
         self._say(f"pre-flight probe on {self.bus} (never arms) ...")
         try:
-            self.preflight = run_probe({}, self.bus)
+            self.preflight = run_probe(opts, self.bus)
             v = probe_verdict(self.preflight)
         except Exception as exc:  # noqa: BLE001 - a bus that does not open refuses too
             v = item_result("ERROR", f"{type(exc).__name__}: {exc}")
@@ -246,6 +256,18 @@ class SuitePlugin:
             preflight=self.preflight, refused=self.refused,
             wall_s=time.perf_counter() - self.t0,
             interrupted=exitstatus == pytest.ExitCode.INTERRUPTED)
+
+
+def _preflight_case(case: Case, report: dict[str, Any]) -> dict[str, Any]:
+    """A probe test on a real bus: the pre-flight's report, judged with the test's checks."""
+    from harness.testing.checks import judge_check
+    from harness.testing.work import _with_checks, current_worker
+
+    res = _with_checks(probe_verdict(report), [judge_check(c, report) for c in case.checks])
+    return {"case": case.id, "kind": "probe", "worker": current_worker(), "run_dir": None,
+            "summary": None, "wall_s": 0.0, "files": {},
+            "items": {case.id: {**res, "document": report,
+                                "reason": f"pre-flight: {res['reason']}"}}}
 
 
 class SuiteFile(pytest.File):

@@ -6,7 +6,9 @@ A suite is a YAML file (built-ins in ``harness/suites/``, ``harness test --list`
     name: acceptance
     description: the lab's daily check of the rig
     tests:
-      - probe: {duration_s: 1}               # every device answers (never arms)
+      - probe: {duration_s: 1}               # every device answers (never arms); on a real
+                                         # bus the first probe test sets the pre-flight's
+                                         # rate_hz, duration_s, settle_s, receive_timeout_ms
       - run: slew-rw                         # a run file: built-in name or path
         expect: ...                          # extra criteria, added to the run file's expect
         own_expect: true                     # false: only this test's expect (a fault test
@@ -395,12 +397,13 @@ def load_suite(name_or_path: str) -> Suite:
                 compares.append(cmp)
         elif kind == "probe":
             opts = t["probe"] if t["probe"] not in (None, True) else {}
-            if not isinstance(opts, dict) or set(opts) - {"rate_hz", "duration_s", "settle_s"}:
+            keys = {"rate_hz": "Hz", "duration_s": "s", "settle_s": "s",
+                    "receive_timeout_ms": "ms"}
+            if not isinstance(opts, dict) or set(opts) - set(keys):
                 raise _err(f"{where}.probe", "expected a mapping {rate_hz?, duration_s?, "
-                           f"settle_s?}}, got {opts!r}")
+                           f"settle_s?, receive_timeout_ms?}}, got {opts!r}")
             for k, v in opts.items():
-                if _number(v, f"{where}.probe.{k}", "Hz" if k == "rate_hz" else "s") <= 0 and \
-                        k != "settle_s":
+                if _number(v, f"{where}.probe.{k}", keys[k]) <= 0 and k != "settle_s":
                     raise _err(f"{where}.probe.{k}", f"expected a number > 0, got {v!r}")
             test = _str(t.get("name", "probe"), f"{where}.name")
             new = [Case(id=test, kind="probe", suite=name, test=test, where=where,

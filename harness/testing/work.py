@@ -161,7 +161,8 @@ def run_probe(opts: dict[str, Any], bus: str | None, rig: str = "sgsrt") -> dict
             pump = VirtualRig(rig_cfg, buses[1], 1.0 / rate).service
         res = probe(buses[0], rig_cfg, rate, float(opts.get("duration_s", 2.0)),
                     bus_name=str(spec), pump=pump, realtime=pump is None,
-                    settle_s=float(opts.get("settle_s", 0.5)))
+                    settle_s=float(opts.get("settle_s", 0.5)),
+                    receive_timeout_s=float(opts.get("receive_timeout_ms", 5.0)) / 1e3)
     finally:
         for b in buses:
             b.shutdown()
