@@ -38,7 +38,7 @@ def test_coupling_delta1_matches_paper(rig):
 def test_hub_free_modes_near_paper(rig):
     """Ours 2.882 / 13.341 rad/s against the paper's calculated 2.8081 / 13.643: within 3 %.
     The paper's J = 15 kg m^2 and its coupling [2.65 0.54 0.21] (modes 2, 3 larger than a
-    uniform Euler-Bernoulli beam gives) are not fully consistent; see README."""
+    uniform Euler-Bernoulli beam gives) are not fully consistent; see docs/papers.md."""
     free, _ = rig.plant.hub_free_modes()
     rel = np.abs(free[:2] - PAPER_HUB_FREE) / PAPER_HUB_FREE
     assert np.all(rel < 0.03), rel

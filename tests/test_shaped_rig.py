@@ -448,3 +448,23 @@ def test_run_file_modes_are_what_identification_gives(tmp_path, free_decay_run, 
     assert [(m["omega_rad_s"], m["damping_ratio"]) for m in report["modes"]] == [
         (m.omega_rad_s, m.damping_ratio) for m in modes]
     assert "36.9 rad/s bursts" in info["modes"][2]["source"]
+
+
+def test_claim_measures_flatten_the_rows_for_the_paper_suites():
+    from harness.studies.shaped_rig import claim_measures
+
+    def row(fitted: float, truth: float, ratio: float, **extra):
+        return {"fitted": {"peak_m_s2": fitted}, "truth": {"peak_m_s2": truth},
+                "ratio_fitted": ratio, "ratio_truth": ratio, "final_angle_error_deg": 0.001,
+                **extra}
+
+    results = {"wheel": {"zv-plus-10": row(2e-3, 1.6e-3, 10.0),
+                         "zvd-plus-10": row(8e-4, 1.6e-4, 20.0)},
+               "thruster": {"lhhl-damped": row(1e-3, 1e-3, 30.0, design_t8_s=8.3,
+                                               manoeuvre_s=8.306, firings=99)}}
+    m = claim_measures(results)
+    assert m["wheel_zvd_over_zv_plus_10_truth"] == pytest.approx(0.1)
+    assert m["wheel_zvd_over_zv_plus_10_fitted"] == pytest.approx(0.4)
+    assert "wheel_zvd_over_zv_minus_10_truth" not in m  # not run: not invented
+    assert m["thruster_lhhl_damped_reduction_truth"] == 30.0
+    assert m["thruster_lhhl_damped_firings_count"] == 99

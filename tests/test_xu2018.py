@@ -32,3 +32,17 @@ def test_cli_json(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["measures"]["model_hub_free_mode1_vs_paper_calculated_percent"] == pytest.approx(
         100 * (out["model"]["hub_free_omega_rad_s"][0] / 2.8081 - 1))
+
+
+@pytest.mark.slow
+def test_cases_part_orders_beta(tmp_path):
+    """Nine case runs (shortened to 40 s: the last 30 s are the steady window)."""
+    out = xu2018.run_study(("cases",), out_dir=tmp_path, cases_duration_s=40.0)
+    m = out["measures"]
+    assert len(out["cases"]) == 9 and len(list(tmp_path.glob("*-case-*/run.rrd"))) == 9
+    for case in ("case_a", "case_b", "case_c"):
+        assert m[f"{case}_worst_beta"] == 1.0  # beta = 1 worst, as in the paper's Table 2
+        assert m[f"{case}_beta_1p0_over_largest_other"] > 1.0
+    assert m["case_c_best_beta"] == 0.8
+    row = next(r for r in out["cases"] if r["case"] == "case-c" and r["beta"] == 1.0)
+    assert m["case_c_beta_1p0_over_paper"] == pytest.approx(row["ours_m_s2"] / 0.037)

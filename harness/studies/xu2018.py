@@ -65,18 +65,20 @@ def model_part(rig_name: str = "sgsrt") -> tuple[dict[str, Any], dict[str, float
     return rep, m
 
 
-def _variant_runs(name: str):
+def _variant_runs(name: str, duration_s: float | None = None):
     base = load_run(name)
+    extra = {} if duration_s is None else {"duration_s": duration_s}
     for vname, over in (base.data["variants"] or {}).items():
-        yield vname, load_run(name, dict(over) | {"name": f"{base.name}-{vname}"})
+        yield vname, load_run(name, dict(over) | {"name": f"{base.name}-{vname}"} | extra)
 
 
-def cases_part(out_dir: Path, progress=None) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+def cases_part(out_dir: Path, progress=None, duration_s: float | None = None
+               ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     m: dict[str, Any] = {}
     for case in CASES:
         amps: dict[float, float] = {}
-        for _vname, run in _variant_runs(case):
+        for _vname, run in _variant_runs(case, duration_s):
             if progress:
                 progress(f"xu2018: running {run.name}")
             result = execute_run(run, out_dir=out_dir, show_progress=False)
@@ -167,7 +169,7 @@ def sweep_part(workers: int = 1, rig_name: str = "sgsrt") -> tuple[dict[str, Any
 
 
 def run_study(parts: tuple[str, ...] = PARTS, out_dir: Path = Path("logs"), workers: int = 1,
-              progress=None) -> dict[str, Any]:
+              progress=None, cases_duration_s: float | None = None) -> dict[str, Any]:
     out: dict[str, Any] = {"paper": {"table1_rad_s": PAPER_TABLE1, "model": PAPER_003,
                                      "table2_m_s2": {c: {str(b): v for b, v in t.items()}
                                                      for c, t in PAPER_TABLE2.items()}}}
@@ -176,7 +178,7 @@ def run_study(parts: tuple[str, ...] = PARTS, out_dir: Path = Path("logs"), work
         out["model"], m = model_part()
         measures |= {f"model_{k}": v for k, v in m.items()}
     if "cases" in parts:
-        out["cases"], m = cases_part(out_dir, progress)
+        out["cases"], m = cases_part(out_dir, progress, cases_duration_s)
         measures |= m
     if "identify" in parts:
         out["identify"], m = identify_part(out_dir, progress)
