@@ -53,6 +53,19 @@ def read_text(rrd: Path, entity: str) -> str | None:
     return text
 
 
+def read_series_names(rrd: Path) -> dict[str, list[str]]:
+    """entity -> the legend's names of its series (static ``SeriesLines:names``)."""
+    out: dict[str, list[str]] = {}
+    for chunk in RrdReader(rrd).stream().to_chunks():
+        if not chunk.is_static:
+            continue
+        batch = chunk.to_record_batch()
+        if "SeriesLines:names" in batch.schema.names:
+            names = batch.column("SeriesLines:names").to_pylist()[-1]
+            out[chunk.entity_path] = [str(n) for n in (names or [])]
+    return out
+
+
 def entities(rrd: Path) -> set[str]:
     """Every entity path with data in the recording."""
     return {c.entity_path for c in RrdReader(rrd).stream().to_chunks()}
