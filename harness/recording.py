@@ -86,7 +86,8 @@ class Recorder:
         self._fill = 0
         self._pending: deque[_Block] = deque()
         # events queued in the tick (queue_event), sent by drain() in the slack
-        self._events: deque[tuple[float, str, str, str, dict[str, float], str | None]] = deque()
+        self._events: deque[tuple[float, str, str, str, dict[str, float], str | None,
+                                  str | None]] = deque()
         self.max_pending_events = max(1, int(max_pending_events))
         self._tail: deque[_Block] = deque()
         self._tail_rows = 0
@@ -190,11 +191,12 @@ class Recorder:
         log_event(self.rec, time_s, entity, text, level, self.latest_values())
 
     def queue_event(self, time_s: float, entity: str, text: str, level: str = "WARN",
-                    series: str | None = None) -> None:
+                    series: str | None = None, name: str | None = None) -> None:
         """As ``log_event`` (markers at the last committed row's values), but sent by the
         next ``drain()``, outside the tick's critical path; past ``max_pending_events``
-        queued, the oldest is sent at once (memory stays bounded)."""
-        self._events.append((time_s, entity, text, level, self.latest_values(), series))
+        queued, the oldest is sent at once (memory stays bounded). ``series`` and ``name``:
+        the markers' series and legend name (harness.review.events.log_event)."""
+        self._events.append((time_s, entity, text, level, self.latest_values(), series, name))
         while len(self._events) > self.max_pending_events:
             self._send_event(self._events.popleft())
 
@@ -202,12 +204,12 @@ class Recorder:
     def pending_events(self) -> int:
         return len(self._events)
 
-    def _send_event(self, event: tuple[float, str, str, str, dict[str, float], str | None]
-                    ) -> None:
+    def _send_event(self, event: tuple[float, str, str, str, dict[str, float], str | None,
+                                       str | None]) -> None:
         from harness.review.events import log_event
 
-        time_s, entity, text, level, values, series = event
-        log_event(self.rec, time_s, entity, text, level, values, series=series)
+        time_s, entity, text, level, values, series, name = event
+        log_event(self.rec, time_s, entity, text, level, values, name=name, series=series)
 
     def latest_values(self) -> dict[str, float]:
         """Every channel's value in the last committed row (empty before the first)."""

@@ -290,7 +290,8 @@ def _warning_logger(recorder: Recorder, show: bool) -> Callable[[MonitorWarning]
     loop's slack, ``Recorder.queue_event``), marked on the plots, and a line on stderr."""
     def on_warning(w: MonitorWarning) -> None:
         recorder.queue_event(w.time_s, "/events/monitor", str(w), "WARN",
-                             series=f"warning/{w.kind}")
+                             series=f"warning/{w.kind}",
+                             name=f"WARNING {w.kind.replace('_', ' ')}")
         if show:
             print(f"\nharness: WARNING {w}", file=sys.stderr)
     return on_warning

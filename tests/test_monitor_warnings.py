@@ -178,6 +178,10 @@ def test_wheel_near_its_limit_warns_in_the_recording_and_summary(near_limit):
     for plot in ("wheel_speed", "wheel_torque", "tip", "angle"):
         assert f"/markers/{plot}/warning/wheel_speed" in have, plot
         assert f"/markers/{plot}/warning/torque_saturated" in have, plot
+    from harness.review.reader import read_series_names
+
+    assert read_series_names(rrd, points=True)["/markers/tip/warning/torque_saturated"] == [
+        "WARNING torque saturated"]
     tm, marked = read_scalar_channel(rrd, "/markers/wheel_speed/warning/wheel_speed")
     assert tm == pytest.approx([first]) and marked[0] == pytest.approx(
         speed[np.searchsorted(t, first)])

@@ -53,15 +53,17 @@ def read_text(rrd: Path, entity: str) -> str | None:
     return text
 
 
-def read_series_names(rrd: Path) -> dict[str, list[str]]:
-    """entity -> the legend's names of its series (static ``SeriesLines:names``)."""
+def read_series_names(rrd: Path, points: bool = False) -> dict[str, list[str]]:
+    """entity -> the legend's names of its series: the static ``SeriesLines:names`` of the
+    plotted channels, or with ``points`` the (last) ``SeriesPoints:names`` of the markers."""
+    column = "SeriesPoints:names" if points else "SeriesLines:names"
     out: dict[str, list[str]] = {}
     for chunk in RrdReader(rrd).stream().to_chunks():
-        if not chunk.is_static:
+        if not (chunk.is_static or points):
             continue
         batch = chunk.to_record_batch()
-        if "SeriesLines:names" in batch.schema.names:
-            names = batch.column("SeriesLines:names").to_pylist()[-1]
+        if column in batch.schema.names:
+            names = batch.column(column).to_pylist()[-1]
             out[chunk.entity_path] = [str(n) for n in (names or [])]
     return out
 
