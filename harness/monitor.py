@@ -227,8 +227,8 @@ class FaultMonitor:
         for kind, x in values:
             if h[kind].update(x):
                 frac, limit, unit, what = self._levels[kind]
-                self._warn(tick, kind, f"{x:.4g} {unit} above {100 * frac:g} % of {what} "
-                                       f"{limit:.4g} {unit} ({frac * limit:.4g} {unit})")
+                self._warn(tick, kind, f"{x:.5g} {unit} is past {100 * frac:g} % of {what} "
+                                       f"{limit:.4g} {unit} ({frac * limit:.5g} {unit})")
         torque = abs(sent.wheel_torque_n_m)
         if torque >= self._torque_limit * (1.0 - 1e-9):
             self._torque_held += 1

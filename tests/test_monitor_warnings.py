@@ -78,7 +78,7 @@ def test_wheel_speed_warns_once_per_excursion_with_hysteresis():
         _tick(mon, drivers, k, speed=float(v))
     assert [w.kind for w in got] == ["wheel_speed"]
     assert got[0].tick == int(np.argmax(np.abs(speeds) > 80.0))
-    assert "above 80 % of the wheel speed limit 100 rad/s" in got[0].message
+    assert "is past 80 % of the wheel speed limit 100 rad/s (80 rad/s)" in got[0].message
     # down to 70 rad/s (below 95 % of the threshold) ends it; 85 rad/s starts a second
     for k in range(1000, 1010):
         _tick(mon, drivers, k, speed=70.0)
