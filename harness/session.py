@@ -451,6 +451,10 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
             "malformed": malformed,
             "missing": stats.missing_frames,
             "missing_in_ticks_on_time": stats.missing_frames_on_time,
+            # split by a rig process's SYNC timing (attribute_missing); without it (the rig
+            # as a thread, lockstep, a real rig) every such frame counts as the harness's
+            "missing_in_ticks_rig_woke_late": 0,
+            "missing_in_ticks_held_by_both": stats.missing_frames_on_time,
             "error_frames": interface.counters.error_frames,
         },
         "wall_time_s": round(stats.wall_s, 3),
