@@ -61,6 +61,9 @@ class LoopStats:
     # telemetry frames missing in ticks that were not themselves late (the loop held its
     # deadline, the frame still did not come)
     missing_frames_on_time: int = 0
+    # the first MAX_MISS_TICKS of those ticks as (tick, frames missing): a rig process's
+    # SYNC timing tells which of them the host kept the rig from answering in time
+    missing_on_time_ticks: list[tuple[int, int]] = field(default_factory=list)
     wall_s: float = 0.0
     stopped_by: str = "completed"
     error: str = ""
@@ -74,6 +77,9 @@ class LoopStats:
             hist.add(v)
         return hist.percentiles_ms()
 
+
+MAX_MISS_TICKS = 20_000
+"""Ticks with frames missing though the loop held them, kept by tick (the count is exact)."""
 
 CAN_LOG_MAX_PENDING = 20_000
 """Frames the CAN log may queue in real time before it is written regardless (about 3 s of
@@ -142,6 +148,8 @@ def run_loop(
                 stats.overruns += 1
             elif missing > 0 and lateness < 0.5 * dt_s:
                 stats.missing_frames_on_time += missing
+                if len(stats.missing_on_time_ticks) < MAX_MISS_TICKS:
+                    stats.missing_on_time_ticks.append((tick, missing))
             stats.lateness_s.add(lateness)
             stats.work_s.add(work)
             ref = reference(t_s)[0] if reference is not None else math.nan

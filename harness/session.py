@@ -137,7 +137,8 @@ def execute_run(
                               lifetime_s=run.data["duration_s"] + 60.0,
                               transport="tcp" if rig_mode == "process-tcp" else "unix",
                               cpu=rig_cpu,
-                              priority=rt["rig_priority"] if rt["sched_fifo"] else 0)
+                              priority=rt["rig_priority"] if rt["sched_fifo"] else 0,
+                              realtime=rt["lock_memory"] or rt["gc_freeze"])
             where = stack.enter_context(proc)
             rig_measures = proc.measures
             spec = parse_bus(where)
@@ -149,12 +150,43 @@ def execute_run(
             exc.run_dir = run_dir  # type: ignore[attr-defined]
             raise
         result.summary["virtual_rig_mode"] = rig_mode
-        if rig_measures:
+        if rig_mode.startswith("process"):
+            proc.stop()  # its SYNC timing and its own measures are known once it stops
             m = result.summary["realtime_measures"]
             for key in ("requested", "applied", "refused"):
                 m[key] += rig_measures[key]
+            if proc.timing is not None:
+                timing = {k: v for k, v in proc.timing.items() if k not in ("late",
+                                                                             "measures")}
+                timing["held_fraction_of_period"] = RIG_HELD_FRACTION
+                timing["syncs_not_held"] = sum(
+                    1 for _, wake_ms in proc.timing.get("late", [])
+                    if wake_ms * 1e-3 >= RIG_HELD_FRACTION * run.dt_s)
+                result.summary["virtual_rig_timing"] = timing
+                result.summary["frames"].update(attribute_missing(
+                    result.stats.missing_on_time_ticks, result.stats.missing_frames_on_time,
+                    proc.timing.get("late", []), run.dt_s))
             (run_dir / "summary.json").write_text(json.dumps(result.summary, indent=2))
         return result
+
+
+RIG_HELD_FRACTION = 0.5
+"""A rig process held a tick when it had the tick's SYNC in hand within this fraction of the
+period after it was sent: the rule the loop applies to itself (a tick is held when it
+starts less than half a period late and does not overrun)."""
+
+
+def attribute_missing(miss_ticks: list[tuple[int, int]], missing_on_time: int,
+                      late_syncs: list[list[float]], dt_s: float) -> dict[str, int]:
+    """Split the telemetry frames missing in ticks the loop held into those whose SYNC the
+    host kept from the rig process (woken ``RIG_HELD_FRACTION`` of a period or later after
+    it was sent: the host's, as a floor loop on the rig's CPU would show) and those of
+    ticks both the loop and the rig held (the harness's own). Frames beyond the ticks kept
+    by tick (``MAX_MISS_TICKS``) or the rig's late list are counted as the harness's."""
+    late = {int(t) for t, wake_ms in late_syncs if wake_ms * 1e-3 >= RIG_HELD_FRACTION * dt_s}
+    rig_late = sum(n for tick, n in miss_ticks if tick in late)
+    return {"missing_in_ticks_rig_woke_late": rig_late,
+            "missing_in_ticks_held_by_both": missing_on_time - rig_late}
 
 
 REALTIME_RIG_DEFAULT = "process-unix"
@@ -419,6 +451,10 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
             "malformed": malformed,
             "missing": stats.missing_frames,
             "missing_in_ticks_on_time": stats.missing_frames_on_time,
+            # split by a rig process's SYNC timing (attribute_missing); without it (the rig
+            # as a thread, lockstep, a real rig) every such frame counts as the harness's
+            "missing_in_ticks_rig_woke_late": 0,
+            "missing_in_ticks_held_by_both": stats.missing_frames_on_time,
             "error_frames": interface.counters.error_frames,
         },
         "wall_time_s": round(stats.wall_s, 3),

@@ -1,0 +1,45 @@
+"""The rig process's SYNC timing (bounded memory, exact counts) and the split of the
+telemetry frames missing in ticks the loop held into the host's and the harness's."""
+
+from __future__ import annotations
+
+import pytest
+
+from harness.session import RIG_HELD_FRACTION, attribute_missing
+from rig_models.virtual_rig import SyncTiming
+
+
+def test_sync_timing_percentiles_and_late_list():
+    t = SyncTiming(late_s=0.5e-3, max_late=3)
+    for tick in range(1000):
+        t.add(tick, 50e-6, 100e-6)
+    for tick in range(1000, 1005):  # five SYNCs the host kept back 3 ms
+        t.add(tick, 3e-3, 100e-6)
+    d = t.to_dict()
+    assert d["syncs"] == 1005
+    assert d["wake_ms"]["p50"] == pytest.approx(0.06, abs=0.011)  # 10 us bins
+    assert d["wake_ms"]["max"] == pytest.approx(3.0)
+    assert d["work_ms"]["max"] == pytest.approx(0.1)
+    assert d["late_syncs"] == 5  # exact count ...
+    assert [tick for tick, _ in d["late"]] == [1000, 1001, 1002]  # ... bounded list
+
+
+def test_sync_timing_memory_does_not_grow():
+    t = SyncTiming(late_s=0.0, max_late=10)
+    size = t.wake.nbytes + t.work.nbytes
+    for tick in range(50_000):
+        t.add(tick, 1.0, 1.0)  # every one late, beyond the bins
+    assert len(t.late) == 10 and t.late_count == 50_000
+    assert t.wake.nbytes + t.work.nbytes == size
+    assert t.to_dict()["wake_ms"]["max"] == pytest.approx(1000.0)
+
+
+def test_attribute_missing_splits_host_from_harness():
+    dt = 2e-3
+    held = RIG_HELD_FRACTION * dt * 1e3  # ms
+    miss_ticks = [(10, 2), (20, 1), (30, 3)]
+    late = [[10, held + 0.5], [20, held - 0.1], [99, 40.0]]  # tick 20 woke in time
+    out = attribute_missing(miss_ticks, 6, late, dt)
+    assert out == {"missing_in_ticks_rig_woke_late": 2, "missing_in_ticks_held_by_both": 4}
+    # no late SYNC at all: every miss is the harness's
+    assert attribute_missing(miss_ticks, 6, [], dt)["missing_in_ticks_held_by_both"] == 6
