@@ -87,7 +87,10 @@ def memory_run(seconds: float, rate_hz: float, out: Path) -> dict[str, Any]:
     if isinstance(summary, list):
         summary = summary[0] if summary else {}
     minute1 = next((r for t, r in samples if t >= 60.0), samples[0][1] if samples else 0.0)
-    last = samples[-1][1] if samples else 0.0
+    # the run's end: the last sample inside its planned length (after it the process decodes
+    # the CAN log into the recording and judges the run; those show in the peak)
+    inside = [r for t, r in samples if t <= seconds]
+    last = inside[-1] if inside else (samples[-1][1] if samples else 0.0)
     return {"seconds": seconds, "rss_minute_1_mb": minute1, "rss_end_mb": last,
             "growth_mb": last - minute1, "peak_mb": max((r for _, r in samples), default=0.0),
             "samples": samples, "stopped_by": summary.get("stopped_by"),
@@ -225,7 +228,8 @@ def main() -> int:
     if mem:
         print(f"| one continuous {mem['seconds']:g} s run: resident memory minute 1 -> end (MB)"
               f" | | {mem['rss_minute_1_mb']:.1f} -> {mem['rss_end_mb']:.1f} "
-              f"({mem['growth_mb']:+.1f}); overruns {mem['overruns']} / {mem['ticks']}, "
+              f"({mem['growth_mb']:+.1f}), process peak with the bus decoding and judging after it "
+              f"{mem['peak_mb']:.1f}; overruns {mem['overruns']} / {mem['ticks']}, "
               f"missing frames {mem['missing_frames']} ({mem['missing_in_ticks_on_time']}; "
               f"{mem['missing_in_ticks_held_by_both']}) | |")
     for k, v in crit.items():
