@@ -42,12 +42,10 @@ class RigProcessError(RuntimeError):
 
 
 def fault_argument(f: FaultSpec) -> str:
-    """The ``--fault`` text of a fault (``KIND@AT_S[:DEVICE][=VALUE]``); a fault with a
-    duration has no such text and is refused."""
-    if f.duration_s > 0:
-        raise RigProcessError(f"fault {f.kind}@{f.at_s:g}: a fault with duration_s cannot be "
-                              "passed to a rig process; run without --rig-process")
+    """The ``--fault`` text of a fault (``KIND@AT_S[+DURATION_S][:DEVICE][=VALUE]``)."""
     text = f"{f.kind}@{f.at_s!r}"
+    if f.duration_s > 0:
+        text += f"+{f.duration_s!r}"
     if f.device:
         text += f":{f.device}"
     if f.value is not None:

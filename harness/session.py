@@ -198,7 +198,9 @@ def virtual_rig_mode(run: RunConfig, spec: BusSpec, clock_name: str,
                      rig_process: bool = False, faults: list[FaultSpec] | None = None) -> str:
     """"lockstep" (pumped in the loop), "thread", "process-unix", "process-tcp", or
     "external" (the bus is not the in-process virtual bus: the rig is elsewhere). "auto"
-    falls back to "thread" for a fault with a duration (a rig process cannot take one)."""
+    is ``REALTIME_RIG_DEFAULT`` (a rig process takes every fault, timed ones too:
+    ``--fault KIND@AT_S+DURATION_S``). ``faults`` is kept for callers; it no longer
+    changes the choice."""
     if not spec.in_process:
         return "external"
     if clock_name != "realtime":
@@ -207,9 +209,7 @@ def virtual_rig_mode(run: RunConfig, spec: BusSpec, clock_name: str,
         return "process-tcp"
     mode = run.data["realtime"]["virtual_rig"]
     if mode == "auto":
-        timed = any(f.duration_s > 0 for f in faults or [])
-        return "thread" if timed and REALTIME_RIG_DEFAULT.startswith("process") \
-            else REALTIME_RIG_DEFAULT
+        return REALTIME_RIG_DEFAULT
     return mode
 
 

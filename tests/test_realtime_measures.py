@@ -77,10 +77,10 @@ def test_rig_mode_choice():
     assert virtual_rig_mode(run, virt, "realtime") == REALTIME_RIG_DEFAULT
     assert virtual_rig_mode(run, virt, "realtime", rig_process=True) == "process-tcp"
     assert virtual_rig_mode(run, parse_bus("socketcan:vcan0"), "realtime") == "external"
-    # a fault with a duration cannot be passed to a rig process: the rig stays a thread
+    # a fault with a duration goes to the rig process like any other
     timed = make_fault({"kind": "silent_sensor", "at_s": 0.5, "device": "hub_sensor",
                         "duration_s": 0.2}, "test")
-    assert virtual_rig_mode(run, virt, "realtime", faults=[timed]) == "thread"
+    assert virtual_rig_mode(run, virt, "realtime", faults=[timed]) == REALTIME_RIG_DEFAULT
 
 
 def test_clock_never_spins_a_whole_period(monkeypatch):

@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the harness loop rate: one physics step per SYNC (default 500)")
     p.add_argument("--duration-s", type=float, default=0.0,
                    help="exit after this many seconds of wall time (0: until Ctrl-C/SIGTERM)")
-    p.add_argument("--fault", action="append", metavar="KIND@AT_S[:DEVICE][=VALUE]",
+    p.add_argument("--fault", action="append", metavar="KIND@AT_S[+DURATION_S][:DEVICE][=VALUE]",
                    help="inject a fault at rig time AT_S (repeatable; see 'harness faults')")
     p.add_argument("--realtime", action="store_true",
                    help="take the memory measures of a real-time run in this process "
