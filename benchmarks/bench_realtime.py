@@ -126,7 +126,8 @@ def main() -> int:
     floor = FloorResult(args.rate_hz)
     h_lat, h_work = LatencyHistogram(), LatencyHistogram()
     h: dict[str, Any] = {"ticks": 0, "overruns": 0, "missing": 0, "missing_on_time": 0,
-                         "missing_both": 0, "rig_syncs": 0, "rig_not_held": 0,
+                         "missing_both": 0, "missing_rig_slow": 0, "slow_answers": [],
+                         "rig_syncs": 0, "rig_not_held": 0,
                          "rig_wake_p99_ms": 0.0, "rig_wake_max_ms": 0.0,
                          "rig_work_p99_ms": 0.0,
                          "stopped_by": [], "refused": set(), "mode": set()}
@@ -151,6 +152,7 @@ def main() -> int:
                     fr = s["frames"]
                     h["missing_both"] += fr.get("missing_in_ticks_held_by_both",
                                                 st.missing_frames_on_time)
+                    h["missing_rig_slow"] += fr.get("missing_rig_answered_after_window", 0)
                     rt = s.get("virtual_rig_timing") or {}
                     if rt:
                         h["rig_syncs"] += rt["syncs"]
@@ -158,6 +160,8 @@ def main() -> int:
                         h["rig_wake_p99_ms"] = max(h["rig_wake_p99_ms"], rt["wake_ms"]["p99"])
                         h["rig_wake_max_ms"] = max(h["rig_wake_max_ms"], rt["wake_ms"]["max"])
                         h["rig_work_p99_ms"] = max(h["rig_work_p99_ms"], rt["work_ms"]["p99"])
+                        h["slow_answers"] += [[i + 1, *row] for row in
+                                              rt.get("answers_after_window_ms", [])]
                     h["stopped_by"].append(s["stopped_by"])
                     h["refused"].update(s["realtime_measures"]["refused"])
                     h["mode"].add(s["virtual_rig_mode"])
@@ -193,6 +197,7 @@ def main() -> int:
                     "work_ms": h_work.percentiles_ms(), "missing_frames": h["missing"],
                     "missing_frames_in_ticks_held": h["missing_on_time"],
                     "missing_frames_in_ticks_held_by_loop_and_rig": h["missing_both"],
+                    "of_which_rig_answered_after_window": h["missing_rig_slow"],
                     "rig_process": {k[4:]: h[k] for k in h if k.startswith("rig_")},
                     "stopped_by": h["stopped_by"], "refused": sorted(h["refused"]),
                     "virtual_rig_mode": sorted(h["mode"])},
@@ -217,6 +222,8 @@ def main() -> int:
           f"{h_work.percentiles_ms()['p50']:.3f} | |")
     print(f"| telemetry frames missing (in ticks the loop held; and the rig too) | | "
           f"{h['missing']} ({h['missing_on_time']}; {h['missing_both']}) | |")
+    print(f"| of those in ticks both held: the rig answered after the loop stopped waiting | "
+          f"| {h['missing_rig_slow']} | |")
     if h["rig_syncs"]:
         print(f"| rig process: SYNCs in hand later than half a period / SYNCs | | "
               f"{h['rig_not_held']} / {h['rig_syncs']} | |")
@@ -232,6 +239,9 @@ def main() -> int:
               f"{mem['peak_mb']:.1f}; overruns {mem['overruns']} / {mem['ticks']}, "
               f"missing frames {mem['missing_frames']} ({mem['missing_in_ticks_on_time']}; "
               f"{mem['missing_in_ticks_held_by_both']}) | |")
+    for pair, tick, wake, work in h["slow_answers"][:10]:
+        print(f"  pair {pair}, tick {tick}: the rig woke {wake:.3f} ms after the SYNC and "
+              f"took {work:.3f} ms to answer")
     for k, v in crit.items():
         print(f"criterion {k}: {'met' if v else 'NOT met'}")
     if h["refused"]:

@@ -26,7 +26,7 @@ from harness.bus import BusSpec, open_bus, parse_bus
 from harness.busload import compute_bus_load
 from harness.can_log import CanLog
 from harness.clock import LockstepClock, RealTimeClock, RealTimeSetup, choose_cpus
-from harness.loop import CHANNELS, LoopStats, run_loop
+from harness.loop import CHANNELS, RESERVE_FRACTION, LoopStats, run_loop
 from harness.monitor import FaultMonitor
 from harness.paths import safe_child, safe_name
 from harness.periodic import steady_state_amplitude
@@ -160,12 +160,14 @@ def execute_run(
                                                                              "measures")}
                 timing["held_fraction_of_period"] = RIG_HELD_FRACTION
                 timing["syncs_not_held"] = sum(
-                    1 for _, wake_ms in proc.timing.get("late", [])
-                    if wake_ms * 1e-3 >= RIG_HELD_FRACTION * run.dt_s)
-                result.summary["virtual_rig_timing"] = timing
-                result.summary["frames"].update(attribute_missing(
+                    1 for row in proc.timing.get("late", [])
+                    if row[1] * 1e-3 >= RIG_HELD_FRACTION * run.dt_s)
+                split = attribute_missing(
                     result.stats.missing_on_time_ticks, result.stats.missing_frames_on_time,
-                    proc.timing.get("late", []), run.dt_s))
+                    proc.timing.get("late", []), run.dt_s)
+                timing["answers_after_window_ms"] = split.pop("rig_answers_after_window_ms")
+                result.summary["virtual_rig_timing"] = timing
+                result.summary["frames"].update(split)
             (run_dir / "summary.json").write_text(json.dumps(result.summary, indent=2))
         return result
 
@@ -176,17 +178,39 @@ period after it was sent: the rule the loop applies to itself (a tick is held wh
 starts less than half a period late and does not overrun)."""
 
 
-def attribute_missing(miss_ticks: list[tuple[int, int]], missing_on_time: int,
-                      late_syncs: list[list[float]], dt_s: float) -> dict[str, int]:
-    """Split the telemetry frames missing in ticks the loop held into those whose SYNC the
-    host kept from the rig process (woken ``RIG_HELD_FRACTION`` of a period or later after
-    it was sent: the host's, as a floor loop on the rig's CPU would show) and those of
-    ticks both the loop and the rig held (the harness's own). Frames beyond the ticks kept
-    by tick (``MAX_MISS_TICKS``) or the rig's late list are counted as the harness's."""
-    late = {int(t) for t, wake_ms in late_syncs if wake_ms * 1e-3 >= RIG_HELD_FRACTION * dt_s}
-    rig_late = sum(n for tick, n in miss_ticks if tick in late)
-    return {"missing_in_ticks_rig_woke_late": rig_late,
-            "missing_in_ticks_held_by_both": missing_on_time - rig_late}
+def attribute_missing(miss_ticks: list[tuple[int, int, float]], missing_on_time: int,
+                      late_syncs: list[list[float]], dt_s: float) -> dict[str, Any]:
+    """Split the telemetry frames missing in ticks the loop held (``miss_ticks``: tick,
+    frames, the tick's lateness s) by the rig process's SYNC timing (``late_syncs``: tick,
+    wake ms, work ms for the SYNCs it answered late):
+
+    - ``missing_in_ticks_rig_woke_late``: the rig process had the SYNC in hand
+      ``RIG_HELD_FRACTION`` of a period or later after it was sent: the host's, as a floor
+      loop on the rig's CPU would show;
+    - ``missing_in_ticks_held_by_both``: the rest, the harness's own; of those
+      ``missing_rig_answered_after_window`` were sent by the rig after the loop stopped
+      waiting (woken in time, its answer slow: ``rig_answers_after_window_ms`` lists the
+      first ones' [tick, wake, work]), the others were sent in time and still not read in
+      the tick (the transport or the loop).
+
+    Frames beyond the ticks kept by tick (``MAX_MISS_TICKS``) or the rig's late list are
+    counted as the harness's."""
+    late = {int(row[0]): (row[1] * 1e-3, (row[2] if len(row) > 2 else 0.0) * 1e-3)
+            for row in late_syncs}
+    woke_late = answered_late = 0
+    examples: list[list[float]] = []
+    for tick, n, lateness in miss_ticks:
+        wake, work = late.get(tick, (0.0, 0.0))
+        if wake >= RIG_HELD_FRACTION * dt_s:
+            woke_late += n
+        elif wake + work >= (1.0 - RESERVE_FRACTION) * dt_s - lateness:
+            answered_late += n
+            if len(examples) < 10:
+                examples.append([tick, round(wake * 1e3, 3), round(work * 1e3, 3)])
+    return {"missing_in_ticks_rig_woke_late": woke_late,
+            "missing_in_ticks_held_by_both": missing_on_time - woke_late,
+            "missing_rig_answered_after_window": answered_late,
+            "rig_answers_after_window_ms": examples}
 
 
 REALTIME_RIG_DEFAULT = "process-unix"
@@ -455,6 +479,7 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
             # as a thread, lockstep, a real rig) every such frame counts as the harness's
             "missing_in_ticks_rig_woke_late": 0,
             "missing_in_ticks_held_by_both": stats.missing_frames_on_time,
+            "missing_rig_answered_after_window": 0,
             "error_frames": interface.counters.error_frames,
         },
         "wall_time_s": round(stats.wall_s, 3),

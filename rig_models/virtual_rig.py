@@ -60,9 +60,9 @@ class SyncTiming:
     it) to the moment this process had it in hand: the host's scheduling and wake-up
     latency on the rig's CPU plus the transport. ``work``: from then to the last telemetry
     frame sent (the rig's own physics and codecs). Both in 10 us bins up to 0.5 s (exact
-    maximum kept); SYNCs woken later than ``late_s`` are kept as (tick, wake delay) pairs,
-    the first ``max_late`` of them (the count stays exact), so the harness can tell a
-    telemetry frame the host kept back from one the rig was too slow to send.
+    maximum kept); SYNCs answered (wake + work) later than ``late_s`` are kept as (tick,
+    wake, work), the first ``max_late`` of them (the count stays exact), so the harness can
+    tell a telemetry frame the host kept back from one the rig was too slow to send.
     """
 
     BIN_S = 10e-6
@@ -77,7 +77,7 @@ class SyncTiming:
         self.work_max_s = 0.0
         self.syncs = 0
         self.late_count = 0
-        self.late: list[tuple[int, float]] = []
+        self.late: list[tuple[int, float, float]] = []
 
     def _bin(self, v: float) -> int:
         return min(self.N_BINS, max(0, int(v / self.BIN_S)))
@@ -88,10 +88,10 @@ class SyncTiming:
         self.work[self._bin(work_s)] += 1
         self.wake_max_s = max(self.wake_max_s, wake_s)
         self.work_max_s = max(self.work_max_s, work_s)
-        if wake_s > self.late_s:
+        if wake_s + work_s > self.late_s:
             self.late_count += 1
             if len(self.late) < self.max_late:
-                self.late.append((tick, wake_s))
+                self.late.append((tick, wake_s, work_s))
 
     def _percentiles_ms(self, hist: np.ndarray, vmax: float) -> dict[str, float]:
         n = int(hist.sum())
@@ -109,7 +109,7 @@ class SyncTiming:
                 "work_ms": self._percentiles_ms(self.work, self.work_max_s),
                 "late_threshold_ms": round(self.late_s * 1e3, 3),
                 "late_syncs": self.late_count,
-                "late": [[t, round(w * 1e3, 3)] for t, w in self.late]}
+                "late": [[t, round(w * 1e3, 3), round(k * 1e3, 3)] for t, w, k in self.late]}
 
 
 @dataclass

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 
+from harness.loop import RESERVE_FRACTION
 from harness.session import RIG_HELD_FRACTION, attribute_missing
 from rig_models.virtual_rig import SyncTiming
 
@@ -15,13 +16,15 @@ def test_sync_timing_percentiles_and_late_list():
         t.add(tick, 50e-6, 100e-6)
     for tick in range(1000, 1005):  # five SYNCs the host kept back 3 ms
         t.add(tick, 3e-3, 100e-6)
+    t.add(1005, 50e-6, 0.6e-3)  # woken in time, answered late
     d = t.to_dict()
-    assert d["syncs"] == 1005
+    assert d["syncs"] == 1006
     assert d["wake_ms"]["p50"] == pytest.approx(0.06, abs=0.011)  # 10 us bins
     assert d["wake_ms"]["max"] == pytest.approx(3.0)
-    assert d["work_ms"]["max"] == pytest.approx(0.1)
-    assert d["late_syncs"] == 5  # exact count ...
-    assert [tick for tick, _ in d["late"]] == [1000, 1001, 1002]  # ... bounded list
+    assert d["work_ms"]["max"] == pytest.approx(0.6)
+    assert d["late_syncs"] == 6  # exact count ...
+    assert [row[0] for row in d["late"]] == [1000, 1001, 1002]  # ... bounded list
+    assert d["late"][0] == [1000, 3.0, 0.1]  # tick, wake ms, work ms
 
 
 def test_sync_timing_memory_does_not_grow():
@@ -37,9 +40,18 @@ def test_sync_timing_memory_does_not_grow():
 def test_attribute_missing_splits_host_from_harness():
     dt = 2e-3
     held = RIG_HELD_FRACTION * dt * 1e3  # ms
-    miss_ticks = [(10, 2), (20, 1), (30, 3)]
-    late = [[10, held + 0.5], [20, held - 0.1], [99, 40.0]]  # tick 20 woke in time
-    out = attribute_missing(miss_ticks, 6, late, dt)
-    assert out == {"missing_in_ticks_rig_woke_late": 2, "missing_in_ticks_held_by_both": 4}
-    # no late SYNC at all: every miss is the harness's
-    assert attribute_missing(miss_ticks, 6, [], dt)["missing_in_ticks_held_by_both"] == 6
+    window = (1 - RESERVE_FRACTION) * dt * 1e3  # ms after the deadline the loop waits
+    miss_ticks = [(10, 2, 0.0), (20, 1, 0.0), (30, 3, 0.0), (40, 1, 0.4e-3)]
+    late = [[10, held + 0.5, 0.1],          # the host woke the rig late: the host's
+            [20, 0.1, window],              # woken in time, answered after the window
+            [40, 0.1, window - 0.3],        # in time for an on-time tick, not for this one
+            [99, 40.0, 0.1]]                # a late SYNC with nothing missing
+    out = attribute_missing(miss_ticks, 7, late, dt)
+    assert out["missing_in_ticks_rig_woke_late"] == 2
+    assert out["missing_in_ticks_held_by_both"] == 5
+    assert out["missing_rig_answered_after_window"] == 2  # ticks 20 and 40
+    assert [row[0] for row in out["rig_answers_after_window_ms"]] == [20, 40]
+    # no late SYNC at all: every miss is the harness's, sent in time and not read
+    none = attribute_missing(miss_ticks, 7, [], dt)
+    assert none["missing_in_ticks_held_by_both"] == 7
+    assert none["missing_rig_answered_after_window"] == 0

@@ -53,6 +53,7 @@ SUMMARY_MEASURES: dict[str, str] = {
     "frames.missing_in_ticks_on_time": "count",
     "frames.missing_in_ticks_rig_woke_late": "count",
     "frames.missing_in_ticks_held_by_both": "count",
+    "frames.missing_rig_answered_after_window": "count",
     "frames.error_frames": "count",
     "wall_time_s": "s",
     "simulated_time_s": "s",
