@@ -55,6 +55,7 @@ class LoopStats:
 
     ticks: int = 0
     overruns: int = 0
+    overrun_episodes: int = 0  # runs of consecutive overruns (one host stall, one episode)
     lateness_s: LatencyHistogram = field(default_factory=LatencyHistogram)
     work_s: LatencyHistogram = field(default_factory=LatencyHistogram)
     missing_frames: int = 0
@@ -124,6 +125,7 @@ def run_loop(
     wall0 = perf()
     clock.start()
     tick = 0
+    prev_overrun = False
     try:
         for tick in range(n_ticks):
             if should_stop is not None and should_stop():
@@ -150,12 +152,15 @@ def run_loop(
             cmd = step(state)
             sent = interface.command(cmd)
             work = perf() - t_start
-            if realtime and clock.time_left(tick) < 0:
+            overrun = realtime and clock.time_left(tick) < 0
+            if overrun:
                 stats.overruns += 1
+                stats.overrun_episodes += not prev_overrun
             elif missing > 0 and lateness < 0.5 * dt_s:
                 stats.missing_frames_on_time += missing
                 if len(stats.missing_on_time_ticks) < MAX_MISS_TICKS:
                     stats.missing_on_time_ticks.append((tick, missing, lateness))
+            prev_overrun = overrun
             stats.lateness_s.add(lateness)
             stats.work_s.add(work)
             ref = reference(t_s)[0] if reference is not None else math.nan

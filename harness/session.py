@@ -173,42 +173,47 @@ def execute_run(
 
 
 RIG_HELD_FRACTION = 0.5
-"""A rig process held a tick when it had the tick's SYNC in hand within this fraction of the
-period after it was sent: the rule the loop applies to itself (a tick is held when it
-starts less than half a period late and does not overrun)."""
+"""The host held a tick for the loop and the rig process when its delays of the tick (the
+loop's lateness plus the rig's wake-up after the SYNC) stayed below this fraction of the
+period: the rule the loop applies to itself (a tick is held when it starts less than half
+a period late and does not overrun)."""
 
 
 def attribute_missing(miss_ticks: list[tuple[int, int, float]], missing_on_time: int,
                       late_syncs: list[list[float]], dt_s: float) -> dict[str, Any]:
     """Split the telemetry frames missing in ticks the loop held (``miss_ticks``: tick,
     frames, the tick's lateness s) by the rig process's SYNC timing (``late_syncs``: tick,
-    wake ms, work ms for the SYNCs it answered late):
+    wake ms, work ms for the SYNCs it answered late).
 
-    - ``missing_in_ticks_rig_woke_late``: the rig process had the SYNC in hand
-      ``RIG_HELD_FRACTION`` of a period or later after it was sent: the host's, as a floor
-      loop on the rig's CPU would show;
+    A frame's way is: the loop wakes (its lateness), sends the SYNC, the rig process wakes
+    (its wake-up), computes and sends (its work), the loop reads. The first two are the
+    host's delays, what a floor loop measures on each CPU; the work is the harness's. So:
+
+    - ``missing_in_ticks_host_delayed``: the host's delays of the tick (the loop's lateness
+      plus the rig's wake-up) reached ``RIG_HELD_FRACTION`` of a period, the rule the loop
+      applies to its own lateness: the host's;
     - ``missing_in_ticks_held_by_both``: the rest, the harness's own; of those
       ``missing_rig_answered_after_window`` were sent by the rig after the loop stopped
-      waiting (woken in time, its answer slow: ``rig_answers_after_window_ms`` lists the
-      first ones' [tick, wake, work]), the others were sent in time and still not read in
-      the tick (the transport or the loop).
+      waiting (``rig_answers_after_window_ms`` lists the first ones' [tick, wake, work]),
+      the others were sent in time and still not read in the tick (the transport or the
+      loop).
 
     Frames beyond the ticks kept by tick (``MAX_MISS_TICKS``) or the rig's late list are
     counted as the harness's."""
     late = {int(row[0]): (row[1] * 1e-3, (row[2] if len(row) > 2 else 0.0) * 1e-3)
             for row in late_syncs}
-    woke_late = answered_late = 0
+    host = answered_late = 0
     examples: list[list[float]] = []
     for tick, n, lateness in miss_ticks:
         wake, work = late.get(tick, (0.0, 0.0))
-        if wake >= RIG_HELD_FRACTION * dt_s:
-            woke_late += n
+        if lateness + wake >= RIG_HELD_FRACTION * dt_s:
+            host += n
         elif wake + work >= (1.0 - RESERVE_FRACTION) * dt_s - lateness:
             answered_late += n
             if len(examples) < 10:
                 examples.append([tick, round(wake * 1e3, 3), round(work * 1e3, 3)])
-    return {"missing_in_ticks_rig_woke_late": woke_late,
-            "missing_in_ticks_held_by_both": missing_on_time - woke_late,
+    return {"missing_in_ticks_host_delayed": host,
+            "missing_in_ticks_held_by_both": missing_on_time - host,
             "missing_rig_answered_after_window": answered_late,
             "rig_answers_after_window_ms": examples}
 
@@ -465,6 +470,7 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
         "wheel_torque_within_limit": bool(running.rows == 0 or (
             max_cmd <= t_max + 1e-9 and max_tlm <= t_max + 1e-5)),
         "overruns": stats.overruns,
+        "overrun_episodes": stats.overrun_episodes,
         "lateness_ms": lat,
         "work_ms": work,
         "bus_load_percent": round(bus_load_percent, 2),
@@ -477,7 +483,7 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
             "missing_in_ticks_on_time": stats.missing_frames_on_time,
             # split by a rig process's SYNC timing (attribute_missing); without it (the rig
             # as a thread, lockstep, a real rig) every such frame counts as the harness's
-            "missing_in_ticks_rig_woke_late": 0,
+            "missing_in_ticks_host_delayed": 0,
             "missing_in_ticks_held_by_both": stats.missing_frames_on_time,
             "missing_rig_answered_after_window": 0,
             "error_frames": interface.counters.error_frames,

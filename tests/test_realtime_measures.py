@@ -42,7 +42,7 @@ def test_measures_requested_by_default_and_recorded(tmp_path):
     assert 0 < t["wake_ms"]["p50"] <= t["wake_ms"]["p99"] <= t["wake_ms"]["max"]
     assert 0 < t["work_ms"]["p50"] <= t["work_ms"]["max"]
     f = s["frames"]
-    assert f["missing_in_ticks_held_by_both"] + f["missing_in_ticks_rig_woke_late"] \
+    assert f["missing_in_ticks_held_by_both"] + f["missing_in_ticks_host_delayed"] \
         == f["missing_in_ticks_on_time"]
     # everything undone after the run
     assert os.sched_getscheduler(0) == os.SCHED_OTHER

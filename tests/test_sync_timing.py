@@ -39,19 +39,21 @@ def test_sync_timing_memory_does_not_grow():
 
 def test_attribute_missing_splits_host_from_harness():
     dt = 2e-3
-    held = RIG_HELD_FRACTION * dt * 1e3  # ms
+    held = RIG_HELD_FRACTION * dt * 1e3  # ms of host delay (loop lateness + rig wake-up)
     window = (1 - RESERVE_FRACTION) * dt * 1e3  # ms after the deadline the loop waits
-    miss_ticks = [(10, 2, 0.0), (20, 1, 0.0), (30, 3, 0.0), (40, 1, 0.4e-3)]
+    miss_ticks = [(10, 2, 0.0), (20, 1, 0.0), (30, 3, 0.0), (40, 1, 0.4e-3),
+                  (50, 4, 0.7e-3)]
     late = [[10, held + 0.5, 0.1],          # the host woke the rig late: the host's
             [20, 0.1, window],              # woken in time, answered after the window
             [40, 0.1, window - 0.3],        # in time for an on-time tick, not for this one
+            [50, held - 0.6, 0.1],          # loop 0.7 ms late + rig 0.4 ms: the host's
             [99, 40.0, 0.1]]                # a late SYNC with nothing missing
-    out = attribute_missing(miss_ticks, 7, late, dt)
-    assert out["missing_in_ticks_rig_woke_late"] == 2
-    assert out["missing_in_ticks_held_by_both"] == 5
+    out = attribute_missing(miss_ticks, 11, late, dt)
+    assert out["missing_in_ticks_host_delayed"] == 6  # ticks 10 and 50
+    assert out["missing_in_ticks_held_by_both"] == 5  # 20, 30 (sent in time), 40
     assert out["missing_rig_answered_after_window"] == 2  # ticks 20 and 40
     assert [row[0] for row in out["rig_answers_after_window_ms"]] == [20, 40]
     # no late SYNC at all: every miss is the harness's, sent in time and not read
-    none = attribute_missing(miss_ticks, 7, [], dt)
+    none = attribute_missing(miss_ticks[:4], 7, [], dt)
     assert none["missing_in_ticks_held_by_both"] == 7
     assert none["missing_rig_answered_after_window"] == 0
