@@ -29,7 +29,7 @@ def test_paper_suite_loads_and_every_criterion_names_its_claim(suite):
     for case in s.cases:
         for c in case.checks:
             # studies are judged on their flat measures (unit in the name), never on lists
-            assert case.kind != "study" or c.field.startswith("measures."), c.field
+            assert case.kind != "study" or c.target.startswith("measures."), c.target
 
 
 def _doc() -> dict:
