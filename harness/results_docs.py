@@ -111,7 +111,7 @@ def criteria_table(records: list[dict[str, Any]]) -> list[str]:
                 continue
             name = str(c.get("name") or c.get("field") or "")
             if c.get("why"):  # the criterion's name, then its statement of what and why
-                name = f"`{name}`: {c['why']}"
+                name = f"{f'`{name}`' if name.isidentifier() else name}: {c['why']}"
             if rec.get("kind") == "run":
                 name = f"{label}{' ' if c.get('why') else ': '}{name}"
             lines.append(f"| {_cell(name)} | {_cell(fmt_value(c))} | {_cell(fmt_limit(c))} | "

@@ -27,7 +27,8 @@ def test_builtin_suite_loads_and_every_criterion_says_why(suite, capsys):
         # a name (the key) and a why: what we measured and claim, where the limit comes from
         assert c.name and len(c.why) > 20, f"{suite}: {c.key_path} without a why"
     for cmp in s.compares:
-        assert all(r.get("name") for r in cmp.rules), f"{suite}: a comparison without a claim"
+        assert all(r.get("name") and r.get("why") for r in cmp.rules), \
+            f"{suite}: a comparison without its claim and why"
     for case in s.cases:
         for c in case.checks:
             # studies are judged on their flat measures (unit in the name), never on lists

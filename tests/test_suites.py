@@ -233,8 +233,9 @@ def test_json_checks_and_comparisons():
     assert ok["verdict"] == "PASS" and beta["verdict"] == "PASS"
     assert nope["verdict"] == "ERROR" and "nope" in nope["message"]
     assert none["verdict"] == "ERROR" and "empty" in none["message"]
-    cmp = judge_compare({"measure": "a", "largest": "x"}, {"x": {"a": 3}, "y": {"a": 2}})
-    assert cmp["verdict"] == "PASS" and cmp["margin"] == 1
+    cmp = judge_compare({"measure": "a", "largest": "x", "why": "Table 2"},
+                        {"x": {"a": 3}, "y": {"a": 2}})
+    assert cmp["verdict"] == "PASS" and cmp["margin"] == 1 and cmp["why"] == "Table 2"
     cmp = judge_compare({"measure": "a", "largest": "y"}, {"x": {"a": 3}, "y": {"a": 2}})
     assert cmp["verdict"] == "FAIL" and "x 3 is largest" in cmp["message"]
 

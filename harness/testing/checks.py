@@ -49,6 +49,8 @@ def judge_compare(rule: dict[str, Any], docs: dict[str, Any]) -> dict[str, Any]:
     base = {"name": rule.get("name") or f"{target} has the {which} {rule['measure']}",
             "kind": "compare", "unit": rule.get("unit", ""), "worst_time_s": None,
             "limit": {which: target, "over": values}, "value": values.get(target)}
+    if rule.get("why"):
+        base["why"] = rule["why"]
     missing = [c for c, v in values.items() if v is None or math.isnan(v)]
     if missing:
         return {**base, "margin": None, "verdict": "ERROR",

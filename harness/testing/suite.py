@@ -394,10 +394,13 @@ def _compare(t: dict[str, Any], where: str, suite: str, cases: list[Case]) -> Co
         w = f"{where}.compare[{i}]"
         if not isinstance(r, dict):
             raise _err(w, f"expected a mapping {{measure, largest|smallest}}, got {r!r}")
-        unknown = sorted(set(r) - {"measure", "largest", "smallest", "name", "unit"})
+        unknown = sorted(set(r) - {"measure", "largest", "smallest", "name", "unit", "why"})
         if unknown:
             raise _err(f"{w}.{unknown[0]}",
-                       "unknown key (expected one of: largest, measure, name, smallest, unit)")
+                       "unknown key (expected one of: largest, measure, name, smallest, unit, "
+                       "why)")
+        if not isinstance(r.get("why", ""), str):
+            raise _err(f"{w}.why", f"expected a string, got {r['why']!r}")
         _str(r.get("measure"), f"{w}.measure", "a summary.json field path")
         which = [k for k in ("largest", "smallest") if k in r]
         if len(which) != 1:
