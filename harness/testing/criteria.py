@@ -1,5 +1,6 @@
-"""Parsing and checking the ``expect:`` section of a run file (no run, no file reading except
-checking that a baseline exists).
+"""Parsing and checking criteria: a run file's ``expect:`` section, and a suite's ``check:``
+(the same scalar form, ``parse_criteria(..., open_paths=True)``; no run, no file reading
+except checking that a baseline exists).
 
 Every error names the source, the key path and what was expected, e.g.
 ``run file slew.yaml: expect.final_error.max_abs_s: final_angle_error_deg is in deg: expected
@@ -33,7 +34,6 @@ have a ``channel``)."""
 REDUCTIONS = ("each", "rms", "mean", "final")
 COMMON_KEYS = ("why", "budget")
 WINDOW_KEYS = ("after", "from_s", "to_s", "last_s")
-BAND_PREFIXES = ("max_abs_", "min_", "max_", "marginal_")
 
 
 @dataclass(frozen=True)
