@@ -55,12 +55,16 @@ class LoopStats:
 
     ticks: int = 0
     overruns: int = 0
+    overrun_episodes: int = 0  # runs of consecutive overruns (one host stall, one episode)
     lateness_s: LatencyHistogram = field(default_factory=LatencyHistogram)
     work_s: LatencyHistogram = field(default_factory=LatencyHistogram)
     missing_frames: int = 0
     # telemetry frames missing in ticks that were not themselves late (the loop held its
     # deadline, the frame still did not come)
     missing_frames_on_time: int = 0
+    # the first MAX_MISS_TICKS of those ticks as (tick, frames missing, lateness s): a rig
+    # process's SYNC timing tells which of them the host kept the rig from answering in time
+    missing_on_time_ticks: list[tuple[int, int, float]] = field(default_factory=list)
     wall_s: float = 0.0
     stopped_by: str = "completed"
     error: str = ""
@@ -74,6 +78,14 @@ class LoopStats:
             hist.add(v)
         return hist.percentiles_ms()
 
+
+RESERVE_FRACTION = 0.3
+"""In real time the loop waits for a tick's telemetry until this fraction of the period is
+left (for the controller, the commands and the recording): a frame that comes later is
+missing for its tick."""
+
+MAX_MISS_TICKS = 20_000
+"""Ticks with frames missing though the loop held them, kept by tick (the count is exact)."""
 
 CAN_LOG_MAX_PENDING = 20_000
 """Frames the CAN log may queue in real time before it is written regardless (about 3 s of
@@ -113,6 +125,7 @@ def run_loop(
     wall0 = perf()
     clock.start()
     tick = 0
+    prev_overrun = False
     try:
         for tick in range(n_ticks):
             if should_stop is not None and should_stop():
@@ -128,7 +141,8 @@ def run_loop(
             if pump is not None:
                 pump()
             if realtime:  # never wait for telemetry past most of this tick's period
-                timeout = min(receive_timeout_s, max(0.0, clock.time_left(tick) - 0.3 * dt_s))
+                timeout = min(receive_timeout_s,
+                              max(0.0, clock.time_left(tick) - RESERVE_FRACTION * dt_s))
             got = interface.receive(tick, timeout, lockstep=pump is not None and not realtime)
             missing = interface.expected_frames(tick) - got
             if missing > 0:
@@ -138,10 +152,15 @@ def run_loop(
             cmd = step(state)
             sent = interface.command(cmd)
             work = perf() - t_start
-            if realtime and clock.time_left(tick) < 0:
+            overrun = realtime and clock.time_left(tick) < 0
+            if overrun:
                 stats.overruns += 1
+                stats.overrun_episodes += not prev_overrun
             elif missing > 0 and lateness < 0.5 * dt_s:
                 stats.missing_frames_on_time += missing
+                if len(stats.missing_on_time_ticks) < MAX_MISS_TICKS:
+                    stats.missing_on_time_ticks.append((tick, missing, lateness))
+            prev_overrun = overrun
             stats.lateness_s.add(lateness)
             stats.work_s.add(work)
             ref = reference(t_s)[0] if reference is not None else math.nan

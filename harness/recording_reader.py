@@ -17,11 +17,26 @@ def RrdReader(path: Path) -> _RrdReader:  # noqa: N802 - stands in for the class
         return _RrdReader(path)
 
 
+def iter_chunks(rrd: Path, content: list[str] | str | None = None,
+                drop: list[str] | str | None = None, store: object = None) -> object:
+    """The recording's chunks one at a time, never the whole file in memory
+    (``stream().to_chunks()`` materialises every chunk: a 200 s run's judge took 200 MB
+    more than a 20 s run's). ``content``: keep only these entity path filters (an exact
+    path, or ``/a/**`` for a subtree); ``drop``: leave these out."""
+    stream = RrdReader(rrd).stream(store=store) if store is not None \
+        else RrdReader(rrd).stream()
+    if content is not None:
+        stream = stream.filter(content=content)
+    if drop is not None:
+        stream = stream.drop(content=drop)
+    return iter(stream)
+
+
 def read_scalar_channel(rrd: Path, entity: str) -> tuple[np.ndarray, np.ndarray]:
     """(time s, values) of a scalar channel recorded on the ``time`` timeline."""
     times: list[np.ndarray] = []
     values: list[np.ndarray] = []
-    for chunk in RrdReader(rrd).stream().to_chunks():
+    for chunk in iter_chunks(rrd, content=[entity]):
         if chunk.entity_path != entity or chunk.is_static or "time" not in chunk.timeline_names:
             continue
         batch = chunk.to_record_batch()
@@ -44,7 +59,10 @@ def read_scalar_channels(rrd: Path, entities: list[str] | None = None
     ``entities``), read in one pass over the file."""
     parts: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
     wanted = None if entities is None else set(entities)
-    for chunk in RrdReader(rrd).stream().to_chunks():
+    # the decoded bus (/bus/..., ten times the loop's rows) only when asked for by name
+    chunks = iter_chunks(rrd, content=sorted(wanted)) if wanted is not None \
+        else iter_chunks(rrd, drop="/bus/**")
+    for chunk in chunks:
         path = chunk.entity_path
         if (wanted is not None and path not in wanted) or chunk.is_static \
                 or "time" not in chunk.timeline_names:

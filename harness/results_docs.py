@@ -57,21 +57,25 @@ def fmt_limit(c: dict[str, Any]) -> str:
     if c.get("kind") == "compare":
         which = "largest" if "largest" in lim else "smallest"
         return f"{which} of {len(lim.get('over') or {})}"
-    parts = []
-    # the verdict layer's limit keys carry the unit (max_abs_deg); strip it for display
+    # the verdict layer's limit keys carry the unit (max_abs_deg, len_min_count): shown
+    # without it
+    bases: dict[str, Any] = {}
     for key, val in lim.items():
-        base = next((b for b in ("max_abs", "min", "max", "equals", "len_min", "len_max",
-                                 "marginal", "within_ticks") if key == b or
+        base = next((b for b in ("max_abs", "len_min", "len_max", "equals", "marginal",
+                                 "within_ticks", "min", "max", "is") if key == b or
                      key.startswith(b + "_")), key)
+        bases[base] = val
+    parts = []
+    for base, val in bases.items():
         if base == "marginal":
             continue
         shown = fmt(val) if not isinstance(val, bool) else str(val).lower()
         parts.append({"max_abs": f"abs <= {shown}{u}", "min": f">= {shown}{u}",
-                      "max": f"<= {shown}{u}", "equals": f"= {shown}",
+                      "max": f"<= {shown}{u}", "equals": f"= {shown}", "is": f"= {shown}",
                       "len_min": f"at least {shown}", "len_max": f"at most {shown}",
-                      }.get(base, f"{key} {shown}"))
-    if lim.get("min") is not None and lim.get("max") is not None and len(parts) == 2:
-        return f"{fmt(lim['min'])} to {fmt(lim['max'])}{u}"
+                      }.get(base, f"{base} {shown}"))
+    if bases.get("min") is not None and bases.get("max") is not None and len(parts) == 2:
+        return f"{fmt(bases['min'])} to {fmt(bases['max'])}{u}"
     return ", ".join(parts) or "-"
 
 
@@ -95,7 +99,8 @@ def _cell(text: str) -> str:
 
 
 def criteria_table(records: list[dict[str, Any]]) -> list[str]:
-    """One row per criterion; a run test's left-safe criteria (one per variant) as one row."""
+    """One row per criterion (its name, and its ``why:`` when it has one: the claim and the
+    limit's source); a run test's left-safe criteria (one per variant) as one row."""
     lines = ["| claim | ours | limit | verdict |", "|---|---|---|---|"]
     safe = [c for r in records if r.get("kind") == "run" for c in r.get("criteria") or []
             if c.get("kind") == "left_safe"]
@@ -105,8 +110,10 @@ def criteria_table(records: list[dict[str, Any]]) -> list[str]:
             if c.get("kind") == "left_safe":
                 continue
             name = str(c.get("name") or c.get("field") or "")
+            if c.get("why"):  # the criterion's name, then its statement of what and why
+                name = f"{f'`{name}`' if name.isidentifier() else name}: {c['why']}"
             if rec.get("kind") == "run":
-                name = f"{label}: {name}"
+                name = f"{label}{' ' if c.get('why') else ': '}{name}"
             lines.append(f"| {_cell(name)} | {_cell(fmt_value(c))} | {_cell(fmt_limit(c))} | "
                          f"{c.get('verdict', '-')} |")
     if safe:

@@ -15,6 +15,7 @@ the run directory.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import queue
 import re
@@ -41,12 +42,10 @@ class RigProcessError(RuntimeError):
 
 
 def fault_argument(f: FaultSpec) -> str:
-    """The ``--fault`` text of a fault (``KIND@AT_S[:DEVICE][=VALUE]``); a fault with a
-    duration has no such text and is refused."""
-    if f.duration_s > 0:
-        raise RigProcessError(f"fault {f.kind}@{f.at_s:g}: a fault with duration_s cannot be "
-                              "passed to a rig process; run without --rig-process")
+    """The ``--fault`` text of a fault (``KIND@AT_S[+DURATION_S][:DEVICE][=VALUE]``)."""
     text = f"{f.kind}@{f.at_s!r}"
+    if f.duration_s > 0:
+        text += f"+{f.duration_s!r}"
     if f.device:
         text += f":{f.device}"
     if f.value is not None:
@@ -59,10 +58,14 @@ class RigProcess:
 
     def __init__(self, rig: RigConfig, rate_hz: float, run_dir: Path,
                  faults: list[FaultSpec] | None = None, lifetime_s: float = 0.0,
-                 transport: str = "tcp", cpu: int | None = None, priority: int = 0) -> None:
+                 transport: str = "tcp", cpu: int | None = None, priority: int = 0,
+                 realtime: bool = False) -> None:
         """``transport`` "tcp" (socketcand on 127.0.0.1) or "unix" (``harness.unixbus``);
         ``cpu`` pins the rig process, ``priority`` > 0 asks SCHED_FIFO for it (both set
-        from here once it runs; what was granted or refused is in ``measures``)."""
+        from here once it runs; what was granted or refused is in ``measures``);
+        ``realtime`` makes the process lock its memory and run its collector in the slack
+        (``harness virtual-rig --realtime``). After the stop, ``timing`` holds how promptly
+        it answered each SYNC (``rig_models.virtual_rig.SyncTiming``), when it said."""
         if transport not in ("tcp", "unix"):
             raise RigProcessError(f"rig process transport {transport!r}: expected tcp or unix")
         self.transport = transport
@@ -74,6 +77,8 @@ class RigProcess:
         self.rate_hz = rate_hz
         self.lifetime_s = lifetime_s
         self.fault_args = [a for f in faults or [] for a in ("--fault", fault_argument(f))]
+        self.realtime = realtime
+        self.timing: dict | None = None
         self.rig_file.write_text(yaml.safe_dump(rig.data, sort_keys=False))
         self.proc: subprocess.Popen[str] | None = None
         self._log: IO[str] | None = None
@@ -84,6 +89,8 @@ class RigProcess:
                  ["--serve-unix", f"{os.getpid()}-{secrets.token_hex(4)}"])
         cmd = [sys.executable, "-m", "harness", "virtual-rig", "--rig", str(self.rig_file),
                *serve, "--rate-hz", f"{self.rate_hz:g}", *self.fault_args]
+        if self.realtime:
+            cmd.append("--realtime")
         if self.lifetime_s > 0:  # if the harness is killed, the rig still exits by itself
             cmd += ["--duration-s", f"{self.lifetime_s:g}"]
         self._log = self.log_path.open("w")
@@ -146,6 +153,23 @@ class RigProcess:
             lines.put(line)
         lines.put(None)
 
+    def stop(self) -> None:
+        """Stop the process (SIGTERM, then SIGKILL) and read what it said of its timing
+        and of its own measures (a refused one is added to ``measures``). Idempotent."""
+        self._stop()
+
+    def _read_timing(self) -> None:
+        from harness.commands.virtual_rig import TIMING_PREFIX
+
+        with contextlib.suppress(OSError):
+            for line in self.log_path.read_text().splitlines():
+                if line.startswith(TIMING_PREFIX):
+                    with contextlib.suppress(ValueError):
+                        self.timing = json.loads(line[len(TIMING_PREFIX):])
+        own = (self.timing or {}).get("measures") or {}
+        for key in ("requested", "applied", "refused"):
+            self.measures[key] += [f"rig process {m}" for m in own.get(key, [])]
+
     def _stop(self) -> None:
         if self.proc is None:
             return
@@ -161,6 +185,7 @@ class RigProcess:
         if self._log is not None:
             self._log.close()
             self._log = None
+            self._read_timing()
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:

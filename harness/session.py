@@ -26,7 +26,7 @@ from harness.bus import BusSpec, open_bus, parse_bus
 from harness.busload import compute_bus_load
 from harness.can_log import CanLog
 from harness.clock import LockstepClock, RealTimeClock, RealTimeSetup, choose_cpus
-from harness.loop import CHANNELS, LoopStats, run_loop
+from harness.loop import CHANNELS, RESERVE_FRACTION, LoopStats, run_loop
 from harness.monitor import FaultMonitor, MonitorWarning
 from harness.paths import safe_child, safe_name
 from harness.periodic import steady_state_amplitude
@@ -137,7 +137,8 @@ def execute_run(
                               lifetime_s=run.data["duration_s"] + 60.0,
                               transport="tcp" if rig_mode == "process-tcp" else "unix",
                               cpu=rig_cpu,
-                              priority=rt["rig_priority"] if rt["sched_fifo"] else 0)
+                              priority=rt["rig_priority"] if rt["sched_fifo"] else 0,
+                              realtime=rt["lock_memory"] or rt["gc_freeze"])
             where = stack.enter_context(proc)
             rig_measures = proc.measures
             spec = parse_bus(where)
@@ -149,12 +150,72 @@ def execute_run(
             exc.run_dir = run_dir  # type: ignore[attr-defined]
             raise
         result.summary["virtual_rig_mode"] = rig_mode
-        if rig_measures:
+        if rig_mode.startswith("process"):
+            proc.stop()  # its SYNC timing and its own measures are known once it stops
             m = result.summary["realtime_measures"]
             for key in ("requested", "applied", "refused"):
                 m[key] += rig_measures[key]
+            if proc.timing is not None:
+                timing = {k: v for k, v in proc.timing.items() if k not in ("late",
+                                                                             "measures")}
+                timing["held_fraction_of_period"] = RIG_HELD_FRACTION
+                timing["syncs_not_held"] = sum(
+                    1 for row in proc.timing.get("late", [])
+                    if row[1] * 1e-3 >= RIG_HELD_FRACTION * run.dt_s)
+                split = attribute_missing(
+                    result.stats.missing_on_time_ticks, result.stats.missing_frames_on_time,
+                    proc.timing.get("late", []), run.dt_s)
+                timing["answers_after_window_ms"] = split.pop("rig_answers_after_window_ms")
+                result.summary["virtual_rig_timing"] = timing
+                result.summary["frames"].update(split)
             (run_dir / "summary.json").write_text(json.dumps(result.summary, indent=2))
         return result
+
+
+RIG_HELD_FRACTION = 0.5
+"""The host held a tick for the loop and the rig process when its delays of the tick (the
+loop's lateness plus the rig's wake-up after the SYNC) stayed below this fraction of the
+period: the rule the loop applies to itself (a tick is held when it starts less than half
+a period late and does not overrun)."""
+
+
+def attribute_missing(miss_ticks: list[tuple[int, int, float]], missing_on_time: int,
+                      late_syncs: list[list[float]], dt_s: float) -> dict[str, Any]:
+    """Split the telemetry frames missing in ticks the loop held (``miss_ticks``: tick,
+    frames, the tick's lateness s) by the rig process's SYNC timing (``late_syncs``: tick,
+    wake ms, work ms for the SYNCs it answered late).
+
+    A frame's way is: the loop wakes (its lateness), sends the SYNC, the rig process wakes
+    (its wake-up), computes and sends (its work), the loop reads. The first two are the
+    host's delays, what a floor loop measures on each CPU; the work is the harness's. So:
+
+    - ``missing_in_ticks_host_delayed``: the host's delays of the tick (the loop's lateness
+      plus the rig's wake-up) reached ``RIG_HELD_FRACTION`` of a period, the rule the loop
+      applies to its own lateness: the host's;
+    - ``missing_in_ticks_held_by_both``: the rest, the harness's own; of those
+      ``missing_rig_answered_after_window`` were sent by the rig after the loop stopped
+      waiting (``rig_answers_after_window_ms`` lists the first ones' [tick, wake, work]),
+      the others were sent in time and still not read in the tick (the transport or the
+      loop).
+
+    Frames beyond the ticks kept by tick (``MAX_MISS_TICKS``) or the rig's late list are
+    counted as the harness's."""
+    late = {int(row[0]): (row[1] * 1e-3, (row[2] if len(row) > 2 else 0.0) * 1e-3)
+            for row in late_syncs}
+    host = answered_late = 0
+    examples: list[list[float]] = []
+    for tick, n, lateness in miss_ticks:
+        wake, work = late.get(tick, (0.0, 0.0))
+        if lateness + wake >= RIG_HELD_FRACTION * dt_s:
+            host += n
+        elif wake + work >= (1.0 - RESERVE_FRACTION) * dt_s - lateness:
+            answered_late += n
+            if len(examples) < 10:
+                examples.append([tick, round(wake * 1e3, 3), round(work * 1e3, 3)])
+    return {"missing_in_ticks_host_delayed": host,
+            "missing_in_ticks_held_by_both": missing_on_time - host,
+            "missing_rig_answered_after_window": answered_late,
+            "rig_answers_after_window_ms": examples}
 
 
 REALTIME_RIG_DEFAULT = "process-unix"
@@ -166,7 +227,9 @@ def virtual_rig_mode(run: RunConfig, spec: BusSpec, clock_name: str,
                      rig_process: bool = False, faults: list[FaultSpec] | None = None) -> str:
     """"lockstep" (pumped in the loop), "thread", "process-unix", "process-tcp", or
     "external" (the bus is not the in-process virtual bus: the rig is elsewhere). "auto"
-    falls back to "thread" for a fault with a duration (a rig process cannot take one)."""
+    is ``REALTIME_RIG_DEFAULT`` (a rig process takes every fault, timed ones too:
+    ``--fault KIND@AT_S+DURATION_S``). ``faults`` is kept for callers; it no longer
+    changes the choice."""
     if not spec.in_process:
         return "external"
     if clock_name != "realtime":
@@ -175,9 +238,7 @@ def virtual_rig_mode(run: RunConfig, spec: BusSpec, clock_name: str,
         return "process-tcp"
     mode = run.data["realtime"]["virtual_rig"]
     if mode == "auto":
-        timed = any(f.duration_s > 0 for f in faults or [])
-        return "thread" if timed and REALTIME_RIG_DEFAULT.startswith("process") \
-            else REALTIME_RIG_DEFAULT
+        return REALTIME_RIG_DEFAULT
     return mode
 
 
@@ -429,6 +490,7 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
         "wheel_torque_within_limit": bool(running.rows == 0 or (
             max_cmd <= t_max + 1e-9 and max_tlm <= t_max + 1e-5)),
         "overruns": stats.overruns,
+        "overrun_episodes": stats.overrun_episodes,
         "lateness_ms": lat,
         "work_ms": work,
         "bus_load_percent": round(bus_load_percent, 2),
@@ -439,6 +501,11 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
             "malformed": malformed,
             "missing": stats.missing_frames,
             "missing_in_ticks_on_time": stats.missing_frames_on_time,
+            # split by a rig process's SYNC timing (attribute_missing); without it (the rig
+            # as a thread, lockstep, a real rig) every such frame counts as the harness's
+            "missing_in_ticks_host_delayed": 0,
+            "missing_in_ticks_held_by_both": stats.missing_frames_on_time,
+            "missing_rig_answered_after_window": 0,
             "error_frames": interface.counters.error_frames,
         },
         "wall_time_s": round(stats.wall_s, 3),

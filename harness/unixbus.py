@@ -69,6 +69,10 @@ class _SeqpacketBus(can.BusABC):
                 raw = sock.recv(64, socket.MSG_DONTWAIT)
             except BlockingIOError:
                 return None
+            except ConnectionResetError:  # the peer closed with frames unread
+                raw = b""
+        except ConnectionResetError:
+            raw = b""
         if not raw:  # the peer closed
             self._peer_closed()
             return None

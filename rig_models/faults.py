@@ -49,7 +49,8 @@ class FaultSpec:
 
 
 def parse_fault(text: str) -> FaultSpec:
-    """``KIND@AT_S[:DEVICE][=VALUE]``, e.g. ``silent_sensor@5:hub_sensor``."""
+    """``KIND@AT_S[+DURATION_S][:DEVICE][=VALUE]``, e.g. ``silent_sensor@5:hub_sensor`` or,
+    silent for 0.2 s only, ``silent_sensor@5+0.2:hub_sensor``."""
     value = None
     if "=" in text:
         text, v = text.rsplit("=", 1)
@@ -59,14 +60,24 @@ def parse_fault(text: str) -> FaultSpec:
             raise ConfigError(f"--fault {text}={v}: value must be a number") from exc
     kind, sep, rest = text.partition("@")
     if not sep:
-        raise ConfigError(f"--fault {text!r}: expected KIND@AT_S[:DEVICE][=VALUE]")
-    at, _, device = rest.partition(":")
+        raise ConfigError(f"--fault {text!r}: expected KIND@AT_S[+DURATION_S][:DEVICE][=VALUE]")
+    when, _, device = rest.partition(":")
+    at, plus, dur = when.partition("+")
     try:
         at_s = float(at)
     except ValueError as exc:
         raise ConfigError(f"--fault {text!r}: AT_S must be a number of seconds") from exc
-    return make_fault({"kind": kind, "at_s": at_s, "device": device, "value": value},
-                      f"--fault {text}")
+    duration_s = 0.0
+    if plus:
+        try:
+            duration_s = float(dur)
+        except ValueError as exc:
+            raise ConfigError(f"--fault {text!r}: DURATION_S must be a number of seconds"
+                              ) from exc
+        if not duration_s > 0:
+            raise ConfigError(f"--fault {text!r}: DURATION_S must be > 0 s, got {dur}")
+    return make_fault({"kind": kind, "at_s": at_s, "device": device, "value": value,
+                       "duration_s": duration_s}, f"--fault {text}")
 
 
 def make_fault(raw: Any, where: str) -> FaultSpec:

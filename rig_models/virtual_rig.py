@@ -16,6 +16,7 @@ Two ways to run it:
 
 from __future__ import annotations
 
+import gc
 import math
 import time
 from collections.abc import Callable
@@ -50,6 +51,65 @@ class RigCounters:
     unknown: int = 0
     watchdog_trips: int = 0
     steps: int = 0
+
+
+class SyncTiming:
+    """How promptly the rig, as its own process, answered each SYNC, in bounded memory.
+
+    ``wake``: from the SYNC's send time (stamped by the sender; the Unix-socket bus carries
+    it) to the moment this process had it in hand: the host's scheduling and wake-up
+    latency on the rig's CPU plus the transport. ``work``: from then to the last telemetry
+    frame sent (the rig's own physics and codecs). Both in 10 us bins up to 0.5 s (exact
+    maximum kept); SYNCs answered (wake + work) later than ``late_s`` are kept as (tick,
+    wake, work), the first ``max_late`` of them (the count stays exact), so the harness can
+    tell a telemetry frame the host kept back from one the rig was too slow to send.
+    """
+
+    BIN_S = 10e-6
+    N_BINS = 50_000
+
+    def __init__(self, late_s: float, max_late: int = 20_000) -> None:
+        self.late_s = late_s
+        self.max_late = max_late
+        self.wake = np.zeros(self.N_BINS + 1, dtype=np.int64)
+        self.work = np.zeros(self.N_BINS + 1, dtype=np.int64)
+        self.wake_max_s = 0.0
+        self.work_max_s = 0.0
+        self.syncs = 0
+        self.late_count = 0
+        self.late: list[tuple[int, float, float]] = []
+
+    def _bin(self, v: float) -> int:
+        return min(self.N_BINS, max(0, int(v / self.BIN_S)))
+
+    def add(self, tick: int, wake_s: float, work_s: float) -> None:
+        self.syncs += 1
+        self.wake[self._bin(wake_s)] += 1
+        self.work[self._bin(work_s)] += 1
+        self.wake_max_s = max(self.wake_max_s, wake_s)
+        self.work_max_s = max(self.work_max_s, work_s)
+        if wake_s + work_s > self.late_s:
+            self.late_count += 1
+            if len(self.late) < self.max_late:
+                self.late.append((tick, wake_s, work_s))
+
+    def _percentiles_ms(self, hist: np.ndarray, vmax: float) -> dict[str, float]:
+        n = int(hist.sum())
+        if n == 0:
+            return {"p50": 0.0, "p99": 0.0, "max": 0.0}
+        cum = np.cumsum(hist)
+        def q(f: float) -> float:
+            return (int(np.searchsorted(cum, f * n)) + 1) * self.BIN_S * 1e3
+        return {"p50": round(min(q(0.5), vmax * 1e3), 3), "p99": round(min(q(0.99), vmax * 1e3), 3),
+                "max": round(vmax * 1e3, 3)}
+
+    def to_dict(self) -> dict[str, object]:
+        return {"syncs": self.syncs,
+                "wake_ms": self._percentiles_ms(self.wake, self.wake_max_s),
+                "work_ms": self._percentiles_ms(self.work, self.work_max_s),
+                "late_threshold_ms": round(self.late_s * 1e3, 3),
+                "late_syncs": self.late_count,
+                "late": [[t, round(w * 1e3, 3), round(k * 1e3, 3)] for t, w, k in self.late]}
 
 
 @dataclass
@@ -161,12 +221,31 @@ class VirtualRig:
         except FrameError:
             self.counters.malformed += 1
 
-    def run_forever(self, stop: Callable[[], bool], poll_s: float = 0.05) -> None:
-        """Own-process mode: block on the bus; watchdog on the wall clock as well."""
+    def run_forever(self, stop: Callable[[], bool], poll_s: float = 0.05,
+                    timing: SyncTiming | None = None) -> None:
+        """Own-process mode: block on the bus; watchdog on the wall clock as well.
+
+        ``timing`` measures every SYNC's wake-up and answer (``SyncTiming``). With the
+        collector disabled (``gc.disable()`` by the caller), generations 0-1 are collected
+        right after a SYNC's answer about once a second, in the slack before the next one,
+        so a collection never delays an answer and cyclic garbage cannot pile up."""
+        sync_id = self.protocol["SYNC"].frame_id
+        collect = not gc.isenabled()
+        next_collect = time.monotonic() + 1.0
+        clock = time.time
         while not stop():
             msg = self.bus.recv(poll_s)
             if msg is not None:
-                self.handle(msg)
+                if msg.arbitration_id == sync_id and not msg.is_error_frame:
+                    woke = clock()
+                    self.handle(msg)
+                    if timing is not None and msg.timestamp > 0:
+                        timing.add(self.tick, woke - msg.timestamp, clock() - woke)
+                    if collect and time.monotonic() > next_collect:
+                        gc.collect(1)
+                        next_collect = time.monotonic() + 1.0
+                else:
+                    self.handle(msg)
             if (not self.safe and
                     time.monotonic() - self.last_heartbeat_wall > self.watchdog_timeout_s):
                 self.make_safe(watchdog=True)

@@ -16,20 +16,23 @@ from harness.results_docs import PAPER_SUITES, fmt_limit, suite_markdown
 from harness.testing.suite import load_suite
 
 
-@pytest.mark.parametrize("suite", PAPER_SUITES)
-def test_paper_suite_loads_and_every_criterion_names_its_claim(suite):
+@pytest.mark.parametrize("suite", [*PAPER_SUITES, "acceptance"])
+def test_builtin_suite_loads_and_every_criterion_says_why(suite, capsys):
     s = load_suite(suite)
+    assert "deprecated" not in capsys.readouterr().err  # built-ins use the one form
     assert s.cases
     checks = [c for case in s.cases for c in (*case.checks, *case.identify_checks)]
-    checks += [r for cmp in s.compares for r in cmp.rules]  # type: ignore[misc]
     assert checks
     for c in checks:
-        name = c.name if hasattr(c, "name") else c.get("name")
-        assert name, f"{suite}: a criterion without a claim (name:)"
+        # a name (the key) and a why: what we measured and claim, where the limit comes from
+        assert c.name and len(c.why) > 20, f"{suite}: {c.key_path} without a why"
+    for cmp in s.compares:
+        assert all(r.get("name") and r.get("why") for r in cmp.rules), \
+            f"{suite}: a comparison without its claim and why"
     for case in s.cases:
         for c in case.checks:
             # studies are judged on their flat measures (unit in the name), never on lists
-            assert case.kind != "study" or c.field.startswith("measures."), c.field
+            assert case.kind != "study" or c.target.startswith("measures."), c.target
 
 
 def _doc() -> dict:
@@ -41,6 +44,14 @@ def _doc() -> dict:
     cmp = {"name": "beta = 1 worst", "kind": "compare", "unit": "m/s^2", "value": 0.02,
            "limit": {"largest": "case-c[beta-1.0]", "over": {
                "case-c[beta-0.6]": 0.016, "case-c[beta-1.0]": 0.02}}, "verdict": "PASS"}
+    why = crit | {"name": "zvd_final_angle", "kind": "scalar", "unit": "deg", "value": 0.0009,
+                  "limit": {"max_abs_deg": 0.01}, "why": "the slew ends within 0.01 deg"}
+    ranged = crit | {"name": "fe_mode1", "kind": "scalar", "unit": "percent", "value": 7.1,
+                     "limit": {"min_percent": 6.0, "max_percent": 8.0}, "why": "known mismatch"}
+    counted = crit | {"name": "three_modes", "kind": "scalar", "unit": "count", "value": 3,
+                      "limit": {"len_min_count": 3}, "why": "three modes in the rig file"}
+    stable = crit | {"name": "stable", "kind": "scalar", "unit": "bool", "value": True,
+                     "limit": {"is": True}, "why": "eq. 7 holds"}
     safe = {"name": "safe", "kind": "left_safe", "value": 0, "unit": "count",
             "limit": {"max_count": 0}, "verdict": "PASS"}
     runs = [{"suite": "paper003", "test": "case-c", "item": f"case-c[beta-{b}]",
@@ -50,7 +61,8 @@ def _doc() -> dict:
     return {"created_utc": "2026-11-23T20:00:00+00:00", "engine": "local", "wall_time_s": 3.0,
             "suites": [{"name": "paper003", "description": "d"}],
             "tests": [{"suite": "paper003", "test": "s", "item": "s", "kind": "study",
-                       "description": "a study", "verdict": "FAIL", "criteria": [crit, failed]},
+                       "description": "a study", "verdict": "FAIL",
+                       "criteria": [crit, failed, why, ranged, counted, stable]},
                       *runs,
                       {"suite": "paper003", "test": "compare[case-c]", "item": "compare[case-c]",
                        "kind": "cmp", "verdict": "PASS", "criteria": [cmp]}]}
@@ -62,6 +74,12 @@ def test_suite_markdown_tables_come_from_the_results():
     assert "**FAIL**" in text and "## s: FAIL" in text
     assert "| ZVD below ZV at +10 % | 0.1 | <= 0.5 | PASS |" in text
     assert "| band | 9 % | 6 to 8 % | FAIL |" in text
+    # the unified form's records: the why beside the name, the limits without their unit
+    assert "| `zvd_final_angle`: the slew ends within 0.01 deg | 0.0009 deg | abs <= 0.01 deg " \
+           "| PASS |" in text
+    assert "| `fe_mode1`: known mismatch | 7.1 % | 6 to 8 % | PASS |" in text
+    assert "| `three_modes`: three modes in the rig file | 3 | at least 3 | PASS |" in text
+    assert "| `stable`: eq. 7 holds | true | = true | PASS |" in text
     assert "| beta = 1 worst | beta-1.0 0.02 (beta-0.6 0.016) | largest of 2 | PASS |" in text
     assert "2 of 2 runs" in text  # the variants' left-safe rows as one
     # Table 2 beside the paper's: case C, beta 1.0, 0.02 against 0.037

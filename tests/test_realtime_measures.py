@@ -34,6 +34,16 @@ def test_measures_requested_by_default_and_recorded(tmp_path):
     assert s["virtual_rig_mode"] == REALTIME_RIG_DEFAULT
     assert s["stopped_by"] == "completed"
     assert s["frames"]["received"] > 0.8 * 5 * s["ticks"]
+    # the rig process took its own memory measures and said how it answered each SYNC
+    assert any(r.startswith("rig process mlockall") for r in m["requested"])
+    assert any(r.startswith("rig process gc.freeze") for r in m["applied"])
+    t = s["virtual_rig_timing"]
+    assert t["syncs"] == s["ticks"]  # one per tick, the last answered before the stop
+    assert 0 < t["wake_ms"]["p50"] <= t["wake_ms"]["p99"] <= t["wake_ms"]["max"]
+    assert 0 < t["work_ms"]["p50"] <= t["work_ms"]["max"]
+    f = s["frames"]
+    assert f["missing_in_ticks_held_by_both"] + f["missing_in_ticks_host_delayed"] \
+        == f["missing_in_ticks_on_time"]
     # everything undone after the run
     assert os.sched_getscheduler(0) == os.SCHED_OTHER
 
@@ -67,10 +77,10 @@ def test_rig_mode_choice():
     assert virtual_rig_mode(run, virt, "realtime") == REALTIME_RIG_DEFAULT
     assert virtual_rig_mode(run, virt, "realtime", rig_process=True) == "process-tcp"
     assert virtual_rig_mode(run, parse_bus("socketcan:vcan0"), "realtime") == "external"
-    # a fault with a duration cannot be passed to a rig process: the rig stays a thread
+    # a fault with a duration goes to the rig process like any other
     timed = make_fault({"kind": "silent_sensor", "at_s": 0.5, "device": "hub_sensor",
                         "duration_s": 0.2}, "test")
-    assert virtual_rig_mode(run, virt, "realtime", faults=[timed]) == "thread"
+    assert virtual_rig_mode(run, virt, "realtime", faults=[timed]) == REALTIME_RIG_DEFAULT
 
 
 def test_clock_never_spins_a_whole_period(monkeypatch):
@@ -117,4 +127,25 @@ def test_unix_bus_keeps_frame_semantics():
             client.send(can.Message(arbitration_id=1, is_fd=True, data=bytes(12)))
     finally:
         client.shutdown()
+        server.shutdown()
+
+
+def test_unix_bus_server_survives_a_client_that_leaves_with_frames_unread():
+    # the harness closes its end while the rig's answers are still queued: the rig must
+    # not die on ECONNRESET (it used to, with a traceback in rig.log, losing its timing)
+    name = "reset-" + str(os.getpid())
+    server = UnixCanServerBus(name)
+    try:
+        client = UnixCanBus(name)
+        client.send(can.Message(arbitration_id=0x80, data=bytes(4), is_extended_id=False))
+        assert server.recv(1.0) is not None  # accepted and read
+        for _ in range(5):  # answers the client will never read
+            server.send(can.Message(arbitration_id=0x100, data=bytes(8), is_extended_id=False))
+        client.shutdown()
+        assert server.recv(0.2) is None  # the peer left: no frame, no exception
+        again = UnixCanBus(name)  # and the next client is served
+        again.send(can.Message(arbitration_id=0x80, data=bytes(4), is_extended_id=False))
+        assert server.recv(1.0) is not None
+        again.shutdown()
+    finally:
         server.shutdown()

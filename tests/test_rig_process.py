@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import pytest
 
-from harness.rig_process import RigProcessError, fault_argument
+from harness.rig_process import fault_argument
 from harness.runs import load_run
 from harness.session import RunRefused, execute_run
 from rig_models.faults import make_fault, parse_fault
+from rig_models.schema import ConfigError
 
 
 def _run(tmp_path, **kw):
@@ -37,6 +38,18 @@ def test_faults_reach_the_rig_process(tmp_path):
     assert "--fault" not in (res.run_dir / "rig.log").read_text()  # parsed, not echoed
 
 
+def test_a_timed_fault_reaches_the_default_rig_process_and_ends(tmp_path):
+    # the hub sensor silent for 0.4 s of a 2 s real-time run, the monitor off so the run
+    # goes on: about 200 of its frames are missing (all 750 from 0.5 s on, were the
+    # duration lost on the way to the rig process)
+    run = load_run("slew-rw", {"duration_s": 2.0, "monitor": {"enabled": False}})
+    res = execute_run(run, out_dir=tmp_path, clock="realtime", show_progress=False,
+                      faults=[parse_fault("silent_sensor@0.5+0.4:hub_sensor")])
+    s = res.summary
+    assert s["virtual_rig_mode"].startswith("process") and s["stopped_by"] == "completed"
+    assert 180 <= s["frames"]["missing"] <= 400, s["frames"]
+
+
 def test_rig_process_is_refused_outside_real_time_on_the_virtual_bus(tmp_path):
     with pytest.raises(RunRefused, match="--rig-process"):
         execute_run(load_run("slew-rw"), out_dir=tmp_path, clock="lockstep",
@@ -46,11 +59,17 @@ def test_rig_process_is_refused_outside_real_time_on_the_virtual_bus(tmp_path):
                     bus="socketcand:127.0.0.1:1", show_progress=False, rig_process=True)
 
 
-def test_fault_argument_round_trips_and_refuses_durations():
-    for text in ("silent_sensor@0.5:hub_sensor", "accel_saturation@1.25=40.0", "bus_off@2.0"):
+def test_fault_argument_round_trips_with_durations():
+    for text in ("silent_sensor@0.5:hub_sensor", "accel_saturation@1.25=40.0", "bus_off@2.0",
+                 "silent_sensor@0.5+0.2:hub_sensor", "accel_saturation@1+0.5=40.0"):
         f = parse_fault(text)
         assert parse_fault(fault_argument(f)) == f
     timed = make_fault({"kind": "silent_sensor", "at_s": 1.0, "duration_s": 0.5,
                         "device": "hub_sensor"}, "test")
-    with pytest.raises(RigProcessError, match="duration_s"):
-        fault_argument(timed)
+    assert fault_argument(timed) == "silent_sensor@1.0+0.5:hub_sensor"
+    assert parse_fault("silent_sensor@1+0.5:hub_sensor") == timed
+    for bad, field in (("silent_sensor@1+x:hub_sensor", "DURATION_S"),
+                       ("silent_sensor@1+0:hub_sensor", "DURATION_S"),
+                       ("silent_sensor@y:hub_sensor", "AT_S")):
+        with pytest.raises(ConfigError, match=field):
+            parse_fault(bad)

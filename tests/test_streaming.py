@@ -163,11 +163,16 @@ import json, resource, sys, tempfile
 from pathlib import Path
 from harness.runs import load_run
 from harness.session import execute_run
+from harness.testing import judge_run, write_verdict
 out = Path(sys.argv[2])
-execute_run(load_run("slew-rw", {"duration_s": 2.0}), out_dir=out, show_progress=False)
+def run_and_judge(seconds):  # what `harness run` does: the run, then its verdict
+    res = execute_run(load_run("slew-rw", {"duration_s": seconds}), out_dir=out,
+                      show_progress=False)
+    write_verdict(judge_run(res.run_dir), res.run_dir)
+    return res
+run_and_judge(2.0)
 base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-res = execute_run(load_run("slew-rw", {"duration_s": float(sys.argv[1])}), out_dir=out,
-                  show_progress=False)
+res = run_and_judge(float(sys.argv[1]))
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 print(json.dumps({"base_kb": base, "peak_kb": peak, "run_dir": str(res.run_dir),
                   "ticks": res.summary["ticks"]}))

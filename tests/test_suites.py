@@ -18,8 +18,9 @@ import pytest
 import yaml
 
 from harness.runs import RUNS_DIR
-from harness.testing.checks import judge_check, judge_compare, resolve
-from harness.testing.suite import Check, load_suite
+from harness.testing.checks import judge_checks, judge_compare
+from harness.testing.measures import resolve
+from harness.testing.suite import load_suite, parse_checks
 from rig_models.schema import ConfigError
 
 ENV = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
@@ -53,9 +54,14 @@ def write_suite(tmp: Path) -> Path:
     suite = {
         "name": "mini",
         "tests": [
-            {"probe": {"duration_s": 0.3}},
+            # the run file's criterion form on the probe report: a wildcard over the devices,
+            # and a marginal band that makes 0 missing frames MARGINAL (a test of the band)
+            {"probe": {"duration_s": 0.3}, "check": {
+                "none_missing": {"measure": "devices[*].missing", "max_count": 0,
+                                 "marginal_count": 1, "why": "every due SYNC answered"}}},
             {"run": "slew-rw", "duration_s": 4, "own_expect": False,
-             "expect": {"tracking": {"channel": "/attitude/error_deg", "max_abs_deg": 0.1}}},
+             "expect": {"tracking": {"channel": "/attitude/error_deg", "max_abs_deg": 0.1}},
+             "check": [{"field": "frames.sent", "min": 1}]},   # the deprecated form
             {"run": str(tight)},
             {"run": "slew-rw", "name": "slew-marginal", "duration_s": 2, "own_expect": False,
              "expect": {"near": {"channel": "/attitude/error_deg", "max_abs_deg": 1.0,
@@ -104,6 +110,20 @@ def test_suite_runs_with_verdicts_junit_and_report(mini):
     assert results["exit_code"] == 1 and results["verdict"] == "FAIL"
     by_item = {t["item"]: t for t in results["tests"]}
     assert by_item["compare[case-a]"]["verdict"] == "PASS"
+    # a suite's check: judged as the run file's form: worst element, marginal band, why
+    probe = by_item["probe"]
+    assert probe["verdict"] == "MARGINAL" and probe["exit_code"] == 5
+    [band] = [c for c in probe["criteria"] if c["name"] == "none_missing"]
+    assert band["verdict"] == "MARGINAL" and band["why"] == "every due SYNC answered"
+    assert band["limit"] == {"max_count": 0, "marginal_count": 1} and band["unit"] == "count"
+    assert re.match(r"all \d+ judged; worst devices\[\d+\]\.missing = 0 ", band["message"])
+    assert cases["probe"].find("properties/property").get("value") == "MARGINAL"
+    # the deprecated form: translated, and stderr says where and how to write it
+    assert "deprecated: suite file mini.yaml: tests[1].check:" in proc.stderr
+    assert "frames.sent:\n" in proc.stderr and "min_count: 1" in proc.stderr
+    [sent] = by_item["slew-rw"]["criteria"][-1:]
+    assert sent["name"] == "frames.sent" and sent["verdict"] == "PASS"
+    assert sent["limit"] == {"min_count": 1}
     tight = by_item["slew-rw-tight"]
     assert tight["criteria"][0]["name"] == "tracking" and tight["criteria"][0]["margin"] < 0
     run_dir = folder / tight["run_dir"]
@@ -157,6 +177,15 @@ def test_bad_suite_files_name_the_key_path(tmp_path):
         ({"tests": [{"run": "slew-rw", "colour": 1}]}, "tests[0].colour"),
         ({"tests": [{"run": "slew-rw", "duration_s": -1}]}, "duration_s"),
         ({"tests": [{"probe": {}, "check": [{"field": "ok"}]}]}, "tests[0].check[0]"),
+        ({"tests": [{"probe": {}, "check": {"c": {"measure": "devices[*].missing",
+                                                  "max_s": 0}}}]}, "tests[0].check.c.max_s"),
+        ({"tests": [{"study": "hu2006", "check": {"c": {"measure": "measures.x_deg",
+                                                        "max_deg": 1, "colour": 2}}}]},
+         "tests[0].check.c.colour"),
+        ({"tests": [{"run": "free-decay", "identify": {"check": {
+            "n": {"measure": "modes", "len_min": 3}}}}]}, "tests[0].identify.check.n.len_min"),
+        ({"tests": [{"study": "hu2006", "check": [{"field": "measures.a_percent", "max": 1,
+                                                   "unit": "s"}]}]}, "tests[0].check[0].unit"),
         ({"tests": [{"run": "slew-rw"}, {"run": "slew-rw"}]}, "used twice"),
         ({"tests": [{"run": "case-a", "compare": [{"measure": "beta", "largest": "x"}]}]},
          "tests[0].compare[0].largest"),
@@ -166,7 +195,7 @@ def test_bad_suite_files_name_the_key_path(tmp_path):
     for i, (doc, where) in enumerate(cases):
         p = tmp_path / f"bad{i}.yaml"
         p.write_text(yaml.safe_dump(doc))
-        with pytest.raises(ConfigError, match=re.escape(where)):
+        with pytest.raises(ConfigError, match=rf"^suite file bad{i}\.yaml: .*{re.escape(where)}"):
             load_suite(str(p))
     proc = harness_test(str(tmp_path / "bad0.yaml"))
     assert proc.returncode == 2 and "bad0.yaml: tests[0].matrix" in proc.stderr
@@ -184,20 +213,51 @@ def test_matrix_names_and_run_names_stay_safe(tmp_path):
 
 def test_json_checks_and_comparisons():
     doc = {"modes": [{"err_percent": 0.1}, {"err_percent": -0.7}],
-           "laws": {"best_beta_gt_0.5": 0.8}, "ok": True}
+           "laws": {"best_beta_gt_0.5": 0.8}, "ok": True, "empty": []}
     assert [p for p, _ in resolve(doc, "modes[*].err_percent")] == [
         "modes[0].err_percent", "modes[1].err_percent"]
     assert resolve(doc, "laws.best_beta_gt_0.5") == [("laws.best_beta_gt_0.5", 0.8)]
-    bad = judge_check(Check("modes[*].err_percent", {"max_abs": 0.5}, unit="%"), doc)
-    assert bad["verdict"] == "FAIL" and bad["value"] == -0.7
+    checks = parse_checks({
+        "err": {"measure": "modes[*].err_percent", "max_abs_percent": 0.5,
+                "why": "the model's"},
+        "n": {"measure": "modes", "len_min_count": 2},
+        "ok": {"measure": "ok", "is": True},
+        "beta": {"measure": "laws.best_beta_gt_0.5", "min_ratio": 0.6, "max_ratio": 0.85},
+        "nope": {"measure": "nope", "max_ratio": 1},
+        "none": {"measure": "empty[*].x_s", "max_s": 1}}, "suite file t.yaml", "tests[0].check")
+    bad, n, ok, beta, nope, none = judge_checks(checks, doc)
+    assert bad["verdict"] == "FAIL" and bad["value"] == -0.7 and bad["why"] == "the model's"
     assert bad["margin"] == pytest.approx(-0.2) and "modes[1]" in bad["message"]
-    assert judge_check(Check("modes", {"len_min": 2}), doc)["verdict"] == "PASS"
-    assert judge_check(Check("ok", {"equals": True}), doc)["verdict"] == "PASS"
-    assert judge_check(Check("nope", {"max": 1}), doc)["verdict"] == "ERROR"
-    cmp = judge_compare({"measure": "a", "largest": "x"}, {"x": {"a": 3}, "y": {"a": 2}})
-    assert cmp["verdict"] == "PASS" and cmp["margin"] == 1
+    assert bad["limit"] == {"max_abs_percent": 0.5} and bad["kind"] == "scalar"
+    assert (n["verdict"], n["value"], n["unit"]) == ("PASS", 2, "count")
+    assert ok["verdict"] == "PASS" and beta["verdict"] == "PASS"
+    assert nope["verdict"] == "ERROR" and "nope" in nope["message"]
+    assert none["verdict"] == "ERROR" and "empty" in none["message"]
+    cmp = judge_compare({"measure": "a", "largest": "x", "why": "Table 2"},
+                        {"x": {"a": 3}, "y": {"a": 2}})
+    assert cmp["verdict"] == "PASS" and cmp["margin"] == 1 and cmp["why"] == "Table 2"
     cmp = judge_compare({"measure": "a", "largest": "y"}, {"x": {"a": 3}, "y": {"a": 2}})
     assert cmp["verdict"] == "FAIL" and "x 3 is largest" in cmp["message"]
+
+
+def test_the_deprecated_check_form_is_translated_with_its_new_spelling(capsys):
+    old = [{"field": "modes[*].err_percent", "max_abs": 0.5, "unit": "%", "name": "freq"},
+           {"field": "modes", "len_min": 2}, {"field": "ok", "equals": True},
+           {"field": "measures.n_count", "equals": 3}]
+    got = parse_checks(old, "suite file s.yaml", "tests[3].identify.check")
+    err = capsys.readouterr().err
+    assert err.startswith("harness: deprecated: suite file s.yaml: tests[3].identify.check:")
+    spelled = yaml.safe_load("\n".join(line[4:] for line in err.splitlines()[1:]))
+    assert spelled == {"check": {
+        "freq": {"measure": "modes[*].err_percent", "max_abs_percent": 0.5},
+        "modes": {"measure": "modes", "len_min_count": 2},
+        "ok": {"measure": "ok", "is": True},
+        "measures.n_count": {"measure": "measures.n_count", "equals_count": 3}}}
+    # the same criteria as the new spelling (what the message tells the user to write)
+    new = parse_checks(spelled["check"], "suite file s.yaml", "tests[3].identify.check")
+    assert capsys.readouterr().err == ""
+    assert [(c.name, c.target, c.unit, c.limit) for c in got] == [
+        (c.name, c.target, c.unit, c.limit) for c in new]
 
 
 def test_exit_code_is_the_most_severe():

@@ -80,6 +80,79 @@ def test_scalar_on_any_result_mapping():
     assert evaluate_scalar(c, {"modes": {"f1_hz": 0.52}}).verdict == FAIL
 
 
+def test_scalar_on_a_document_wildcards_lengths_equality_and_dotted_keys():
+    """The one scalar form on any JSON document (a suite's check:): [*] judged element by
+    element reporting the worst, keys with dots, equals_<unit>, len_min_count, is: TEXT."""
+    doc = {"modes": [{"err_percent": 0.1}, {"err_percent": -0.42}, {"err_percent": 0.3}],
+           "laws": {"best_beta_gt_0.5": 0.8}, "n_count": 3, "bus": "virtual:x",
+           "settle_s": None}
+
+    def judge(raw: dict):
+        [c] = parse_criteria({"c": raw}, "suite file s.yaml", channels=(), key="check",
+                             open_paths=True)
+        return evaluate_scalar(c, doc)
+
+    r = judge({"measure": "modes[*].err_percent", "max_abs_percent": 0.5,
+               "marginal_percent": 0.1, "why": "issue 3"})
+    assert (r.verdict, r.value, r.unit, r.why) == (MARGINAL, -0.42, "percent", "issue 3")
+    assert r.margin == pytest.approx(0.08) and "worst modes[1].err_percent" in r.message
+    assert r.to_dict()["limit"] == {"max_abs_percent": 0.5, "marginal_percent": 0.1}
+    r = judge({"measure": "modes[*].err_percent", "max_percent": 0.2})
+    assert r.verdict == FAIL and r.value == 0.3 and "1 of 3 outside" in r.message
+    assert judge({"measure": "modes[2].err_percent", "min_percent": 0.3}).verdict == PASS
+    assert judge({"measure": "laws.best_beta_gt_0.5", "min_ratio": 0.6,
+                  "max_ratio": 0.85}).verdict == PASS
+    assert judge({"measure": "n_count", "equals_count": 3}).verdict == PASS
+    r = judge({"measure": "n_count", "equals_count": 4})
+    assert r.verdict == FAIL and r.margin == -1
+    r = judge({"measure": "modes", "len_min_count": 4})
+    assert (r.verdict, r.value, r.unit, r.margin) == (FAIL, 3, "count", -1)
+    assert judge({"measure": "modes", "len_max_count": 3}).verdict == PASS
+    assert judge({"measure": "bus", "is": "virtual:x"}).verdict == PASS
+    r = judge({"measure": "settle_s", "max_s": 1})
+    assert r.verdict == ERROR and "null" in r.message
+    r = judge({"measure": "modes[*].nope_s", "max_s": 1})
+    assert r.verdict == ERROR and "modes[0]" in r.message
+    r = judge({"measure": "bus", "max_ratio": 1})
+    assert r.verdict == ERROR and "not a number" in r.message
+
+
+@pytest.mark.parametrize("raw, where, what", [
+    ({"measure": "modes[*].err_percent", "max_abs_s": 1}, "check.c.max_abs_s",
+     "expected max_abs_percent"),
+    ({"measure": "modes[*].err_percent", "max_abs": 1}, "check.c.max_abs", "missing unit"),
+    ({"measure": "modes", "len_min": 3}, "check.c.len_min", "expected len_min_count"),
+    ({"measure": "modes", "len_min_count": 3, "max_ratio": 1}, "check.c.max_ratio",
+     "takes only len_min_count"),
+    ({"measure": "gain", "max_s": 1}, "check.c.max_s", "expected max_ratio or max_count"),
+    ({"measure": "x_deg", "equals_deg": 1, "max_deg": 2}, "check.c.equals_deg",
+     "stands alone"),
+    ({"measure": "x_deg", "equals_deg": 1, "marginal_deg": 0.1}, "check.c.marginal_deg",
+     "no marginal band"),
+    ({"measure": "x_deg", "max_deg": 1, "colour": 1}, "check.c.colour", "unknown key"),
+    ({"measure": "a[b].x_deg", "max_deg": 1}, "check.c.measure", "[N] or [*]"),
+    ({"measure": "ok", "is": 3}, "check.c.is", "is: true|false"),
+])
+def test_bad_document_criteria_are_refused_naming_the_key_path(raw, where, what):
+    with pytest.raises(ConfigError) as exc:
+        parse_criteria({"c": raw}, "suite file s.yaml", channels=(), key="check",
+                       open_paths=True)
+    msg = str(exc.value)
+    assert msg.startswith(f"suite file s.yaml: {where}: "), msg
+    assert what in msg, msg
+
+
+def test_run_files_keep_summary_measures_but_take_equals():
+    """In a run file the path is one of summary.json's measures (a typo is refused before
+    the run); the limits are the same keys as a suite's."""
+    with pytest.raises(ConfigError, match=r"expect\.c\.measure: unknown measure"):
+        one({"measure": "faults[*].tick", "max_count": 1})
+    assert scalar({"measure": "overruns", "equals_count": 0}).verdict == PASS
+    with pytest.raises(ConfigError, match=r"expect\.c\.len_min_count: len_min_<unit> is for "
+                       r"measure: criteria only"):
+        parse_criteria({"c": {"channel": "/tip/accel_m_s2", "len_min_count": 1}}, "t")
+
+
 # ------------------------------------------------------------------------- refused
 @pytest.mark.parametrize("raw, where, what", [
     ({"measure": "final_angle_eror_deg", "max_deg": 1}, "expect.c.measure", "unknown measure"),

@@ -14,8 +14,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_faults(args: argparse.Namespace) -> int:
-    print("Inject with 'harness run NAME --fault KIND@AT_S[:DEVICE][=VALUE]' or a run file's "
-          "'faults:' list.\n")
+    print("Inject with 'harness run NAME --fault KIND@AT_S[+DURATION_S][:DEVICE][=VALUE]' "
+          "or a run file's 'faults:' list.\n")
     for kind, what in FAULT_KINDS.items():
         dev = " (needs :DEVICE)" if kind in DEVICE_FAULTS else ""
         print(f"  {kind:<18} {what}{dev}")

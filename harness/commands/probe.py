@@ -50,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--receive-timeout-ms", type=float, default=5.0,
                    help="real time: how long to wait for a tick's telemetry (default 5 ms; "
                    "never more than 70 %% of the period)")
-    p.add_argument("--fault", action="append", metavar="KIND@AT_S[:DEVICE][=VALUE]",
+    p.add_argument("--fault", action="append", metavar="KIND@AT_S[+DURATION_S][:DEVICE][=VALUE]",
                    help="virtual bus only: inject a fault in the in-process virtual rig")
     p.add_argument("--json", action="store_true", help="the report as JSON on stdout")
     p.set_defaults(func=cmd_probe)

@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "case-a); repeatable. Default: every variant in turn")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--quiet", action="store_true", help="no progress output")
-    p.add_argument("--fault", action="append", metavar="KIND@AT_S[:DEVICE][=VALUE]",
+    p.add_argument("--fault", action="append", metavar="KIND@AT_S[+DURATION_S][:DEVICE][=VALUE]",
                    help="inject a fault in the in-process virtual rig, e.g. "
                    "silent_sensor@5:hub_sensor (repeatable; kinds: 'harness faults')")
     p.add_argument("--dry-run", action="store_true",

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import json
 import signal
 import sys
 import threading
@@ -19,7 +20,11 @@ from harness.bus import BusSpecError, open_bus, parse_bus
 from rig_models.faults import parse_fault
 from rig_models.rig_file import load_rig
 from rig_models.schema import ConfigError
-from rig_models.virtual_rig import VirtualRig
+from rig_models.virtual_rig import SyncTiming, VirtualRig
+
+TIMING_PREFIX = "harness virtual-rig: timing "
+"""The line (then JSON) on stderr at exit with the SYNC timing (``SyncTiming``) and the
+real-time measures this process took; ``harness.rig_process`` reads it back from rig.log."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,8 +41,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the harness loop rate: one physics step per SYNC (default 500)")
     p.add_argument("--duration-s", type=float, default=0.0,
                    help="exit after this many seconds of wall time (0: until Ctrl-C/SIGTERM)")
-    p.add_argument("--fault", action="append", metavar="KIND@AT_S[:DEVICE][=VALUE]",
+    p.add_argument("--fault", action="append", metavar="KIND@AT_S[+DURATION_S][:DEVICE][=VALUE]",
                    help="inject a fault at rig time AT_S (repeatable; see 'harness faults')")
+    p.add_argument("--realtime", action="store_true",
+                   help="take the memory measures of a real-time run in this process "
+                        "(mlockall, the collector off and run in the slack after a SYNC); "
+                        "the harness sets the CPU and SCHED_FIFO from outside")
     p.set_defaults(func=cmd_virtual_rig)
 
 
@@ -72,17 +81,29 @@ def cmd_virtual_rig(args: argparse.Namespace) -> int:
         timer.daemon = True
         timer.start()
     rig = VirtualRig(rig_cfg, bus, 1.0 / args.rate_hz, faults=faults)
-    gc.collect()
-    gc.freeze()  # keep the collector's pauses small while serving the bus
+    measures: dict[str, list[str]] = {}
+    if args.realtime:
+        from harness.clock import RealTimeSetup
+
+        measures = RealTimeSetup().apply(sched_fifo=False, priority=0, cpu=-1,
+                                         lock_memory=True, gc_freeze=True,
+                                         pin_cpu=False).to_dict()
+    else:
+        gc.collect()
+        gc.freeze()  # keep the collector's pauses small while serving the bus
+    # a SYNC woken later than a quarter period is kept with its tick (SyncTiming)
+    timing = SyncTiming(late_s=0.25 / args.rate_hz)
     print(f"harness virtual-rig: {rig_cfg.name} on {where} at {args.rate_hz:g} Hz; "
           "Ctrl-C to stop", file=sys.stderr, flush=True)
     try:
-        rig.run_forever(stop.is_set)
+        rig.run_forever(stop.is_set, timing=timing)
     except KeyboardInterrupt:
         pass
     finally:
         rig.make_safe()
         bus.shutdown()
+        print(TIMING_PREFIX + json.dumps({**timing.to_dict(), "measures": measures}),
+              file=sys.stderr, flush=True)
     c = rig.counters
     print(f"harness virtual-rig: stopped after {c.steps} steps; frames in {c.frames_in}, out "
           f"{c.frames_out}, malformed {c.malformed}, unknown {c.unknown}, watchdog trips "

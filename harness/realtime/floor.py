@@ -33,6 +33,9 @@ class FloorResult:
     rate_hz: float
     ticks: int = 0
     overruns: int = 0
+    # runs of consecutive overrun ticks: one host stall of 100 ms makes about 50 overruns
+    # (the ticks behind it run late), one episode
+    overrun_episodes: int = 0
     lateness: LatencyHistogram = field(default_factory=LatencyHistogram)
     work: LatencyHistogram = field(default_factory=LatencyHistogram)
     measures: dict[str, list[str]] = field(default_factory=dict)
@@ -44,6 +47,7 @@ class FloorResult:
 
     def to_dict(self) -> dict[str, Any]:
         return {"rate_hz": self.rate_hz, "ticks": self.ticks, "overruns": self.overruns,
+                "overrun_episodes": self.overrun_episodes,
                 "overrun_percent": self.overrun_percent,
                 "lateness_ms": self.lateness.percentiles_ms(),
                 "work_ms": self.work.percentiles_ms(), "measures": self.measures,
@@ -66,6 +70,7 @@ def run_floor(rate_hz: float, duration_s: float, work_s: float = DEFAULT_WORK_S,
     wall0 = perf()
     try:
         clock.start()
+        prev_over = False
         for tick in range(n):
             if should_stop is not None and should_stop():
                 break
@@ -76,6 +81,11 @@ def run_floor(rate_hz: float, duration_s: float, work_s: float = DEFAULT_WORK_S,
             res.work.add(perf() - t0)
             if clock.time_left(tick) < 0:
                 res.overruns += 1
+                if not prev_over:
+                    res.overrun_episodes += 1
+                prev_over = True
+            else:
+                prev_over = False
             res.lateness.add(lateness)
             res.ticks += 1
     finally:

@@ -179,13 +179,13 @@ def summary_markdown(summary: Mapping[str, Any]) -> str:
 def values_at(rrd: Path, times_s: Sequence[float]) -> list[dict[str, float]]:
     """For each time, every plotted channel's recorded value at the last row at or before it
     (one streaming pass over the recording; memory bounded by the chunk size)."""
-    from harness.recording_reader import RrdReader
+    from harness.recording_reader import iter_chunks
 
     wanted = {c for p in PLOTS.values() for c in p.channels if not c.startswith("/bus/")}
     times = np.asarray(times_s, dtype=float)
     out: list[dict[str, float]] = [{} for _ in times]
     best: list[dict[str, float]] = [{} for _ in times]  # channel -> time of the value kept
-    for chunk in RrdReader(rrd).stream().to_chunks():
+    for chunk in iter_chunks(rrd, content=sorted(wanted)):
         entity = chunk.entity_path
         if entity not in wanted or chunk.is_static or "time" not in chunk.timeline_names:
             continue

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from harness.recording_reader import RrdReader
+from harness.recording_reader import RrdReader, iter_chunks
 
 
 @dataclass(frozen=True)
@@ -24,7 +24,7 @@ def _first(x: object) -> object:
 def read_events(rrd: Path) -> list[Event]:
     """Every TextLog under ``/events`` with its time (s), by time."""
     out: list[Event] = []
-    for chunk in RrdReader(rrd).stream().to_chunks():
+    for chunk in iter_chunks(rrd, content="/events/**"):
         if not chunk.entity_path.startswith("/events"):
             continue
         batch = chunk.to_record_batch()
@@ -44,7 +44,7 @@ def read_events(rrd: Path) -> list[Event]:
 def read_text(rrd: Path, entity: str) -> str | None:
     """The (last) TextDocument at ``entity``, or None."""
     text = None
-    for chunk in RrdReader(rrd).stream().to_chunks():
+    for chunk in iter_chunks(rrd, content=[entity]):
         if chunk.entity_path != entity:
             continue
         batch = chunk.to_record_batch()
@@ -58,7 +58,7 @@ def read_series_names(rrd: Path, points: bool = False) -> dict[str, list[str]]:
     plotted channels, or with ``points`` the (last) ``SeriesPoints:names`` of the markers."""
     column = "SeriesPoints:names" if points else "SeriesLines:names"
     out: dict[str, list[str]] = {}
-    for chunk in RrdReader(rrd).stream().to_chunks():
+    for chunk in iter_chunks(rrd):
         if not (chunk.is_static or points):
             continue
         batch = chunk.to_record_batch()
@@ -70,7 +70,7 @@ def read_series_names(rrd: Path, points: bool = False) -> dict[str, list[str]]:
 
 def entities(rrd: Path) -> set[str]:
     """Every entity path with data in the recording."""
-    return {c.entity_path for c in RrdReader(rrd).stream().to_chunks()}
+    return {c.entity_path for c in iter_chunks(rrd)}
 
 
 @dataclass(frozen=True)
@@ -87,7 +87,7 @@ def read_blueprints(rrd: Path) -> list[list[SavedView]]:
     out: list[list[SavedView]] = []
     for store in reader.blueprints():
         views: dict[str, dict[str, object]] = {}
-        for chunk in reader.stream(store=store).to_chunks():
+        for chunk in iter(reader.stream(store=store)):
             path = chunk.entity_path
             if not path.startswith("/view/"):
                 continue

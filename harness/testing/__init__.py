@@ -7,16 +7,20 @@ The criteria forms are documented in docs/criteria.md.
 Public API
 ----------
 ``parse_criteria(raw, source="expect", known_measures=None, channels=None, key="expect",
-base_dir=None, check_files=True) -> list[Criterion]``
+base_dir=None, check_files=True, open_paths=False) -> list[Criterion]``
     Check an ``expect:`` section (mapping ``name: criterion`` or a list); raises
     ``ConfigError`` naming ``source`` and the key path (``expect.final_error.max_abs_s: ...``).
     ``known_measures``: extra scalar paths beside summary.json's (unit from the name's
     suffix, dimensionless ``ratio`` without one). ``channels=()`` for results without a
-    recording (scalar criteria only); None = the loop's recorded channels.
+    recording (scalar criteria only); None = the loop's recorded channels. ``open_paths``:
+    a ``measure:`` may be any field of the judged document (a suite's ``check:``,
+    ``harness.testing.suite.parse_checks``).
 
 ``evaluate_scalar(criterion, measures) -> CriterionResult``
     A ``measure:`` criterion against any mapping (summary.json, a study's JSON output):
-    dotted paths, min / max / max_abs and the marginal band.
+    dotted paths (keys may contain dots), ``[N]`` / ``[*]`` into lists (every element
+    judged, the worst reported), min / max / max_abs / equals, a list's length, ``is``,
+    and the marginal band. The one scalar implementation of run files and suites.
 
 ``evaluate(criteria, facts) -> list[CriterionResult]``
     Every criterion against ``Facts(measures, channel, baseline_channel, left_safe)``:

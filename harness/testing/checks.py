@@ -1,64 +1,25 @@
-"""Criteria on JSON documents (``check:`` in suite files) and across the cases of one test
-(``compare:``), with results in verdict.json's criterion shape.
+"""Judging a suite's criteria: ``check:`` (the run file's scalar form, on a JSON document)
+and ``compare:`` (across the cases of one test), with results in verdict.json's criterion
+shape.
 
 Each criterion becomes ``{"name", "kind", "value", "unit", "limit", "margin", "verdict",
-"worst_time_s", "message"}``: ``margin`` is the distance to the nearest limit in the
-criterion's unit, positive inside (for ``equals``: 0 when equal, else None). With ``[*]`` in
-the field the criterion is judged on every element and reports the worst one.
+"worst_time_s", "message"}`` (and ``"why"`` when it has one): ``check:`` criteria are judged
+by the verdict layer's own ``evaluate_scalar`` (docs/criteria.md), so a suite and a run file
+judge a scalar the same way; ``margin`` is the distance to the nearest limit in the
+criterion's unit, positive inside.
 """
 
 from __future__ import annotations
 
 import math
-import re
+from collections.abc import Iterable
 from typing import Any
 
-from harness.testing.suite import Check
+from harness.testing.criteria import Criterion
+from harness.testing.evaluate import evaluate_scalar
+from harness.testing.measures import FieldMissing, resolve
 
 ORDER = {"PASS": 0, "MARGINAL": 1, "FAIL": 2, "ERROR": 3}
-_INDEX = re.compile(r"\[(\*|-?\d+)\]")
-
-
-class FieldMissing(LookupError):
-    pass
-
-
-def resolve(doc: Any, path: str) -> list[tuple[str, Any]]:
-    """Every (concrete path, value) that ``path`` names in ``doc``. Keys may contain dots:
-    at each level the longest key that matches the rest of the path wins."""
-    out: list[tuple[str, Any]] = []
-
-    def walk(node: Any, rest: str, here: str) -> None:
-        if not rest:
-            out.append((here, node))
-            return
-        m = _INDEX.match(rest)
-        if m:
-            if not isinstance(node, list):
-                raise FieldMissing(f"{here or '(top)'}: not a list")
-            idx = m.group(1)
-            tail = rest[m.end():].removeprefix(".")
-            if idx == "*":
-                for i, v in enumerate(node):
-                    walk(v, tail, f"{here}[{i}]")
-            else:
-                try:
-                    walk(node[int(idx)], tail, f"{here}[{idx}]")
-                except IndexError:
-                    raise FieldMissing(f"{here}[{idx}]: no such element") from None
-            return
-        if not isinstance(node, dict):
-            raise FieldMissing(f"{here or '(top)'}: not a mapping")
-        for key in sorted((k for k in node if isinstance(k, str)), key=len, reverse=True):
-            if rest == key or rest.startswith(key + ".") or rest.startswith(key + "["):
-                walk(node[key], rest[len(key):].removeprefix("."),
-                     f"{here}.{key}" if here else key)
-                return
-        raise FieldMissing(f"{here + '.' if here else ''}{rest.split('.')[0]}: no such field "
-                           f"(fields here: {', '.join(sorted(map(str, node)))[:300]})")
-
-    walk(doc, path, "")
-    return out
 
 
 def _num(v: Any) -> float | None:
@@ -67,85 +28,11 @@ def _num(v: Any) -> float | None:
     return float(v)
 
 
-def _judge_value(rules: dict[str, Any], value: Any) -> tuple[str, float | None, str]:
-    """(verdict, margin, what broke) of one value against the rules."""
-    margins: list[float] = []
-    broke = ""
-    for rule, limit in rules.items():
-        if rule == "equals":
-            ok = value == limit or (_num(value) is not None and _num(limit) is not None
-                                    and math.isclose(float(value), float(limit)))
-            if not ok:
-                broke = broke or f"!= {limit!r}"
-            continue
-        if rule in ("len_min", "len_max"):
-            if not hasattr(value, "__len__"):
-                return "ERROR", None, f"has no length ({value!r})"
-            x = float(len(value))
-        else:
-            x = _num(value)
-            if x is None or math.isnan(x):
-                return "ERROR", None, f"is not a number ({value!r})"
-        if rule in ("min", "len_min"):
-            m = x - float(limit)
-            op = "<"
-        elif rule in ("max", "len_max"):
-            m = float(limit) - x
-            op = ">"
-        else:  # max_abs
-            m = float(limit) - abs(x)
-            op = "|x| >"
-        margins.append(m)
-        if m < 0:
-            broke = broke or f"{op} {limit:g}"
-    margin = min(margins) if margins else (0.0 if not broke else None)
-    return ("FAIL" if broke else "PASS"), margin, broke
-
-
-def _show(v: Any) -> str:
-    if isinstance(v, float):
-        return f"{v:.6g}"
-    if isinstance(v, list | dict):
-        return f"{type(v).__name__} of {len(v)}"
-    return repr(v)
-
-
-def judge_check(check: Check, doc: Any) -> dict[str, Any]:
-    base = {"name": check.label, "kind": "field", "field": check.field, "unit": check.unit,
-            "limit": dict(check.rules), "worst_time_s": None}
-    try:
-        found = resolve(doc, check.field)
-    except FieldMissing as exc:
-        return {**base, "value": None, "margin": None, "verdict": "ERROR",
-                "message": f"{check.field}: {exc}"}
-    if not found:
-        return {**base, "value": None, "margin": None, "verdict": "ERROR",
-                "message": f"{check.field}: no element"}
-    worst = None
-    for where, value in found:
-        verdict, margin, broke = _judge_value(check.rules, value)
-        key = (ORDER[verdict], -(margin if margin is not None else -math.inf))
-        if worst is None or key > worst[0]:
-            worst = (key, where, value, verdict, margin, broke)
-    assert worst is not None
-    _, where, value, verdict, margin, broke = worst
-    unit = f" {check.unit}" if check.unit else ""
-    if verdict == "PASS":
-        msg = f"{where} = {_show(value)}{unit} within {_limits(check.rules)}"
-        if len(found) > 1:
-            msg = f"all {len(found)} within {_limits(check.rules)}; worst {where} = " \
-                  f"{_show(value)}{unit}"
-    else:
-        msg = f"{where} = {_show(value)}{unit} {broke}".rstrip()
-    return {**base, "value": value if not isinstance(value, list | dict) else _show(value),
-            "margin": margin, "verdict": verdict, "message": msg}
-
-
-def _limits(rules: dict[str, Any]) -> str:
-    names = {"min": ">=", "max": "<=", "max_abs": "|x| <=", "equals": "==",
-             "len_min": "len >=", "len_max": "len <="}
-    return ", ".join(f"{names[k]} {v:g}" if isinstance(v, int | float) and
-                     not isinstance(v, bool) else f"{names[k]} {v!r}" for k, v in rules.items())
+def judge_checks(criteria: Iterable[Criterion], doc: Any) -> list[dict[str, Any]]:
+    """Every ``check:`` criterion against one JSON document, as verdict.json records."""
+    if not isinstance(doc, dict):
+        doc = {}
+    return [evaluate_scalar(c, doc).to_dict() for c in criteria]
 
 
 def judge_compare(rule: dict[str, Any], docs: dict[str, Any]) -> dict[str, Any]:
@@ -162,6 +49,8 @@ def judge_compare(rule: dict[str, Any], docs: dict[str, Any]) -> dict[str, Any]:
     base = {"name": rule.get("name") or f"{target} has the {which} {rule['measure']}",
             "kind": "compare", "unit": rule.get("unit", ""), "worst_time_s": None,
             "limit": {which: target, "over": values}, "value": values.get(target)}
+    if rule.get("why"):
+        base["why"] = rule["why"]
     missing = [c for c, v in values.items() if v is None or math.isnan(v)]
     if missing:
         return {**base, "margin": None, "verdict": "ERROR",

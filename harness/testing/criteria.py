@@ -1,5 +1,6 @@
-"""Parsing and checking the ``expect:`` section of a run file (no run, no file reading except
-checking that a baseline exists).
+"""Parsing and checking criteria: a run file's ``expect:`` section, and a suite's ``check:``
+(the same scalar form, ``parse_criteria(..., open_paths=True)``; no run, no file reading
+except checking that a baseline exists).
 
 Every error names the source, the key path and what was expected, e.g.
 ``run file slew.yaml: expect.final_error.max_abs_s: final_angle_error_deg is in deg: expected
@@ -16,10 +17,13 @@ from pathlib import Path
 from typing import Any
 
 from harness.testing.measures import (
+    DIMENSIONLESS,
     TIME_EVENTS,
     is_budget,
+    path_error,
     unit_of_channel,
     unit_of_measure,
+    unit_of_path,
 )
 from rig_models.schema import ConfigError
 
@@ -30,7 +34,6 @@ have a ``channel``)."""
 REDUCTIONS = ("each", "rms", "mean", "final")
 COMMON_KEYS = ("why", "budget")
 WINDOW_KEYS = ("after", "from_s", "to_s", "last_s")
-BAND_PREFIXES = ("max_abs_", "min_", "max_", "marginal_")
 
 
 @dataclass(frozen=True)
@@ -91,33 +94,63 @@ def _number(source: str, path: str, v: Any, unit: str, positive: bool = False,
     return float(v)
 
 
+LIMIT_NAMES = ("max_abs", "len_min", "len_max", "equals", "marginal", "min", "max")
+"""Limit keys without their unit (a key is NAME_<unit>), longest first where one begins
+another. ``len_*`` bound a list's length (unit ``count``); ``equals`` stands alone."""
+VALUE_LIMITS = ("min", "max", "max_abs", "marginal")
+MEASURE_LIMITS = ("min", "max", "max_abs", "equals", "marginal")
+LENGTH_LIMITS = ("len_min", "len_max", "marginal")
+
+
+def _limit_name(key: str) -> str | None:
+    return next((n for n in LIMIT_NAMES if key == n or key.startswith(n + "_")), None)
+
+
 def _band(source: str, path: str, raw: Mapping[str, Any], unit: str, target: str,
-          used: set[str], require: bool = True) -> dict[str, Any]:
-    """min_/max_/max_abs_/marginal_ keys in ``unit``; refuses a wrong or missing unit."""
+          used: set[str], require: bool = True,
+          allowed: tuple[str, ...] = VALUE_LIMITS) -> dict[str, Any]:
+    """The limit keys (``<name>_<unit>``, names in ``allowed``) in ``unit``; refuses a wrong
+    or missing unit, a limit this form does not take, and contradictory limits."""
     limit: dict[str, Any] = {}
+    length = "len_min" in allowed
     for key in raw:
-        prefix = next((p for p in BAND_PREFIXES if key.startswith(p)), None)
-        if key in ("min", "max", "max_abs", "marginal"):
-            raise _err(source, f"{path}.{key}", f"missing unit: {target} is in {unit}: "
-                       f"expected {key}_{unit}")
-        if prefix is None:
+        name = _limit_name(str(key))
+        if name is None:
             continue
-        got = key[len(prefix):]
-        if prefix == "max_" and got.startswith("abs_"):
-            continue  # max_abs_ handled by its own prefix
+        if name not in allowed:
+            if length:
+                why = f"a criterion on the length of {target} takes only len_min_count, " \
+                      "len_max_count and marginal_count"
+            elif name in ("len_min", "len_max", "equals"):
+                why = f"{name}_<unit> is for measure: criteria only"
+            else:
+                why = "not with len_min_count / len_max_count (the length is a count)"
+            raise _err(source, f"{path}.{key}", why)
+        got = str(key)[len(name) + 1:]
+        what = f"the length of {target}" if length else target
+        if not got:
+            raise _err(source, f"{path}.{key}", f"missing unit: {what} is in {unit}: "
+                       f"expected {name}_{unit}")
         if got != unit:
-            raise _err(source, f"{path}.{key}", f"{target} is in {unit}: expected "
-                       f"{prefix}{unit}" + (f", got unit {got!r}" if got else ""))
-        name = prefix[:-1]
+            raise _err(source, f"{path}.{key}", f"{what} is in {unit}: expected "
+                       f"{name}_{unit}, got unit {got!r}")
         limit[name] = _number(source, f"{path}.{key}", raw[key], unit,
-                              nonneg=name in ("max_abs", "marginal"))
+                              nonneg=name in ("max_abs", "marginal", "len_min", "len_max"))
         used.add(key)
-    if require and not any(k in limit for k in ("min", "max", "max_abs")):
-        raise _err(source, path, f"no limit: expected min_{unit}, max_{unit} or "
-                   f"max_abs_{unit}")
-    lo, hi = limit.get("min"), limit.get("max")
+    hard = [k for k in limit if k != "marginal"]
+    if require and not hard:
+        names = [f"{n}_{unit}" for n in allowed if n != "marginal"]
+        raise _err(source, path, f"no limit: expected {', '.join(names[:-1])} or {names[-1]}")
+    if "equals" in limit and len(hard) > 1:
+        raise _err(source, f"{path}.equals_{unit}", "equals stands alone (not with min, max "
+                   "or max_abs)")
+    if "equals" in limit and "marginal" in limit:
+        raise _err(source, f"{path}.marginal_{unit}", "an equality has no marginal band")
+    lo_key, hi_key = ("len_min", "len_max") if length else ("min", "max")
+    lo, hi = limit.get(lo_key), limit.get(hi_key)
     if lo is not None and hi is not None and lo > hi:
-        raise _err(source, f"{path}.min_{unit}", f"min {lo:g} > max {hi:g} ({unit})")
+        raise _err(source, f"{path}.{lo_key}_{unit}", f"{lo_key.replace('len_', 'length ')} "
+                   f"{lo:g} > {hi_key.replace('len_', 'length ')} {hi:g} ({unit})")
     if "max_abs" in limit and lo is not None and lo > limit["max_abs"]:
         raise _err(source, f"{path}.min_{unit}",
                    f"min {lo:g} > max_abs {limit['max_abs']:g} ({unit})")
@@ -130,6 +163,61 @@ def _band(source: str, path: str, raw: Mapping[str, Any], unit: str, target: str
                        f"marginal band {limit['marginal']:g} {unit} covers the whole pass "
                        f"band (half-width {min(halves):g} {unit}); expected less")
     return limit
+
+
+def _measure(name: str, raw: Mapping[str, Any], source: str, key_path: str, used: set[str],
+             why: str, budget_raw: bool | None, known_measures: Iterable[str] | None,
+             open_paths: bool) -> Criterion:
+    """The scalar form: ``measure: PATH`` with limits in the path's unit, ``is:``, or the
+    length of a list (``len_min_count`` / ``len_max_count``)."""
+    target = raw["measure"]
+    if open_paths:
+        bad = path_error(target)
+        if bad is not None:
+            raise _err(source, f"{key_path}.measure", bad)
+        unit: str | None = unit_of_path(target)
+        if unit is None:  # no unit in the name: dimensionless, counted or not as written
+            keys = [str(k) for k in raw if _limit_name(str(k)) and not str(k).startswith("len_")]
+            for k in keys:
+                if k.rsplit("_", 1)[-1] not in DIMENSIONLESS:
+                    name_ = _limit_name(k)
+                    raise _err(source, f"{key_path}.{k}", f"{target} has no unit in its name "
+                               f"(dimensionless): expected {name_}_ratio or {name_}_count")
+            unit = "count" if keys and all(k.endswith("_count") for k in keys) else "ratio"
+    else:
+        extra = set(known_measures or ())
+        unit = unit_of_measure(target) if isinstance(target, str) else None
+        if unit is None and isinstance(target, str) and target in extra:
+            unit = unit_of_measure_name(target) or "ratio"
+        if unit is None:
+            from harness.testing.measures import SUMMARY_MEASURES
+            raise _err(source, f"{key_path}.measure", f"unknown measure {target!r} (known: "
+                       f"{', '.join(sorted(set(SUMMARY_MEASURES) | extra))}, "
+                       "controller_design.*)")
+    budget = is_budget(target) if budget_raw is None else budget_raw
+    if "is" in raw or unit == "bool":
+        v = raw.get("is")
+        if not (isinstance(v, bool) or (open_paths and isinstance(v, str))):
+            expected = "is: true|false" + (" or is: TEXT" if open_paths else "")
+            raise _err(source, f"{key_path}.is", f"{target} is compared with {expected}, "
+                       f"got {v!r}")
+        if unit != "bool" and not open_paths:
+            raise _err(source, f"{key_path}.is", f"{target} is in {unit}: a number takes "
+                       f"min_{unit}, max_{unit}, max_abs_{unit} or equals_{unit}, not is:")
+        used.add("is")
+        _check_keys(source, key_path, raw, used, "measure, is, why")
+        return Criterion(name, "scalar", key_path, target, "bool" if isinstance(v, bool)
+                         else "", {"is": v}, budget=budget, why=why)
+    if any(str(k).startswith("len_") for k in raw):
+        limit = _band(source, key_path, raw, "count", target, used, allowed=LENGTH_LIMITS)
+        _check_keys(source, key_path, raw, used, "len_min_count, len_max_count, "
+                    "marginal_count, why")
+        return Criterion(name, "scalar", key_path, target, "count", limit, budget=budget,
+                         why=why)
+    limit = _band(source, key_path, raw, unit, target, used, allowed=MEASURE_LIMITS)
+    _check_keys(source, key_path, raw, used, f"min_{unit}, max_{unit}, max_abs_{unit}, "
+                f"equals_{unit}, marginal_{unit}, budget, why")
+    return Criterion(name, "scalar", key_path, target, unit, limit, budget=budget, why=why)
 
 
 def _window(source: str, path: str, raw: Mapping[str, Any], used: set[str]) -> Window:
@@ -173,10 +261,12 @@ def _check_keys(source: str, path: str, raw: Mapping[str, Any], used: set[str],
 def parse_criterion(name: str, raw: Any, source: str, key_path: str,
                     known_measures: Iterable[str] | None = None,
                     channels: Iterable[str] | None = None, base_dir: Path | None = None,
-                    check_files: bool = True) -> Criterion:
+                    check_files: bool = True, open_paths: bool = False) -> Criterion:
     """One criterion (see docs/criteria.md). ``known_measures``: extra scalar measure paths
     accepted beside summary.json's (their unit from their name); ``channels``: the recorded
-    channels (None: any entity path)."""
+    channels (None: any entity path); ``open_paths``: a ``measure:`` may be any field path
+    of the judged document (a suite's ``check:``: its fields are not known before it
+    exists), its unit from its name (``unit_of_path``)."""
     if not isinstance(raw, Mapping):
         raise _err(source, key_path, f"expected a mapping with one of {list(FORMS)}, "
                    f"got {raw!r}")
@@ -193,30 +283,8 @@ def parse_criterion(name: str, raw: Any, source: str, key_path: str,
         raise _err(source, f"{key_path}.budget", f"expected true or false, got {budget_raw!r}")
 
     if form == "measure":
-        target = raw["measure"]
-        extra = set(known_measures or ())
-        unit = unit_of_measure(target) if isinstance(target, str) else None
-        if unit is None and isinstance(target, str) and target in extra:
-            unit = unit_of_measure_name(target) or "ratio"
-        if unit is None:
-            from harness.testing.measures import SUMMARY_MEASURES
-            raise _err(source, f"{key_path}.measure", f"unknown measure {target!r} (known: "
-                       f"{', '.join(sorted(set(SUMMARY_MEASURES) | extra))}, "
-                       "controller_design.*)")
-        if unit == "bool":
-            if not isinstance(raw.get("is"), bool):
-                raise _err(source, f"{key_path}.is", f"{target} is true or false: expected "
-                           f"is: true|false, got {raw.get('is')!r}")
-            used.add("is")
-            _check_keys(source, key_path, raw, used, "measure, is, why")
-            return Criterion(name, "scalar", key_path, target, unit, {"is": raw["is"]},
-                             why=why)
-        limit = _band(source, key_path, raw, unit, target, used)
-        _check_keys(source, key_path, raw, used, f"min_{unit}, max_{unit}, max_abs_{unit}, "
-                    f"marginal_{unit}, budget, why")
-        return Criterion(name, "scalar", key_path, target, unit, limit,
-                         budget=is_budget(target) if budget_raw is None else budget_raw,
-                         why=why)
+        return _measure(name, raw, source, key_path, used, why, budget_raw, known_measures,
+                        open_paths)
 
     if form == "channel":
         target = _channel(source, f"{key_path}.channel", raw["channel"], channels)
@@ -392,7 +460,8 @@ def _items(raw: Any, source: str, key: str) -> list[tuple[str, str, Any]]:
 
 def parse_criteria(raw: Any, source: str = "expect", known_measures: Iterable[str] | None = None,
                    channels: Iterable[str] | None = None, key: str = "expect",
-                   base_dir: Path | None = None, check_files: bool = True) -> list[Criterion]:
+                   base_dir: Path | None = None, check_files: bool = True,
+                   open_paths: bool = False) -> list[Criterion]:
     """Every criterion of an ``expect:`` section (a mapping ``name: criterion`` or a list),
     checked; raises ConfigError naming ``source`` and the key path. ``channels`` defaults
     to the loop's recorded channels; pass ``channels=()`` to judge results without a
@@ -402,10 +471,11 @@ def parse_criteria(raw: Any, source: str = "expect", known_measures: Iterable[st
         channels = CHANNELS
     channels = list(channels)
     return [parse_criterion(name, c, source, path, known_measures, channels, base_dir,
-                            check_files) for name, path, c in _items(raw, source, key)]
+                            check_files, open_paths) for name, path, c in _items(raw, source, key)]
 
 
-OVERRIDABLE_PREFIXES = ("min_", "max_", "max_abs_", "marginal_", "tol_", "band_")
+OVERRIDABLE_PREFIXES = ("min_", "max_", "max_abs_", "equals_", "len_min_", "len_max_",
+                        "marginal_", "tol_", "band_")
 OVERRIDABLE_KEYS = ("within_s", "stays_s", "within_ticks", "max_shift_s", "tol_rel_percent")
 
 

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from harness.testing.criteria import Criterion, Window
-from harness.testing.measures import NULL_MEANS_FAIL, WORST_SAMPLE, lookup
+from harness.testing.measures import NULL_MEANS_FAIL, WORST_SAMPLE, FieldMissing, find
 
 PASS, MARGINAL, FAIL, ERROR = "PASS", "MARGINAL", "FAIL", "ERROR"
 SEVERITY = {PASS: 0, MARGINAL: 1, FAIL: 2, ERROR: 3}
@@ -160,27 +160,77 @@ def _verb(verdict: str) -> str:
 
 
 # ------------------------------------------------------------------------------ scalar
-def evaluate_scalar(c: Criterion, measures: Mapping[str, Any]) -> CriterionResult:
-    """A ``measure:`` criterion against a mapping (summary.json, or any JSON result: the
-    path is dotted, ``lateness_ms.p99``)."""
-    found, value = lookup(measures, c.target)
-    if not found or value is None:
-        if found and c.target in NULL_MEANS_FAIL:
-            return _result(c, None, None, FAIL, None,
-                           f"{c.target} is null: {NULL_MEANS_FAIL[c.target]}")
-        return _error(c, f"missing data: {c.target} is "
-                      f"{'null' if found else 'not in the results'}")
+def _judge_value(c: Criterion, value: Any) -> tuple[str, float | None, Any, str]:
+    """(verdict, margin, the value judged, what is wrong for ERROR / FAIL) of one value."""
+    if value is None:
+        if c.target in NULL_MEANS_FAIL:
+            return FAIL, None, None, f"is null: {NULL_MEANS_FAIL[c.target]}"
+        return ERROR, None, None, "is null"
     if "is" in c.limit:
-        ok = value is c.limit["is"] or value == c.limit["is"]
-        return _result(c, value, None, PASS if ok else FAIL, None,
-                       f"{c.target} = {value} (expected {c.limit['is']})")
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        return _error(c, f"missing data: {c.target} = {value!r} is not a number")
+        ok = value is c.limit["is"] or (type(value) is type(c.limit["is"])
+                                        and value == c.limit["is"])
+        return (PASS if ok else FAIL), None, value, f"(expected {c.limit['is']})"
+    if "len_min" in c.limit or "len_max" in c.limit:
+        if not isinstance(value, list | dict | str):
+            return ERROR, None, value, f"= {_fmt_any(value)} has no length"
+        x = float(len(value))
+        lim = {k[4:]: v for k, v in c.limit.items() if k.startswith("len_")}
+        margin = float(band_margins(np.array([x]), lim)[0])
+        return grade(margin, c.marginal), margin, len(value), ""
+    if isinstance(value, bool) or not isinstance(value, int | float) or \
+            not math.isfinite(float(value)):
+        return ERROR, None, value, f"= {_fmt_any(value)} is not a number"
+    if "equals" in c.limit:
+        ok = math.isclose(float(value), c.limit["equals"], rel_tol=1e-9, abs_tol=1e-12)
+        return (PASS if ok else FAIL), (0.0 if ok else -abs(float(value) - c.limit["equals"])), \
+            value, ""
     margin = float(band_margins(np.array([float(value)]), c.limit)[0])
-    verdict = grade(margin, c.marginal)
-    return _result(c, value, margin, verdict, None,
-                   f"{c.target} = {_fmt(value)} {c.unit} {_verb(verdict)} {_limits_text(c)} "
-                   f"(margin {_fmt(margin)} {c.unit})")
+    return grade(margin, c.marginal), margin, value, ""
+
+
+def _fmt_any(v: Any) -> str:
+    if isinstance(v, list | dict):
+        return f"a {type(v).__name__} of {len(v)}"
+    return repr(v) if isinstance(v, str) else _fmt(v)
+
+
+def evaluate_scalar(c: Criterion, measures: Mapping[str, Any]) -> CriterionResult:
+    """A ``measure:`` criterion against a mapping (summary.json, or any JSON document: a
+    study's, the probe report, ``identify --json``). The path is dotted (``lateness_ms.p99``;
+    keys may contain dots); with ``[*]`` every element is judged and the worst reported."""
+    try:
+        found = find(measures, c.target)
+    except FieldMissing as exc:
+        return _error(c, f"missing data: {c.target} is not in the results ({exc})")
+    if not found:
+        return _error(c, f"missing data: {c.target}: the list is empty (no element to judge)")
+    worst: tuple[tuple[int, float], str, str, float | None, Any, str] | None = None
+    for where, value in found:
+        verdict, margin, judged, text = _judge_value(c, value)
+        key = (SEVERITY[verdict], -(margin if margin is not None else -math.inf))
+        if worst is None or key > worst[0]:
+            worst = (key, where, verdict, margin, judged, text)
+    assert worst is not None
+    _, where, verdict, margin, value, text = worst
+    length = "len_min" in c.limit or "len_max" in c.limit
+    what = f"length of {where}" if length else where
+    if verdict == ERROR:
+        return _error(c, f"missing data: {where} {text}")
+    if "is" in c.limit:
+        return _result(c, value, None, verdict, None, f"{where} = {_fmt_any(value)} {text}")
+    unit = "" if c.unit in ("ratio", "count") else f" {c.unit}"
+    shown = f"{what} = {_fmt(value) if value is not None else 'null'}{unit}"
+    if text:  # a null that is a result
+        msg = f"{where} {text}"
+    elif margin is None:
+        msg = f"{shown} {_verb(verdict)} {_limits_text(c)}"
+    else:
+        msg = f"{shown} {_verb(verdict)} {_limits_text(c)} (margin {_fmt(margin)}{unit})"
+    if len(found) > 1:
+        bad = sum(_judge_value(c, v)[0] == FAIL for _, v in found)
+        msg = (f"{bad} of {len(found)} outside; worst " if bad else
+               f"all {len(found)} judged; worst ") + msg
+    return _result(c, value, margin, verdict, None, msg)
 
 
 # ------------------------------------------------------------------------------ windows

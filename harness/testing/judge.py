@@ -122,10 +122,12 @@ def read_channels(rrd: Path, wanted: set[str] | None = None
                   ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """The scalar channels of a recording on the ``time`` timeline (``wanted`` ones, or
     all), in one pass."""
-    from harness.recording_reader import RrdReader  # quiet on footer-less files
+    from harness.recording_reader import iter_chunks  # lazy, quiet on footer-less files
 
     parts: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
-    for chunk in RrdReader(rrd).stream().to_chunks():
+    chunks = iter_chunks(rrd, content=sorted(wanted)) if wanted is not None \
+        else iter_chunks(rrd, drop="/bus/**")
+    for chunk in chunks:
         if chunk.is_static or "time" not in chunk.timeline_names or (
                 wanted is not None and chunk.entity_path not in wanted):
             continue

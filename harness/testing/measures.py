@@ -2,18 +2,24 @@
 
 The unit of a measure is the suffix of its name (``final_angle_error_deg`` is in ``deg``,
 ``lateness_ms.p99`` in ``ms`` from its parent); names without a unit suffix are dimensionless:
-``count`` (integers: ``overruns``, ``frames.missing``) or ``ratio`` (``real_time_factor``,
-``beta``). A criterion's limit keys carry the same unit (``max_abs_deg``, ``max_count``).
+``count`` (integers: ``overruns``, ``frames.missing``, names ending ``_count``) or ``ratio``
+(``real_time_factor``, ``beta``). A criterion's limit keys carry the same unit
+(``max_abs_deg``, ``max_count``).
+
+Paths (``resolve``) are dotted, with ``[N]`` / ``[*]`` into lists, and keys may contain dots
+(the longest key that matches wins): ``modes[*].omega_error_percent``,
+``laws.tip_deflection_m.best_beta_median_lambda_gt_0.5``.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-UNIT_SUFFIXES = ("deg_s", "rad_s", "m_s2", "n_m", "percent", "hz", "ms", "deg", "rad", "kg",
-                 "m", "s", "v", "a")
+UNIT_SUFFIXES = ("deg_s", "rad_s", "m_s2", "n_m", "percent", "count", "hz", "ms", "deg", "rad",
+                 "kg", "m", "s", "v", "a")
 """Unit suffixes, longest first where one ends another (``deg_s`` before ``s``)."""
 
 DIMENSIONLESS = ("count", "ratio")
@@ -51,6 +57,10 @@ SUMMARY_MEASURES: dict[str, str] = {
     "frames.malformed": "count",
     "frames.missing": "count",
     "frames.missing_in_ticks_on_time": "count",
+    "overrun_episodes": "count",
+    "frames.missing_in_ticks_host_delayed": "count",
+    "frames.missing_in_ticks_held_by_both": "count",
+    "frames.missing_rig_answered_after_window": "count",
     "frames.error_frames": "count",
     "wall_time_s": "s",
     "simulated_time_s": "s",
@@ -145,18 +155,88 @@ def is_budget(path: str) -> bool:
     return any(path == b or (b.endswith(".") and path.startswith(b)) for b in BUDGET_MEASURES)
 
 
-def lookup(measures: Mapping[str, Any], path: str) -> tuple[bool, Any]:
-    """(found, value) of a dotted path in a nested mapping (``lateness_ms.p99``). Computed
-    measures (``faults.count``) are read from the lists they count."""
+_INDEX = re.compile(r"\[(\*|-?\d+)\]")
+
+
+def unit_of_path(path: str) -> str | None:
+    """Unit of a field of any JSON document (a study's ``--json``, ``identify --json``, the
+    probe report, summary.json): summary.json's own table first, then the suffix of the
+    key (or of its parent: ``lateness_ms.p99``); None if the name has none (dimensionless:
+    the criterion says ``ratio`` or ``count``)."""
+    plain = _INDEX.sub("", path)
+    known = unit_of_measure(plain)
+    if known is not None:
+        return known
+    parts = [p for p in plain.split(".") if p]
+    for part in reversed(parts[-2:]):
+        u = unit_of_name(part)
+        if u is not None:
+            return u
+    return None
+
+
+class FieldMissing(LookupError):
+    """A path names nothing in the document (the message says where it stopped)."""
+
+
+def path_error(path: str) -> str | None:
+    """What is wrong with a path's syntax (None: fine)."""
+    if not isinstance(path, str) or not path.strip():
+        return f"expected a field path such as a.b[*].c, got {path!r}"
+    rest = _INDEX.sub("", path)
+    if "[" in rest or "]" in rest:
+        return f"{path!r}: a list index is [N] or [*]"
+    return None
+
+
+def resolve(doc: Any, path: str) -> list[tuple[str, Any]]:
+    """Every (concrete path, value) that ``path`` names in ``doc``: one for a plain path,
+    one per element for ``[*]``. Keys may contain dots: at each level the longest key that
+    matches the rest of the path wins. Raises FieldMissing."""
+    out: list[tuple[str, Any]] = []
+
+    def walk(node: Any, rest: str, here: str) -> None:
+        if not rest:
+            out.append((here, node))
+            return
+        m = _INDEX.match(rest)
+        if m:
+            if not isinstance(node, list):
+                raise FieldMissing(f"{here or '(top)'}: not a list")
+            idx = m.group(1)
+            tail = rest[m.end():].removeprefix(".")
+            if idx == "*":
+                for i, v in enumerate(node):
+                    walk(v, tail, f"{here}[{i}]")
+            else:
+                try:
+                    walk(node[int(idx)], tail, f"{here}[{idx}]")
+                except IndexError:
+                    raise FieldMissing(f"{here}[{idx}]: no such element") from None
+            return
+        if not isinstance(node, Mapping):
+            raise FieldMissing(f"{here or '(top)'}: not a mapping")
+        for key in sorted((k for k in node if isinstance(k, str)), key=len, reverse=True):
+            if rest == key or rest.startswith(key + ".") or rest.startswith(key + "["):
+                walk(node[key], rest[len(key):].removeprefix("."),
+                     f"{here}.{key}" if here else key)
+                return
+        raise FieldMissing(f"{here + '.' if here else ''}{rest.split('.')[0]}: no such field "
+                           f"(fields here: {', '.join(sorted(map(str, node)))[:300]})")
+
+    walk(doc, path, "")
+    return out
+
+
+def find(measures: Mapping[str, Any], path: str) -> list[tuple[str, Any]]:
+    """``resolve`` with the judge's computed measures (``faults.count``: the length of the
+    faults list). Raises FieldMissing."""
     if path == "faults.count":
         faults = measures.get("faults")
-        return (isinstance(faults, list), len(faults) if isinstance(faults, list) else None)
-    node: Any = measures
-    for part in path.split("."):
-        if not isinstance(node, Mapping) or part not in node:
-            return False, None
-        node = node[part]
-    return True, node
+        if not isinstance(faults, list):
+            raise FieldMissing("faults: no faults list")
+        return [(path, len(faults))]
+    return resolve(measures, path)
 
 
 def numeric_leaves(data: Mapping[str, Any], prefix: str = "") -> Iterable[str]:

@@ -260,10 +260,10 @@ class SuitePlugin:
 
 def _preflight_case(case: Case, report: dict[str, Any]) -> dict[str, Any]:
     """A probe test on a real bus: the pre-flight's report, judged with the test's checks."""
-    from harness.testing.checks import judge_check
+    from harness.testing.checks import judge_checks
     from harness.testing.work import _with_checks, current_worker
 
-    res = _with_checks(probe_verdict(report), [judge_check(c, report) for c in case.checks])
+    res = _with_checks(probe_verdict(report), judge_checks(case.checks, report))
     return {"case": case.id, "kind": "probe", "worker": current_worker(), "run_dir": None,
             "summary": None, "wall_s": 0.0, "files": {},
             "items": {case.id: {**res, "document": report,

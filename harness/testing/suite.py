@@ -21,13 +21,19 @@ A suite is a YAML file (built-ins in ``harness/suites/``, ``harness test --list`
           - {measure: steady_tip_accel_amplitude_m_s2, largest: beta-1.0}
       - run: free-decay
         identify:                            # identify the run's modes, then check the JSON
-          check: [{field: "modes[*].omega_error_percent", max_abs: 0.5, unit: "%"}]
+          check:                             # the run file's criterion form, keyed by name
+            frequencies:
+              measure: "modes[*].omega_error_percent"   # every element; the worst reported
+              max_abs_percent: 0.5
+              marginal_percent: 0.19
+              why: 2.6 sigma of mode 3's scatter
       - run: slew-rw
         name: fault-hub-silent
         faults: [{kind: silent_sensor, at_s: 3, device: hub_sensor}]   # virtual rig only
       - study: hu2006                        # ``harness study hu2006 --json``
         args: []
-        check: [{field: "...", max: 1.0}]
+        check:
+          settles: {measure: measures.pd_pwpf_settle_s, max_s: 20, why: "the paper's ~20 s"}
 
 Each test expands to one or more *cases* (one per variant x matrix point; a case is one job
 for the engine) and each case to one or more pytest items: the run itself
@@ -36,10 +42,12 @@ for the engine) and each case to one or more pytest items: the run itself
 suite.
 
 ``check:`` criteria apply to a JSON document (summary.json for a run, the probe report,
-``identify --json``, ``study NAME --json``): ``field`` is a path (``a.b[0].c``, ``[*]`` for
-every element; keys may contain dots: the longest key that matches wins), with one or more
-of ``min``, ``max``, ``max_abs``, ``equals``, ``len_min``, ``len_max``, and optional
-``name`` and ``unit``.
+``identify --json``, ``study NAME --json``) and take the run file's scalar form
+(docs/criteria.md): ``NAME: {measure: PATH, <limit>_<unit>: ..., marginal_<unit>: ...,
+why: ...}``, the path any field of the document (``a.b[0].c``, ``[*]`` for every element;
+keys may contain dots: the longest key that matches wins), the unit from the field's name.
+The deprecated list form ``[{field, min|max|..., unit, name}]`` is translated, with a
+message on stderr giving the new spelling (``translate_old_checks``).
 
 Everything is checked when the suite is loaded, before anything runs: an error names the
 suite file, the key path and what was expected (``acceptance.yaml: tests[2].matrix: expected
@@ -50,6 +58,7 @@ from __future__ import annotations
 
 import copy
 import itertools
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -58,30 +67,17 @@ import yaml
 
 from harness.paths import safe_name
 from harness.runs import _deep_merge, load_run, run_path
+from harness.testing.criteria import FORMS, Criterion, _items, parse_criterion
+from harness.testing.measures import path_error, unit_of_path
 from rig_models.schema import ConfigError
 
 SUITES_DIR = Path(__file__).resolve().parent.parent / "suites"
-CHECK_RULES = ("min", "max", "max_abs", "equals", "len_min", "len_max")
 TEST_KEYS = {
     "run": ("name", "description", "run", "variants", "matrix", "set", "duration_s",
             "expect", "own_expect", "faults", "virtual_only", "identify", "compare", "check"),
     "probe": ("name", "description", "probe", "check"),
     "study": ("name", "description", "study", "args", "check", "timeout_s"),
 }
-
-
-@dataclass(frozen=True)
-class Check:
-    """A criterion on one field of a JSON document."""
-
-    field: str
-    rules: dict[str, Any]
-    name: str = ""
-    unit: str = ""
-
-    @property
-    def label(self) -> str:
-        return self.name or self.field
 
 
 @dataclass(frozen=True)
@@ -100,8 +96,8 @@ class Case:
     point: dict[str, Any] = field(default_factory=dict)
     virtual_only: bool = False
     identify: dict[str, Any] | None = None
-    identify_checks: tuple[Check, ...] = ()
-    checks: tuple[Check, ...] = ()
+    identify_checks: tuple[Criterion, ...] = ()
+    checks: tuple[Criterion, ...] = ()
     probe: dict[str, Any] = field(default_factory=dict)
     study: str = ""
     study_args: tuple[str, ...] = ()
@@ -169,28 +165,91 @@ def _number(value: Any, where: str, unit: str = "") -> float:
     return float(value)
 
 
-def parse_checks(raw: Any, where: str) -> tuple[Check, ...]:
+OLD_RULES = ("min", "max", "max_abs", "equals", "len_min", "len_max")
+OLD_UNITS = {"%": "percent", "percent": "percent", "s": "s", "ms": "ms", "deg": "deg",
+             "rad": "rad", "deg/s": "deg_s", "rad/s": "rad_s", "hz": "hz", "Hz": "hz",
+             "m": "m", "m/s^2": "m_s2", "m/s2": "m_s2", "N m": "n_m", "Nm": "n_m",
+             "kg": "kg", "V": "v", "A": "a", "count": "count", "ratio": "ratio"}
+"""The old ``check:`` form's free-text ``unit:`` values and the unit suffix each means."""
+
+
+def translate_old_checks(raw: list[Any], source: str, key: str) -> dict[str, Any]:
+    """The deprecated list form ``[{field, min|max|max_abs|equals|len_min|len_max, unit?,
+    name?}]`` as the run file's form ``{name: {measure, <limit>_<unit>, ...}}``, with a
+    deprecation message on stderr naming the file, the key path and the new spelling.
+    Refused (ConfigError) where the translation would change a meaning: a ``unit:`` that is
+    not the unit the field's name gives."""
+    out: dict[str, Any] = {}
+    for i, c in enumerate(raw):
+        w = f"{key}[{i}]"
+        if not isinstance(c, dict) or "field" not in c:
+            raise _err(f"{source}: {w}", "mixes the deprecated {field: ...} form with the run "
+                       "file's form: write every criterion as NAME: {measure: PATH, ...}")
+        unknown = sorted(set(c) - {"field", "name", "unit", *OLD_RULES})
+        if unknown:
+            raise _err(f"{source}: {w}.{unknown[0]}", "unknown key (the deprecated form takes "
+                       f"field, name, unit, {', '.join(OLD_RULES)})")
+        field_path = c["field"]
+        bad = path_error(field_path)
+        if bad is not None:
+            raise _err(f"{source}: {w}.field", bad)
+        rules = [r for r in OLD_RULES if r in c]
+        if not rules:
+            raise _err(f"{source}: {w}", f"expected at least one of {', '.join(OLD_RULES)}")
+        given = c.get("unit")
+        unit = unit_of_path(field_path)
+        if unit is None:  # no unit in the name: dimensionless, a count if it said so
+            unit = "count" if OLD_UNITS.get(str(given)) == "count" else "ratio"
+        valued = [r for r in rules if r in ("min", "max", "max_abs") or (
+            r == "equals" and not isinstance(c[r], bool | str))]
+        if valued and given not in (None, ""):
+            meant = OLD_UNITS.get(str(given))
+            if meant != unit:
+                origin = "no suffix: ratio" if unit == "ratio" else "its suffix"
+                said = "is not a unit the harness knows" if meant is None else f"is {meant}"
+                raise _err(f"{source}: {w}.unit", f"{field_path} is in {unit} (the unit comes "
+                           f"from the field's name, {origin}); unit {given!r} {said}: the "
+                           f"field's name decides, as in run files ({rules[0]}_{unit})")
+        new: dict[str, Any] = {"measure": field_path}
+        for r in rules:
+            v = c[r]
+            if r == "equals":
+                new["is" if isinstance(v, bool | str) else f"equals_{unit}"] = v
+            elif r in ("len_min", "len_max"):
+                new[f"{r}_count"] = v
+            else:
+                new[f"{r}_{unit}"] = v
+        name = str(c.get("name") or field_path)
+        if name in out:
+            name = f"{name} [{i}]"
+        out[name] = new
+    spelled = yaml.safe_dump({key.rsplit(".", 1)[-1]: out}, sort_keys=False, width=100,
+                             allow_unicode=True)
+    print(f"harness: deprecated: {source}: {key}: the list form [{{field: ..., max: ...}}] "
+          "is deprecated; it was read as the run file's criterion form, which is written "
+          "(docs/criteria.md):\n"
+          + "".join(f"    {line}\n" for line in spelled.splitlines()), end="", file=sys.stderr)
+    return out
+
+
+def parse_checks(raw: Any, source: str, key: str) -> tuple[Criterion, ...]:
+    """A ``check:`` section: the run file's scalar criteria (``NAME: {measure: PATH, ...}``,
+    docs/criteria.md) on a JSON document, any field path of it (``open_paths``). The
+    deprecated list form (``field:``) is translated, with a message on stderr."""
     if raw is None:
         return ()
-    if not isinstance(raw, list):
-        raise _err(where, "expected a list of {field, min|max|max_abs|equals|len_min|len_max}")
+    if isinstance(raw, list) and any(isinstance(c, dict) and "field" in c for c in raw):
+        raw = translate_old_checks(raw, source, key)
     out = []
-    for i, c in enumerate(raw):
-        w = f"{where}[{i}]"
-        if not isinstance(c, dict):
-            raise _err(w, f"expected a mapping {{field, {'|'.join(CHECK_RULES)}}}, got {c!r}")
-        unknown = sorted(set(c) - {"field", "name", "unit", *CHECK_RULES})
-        if unknown:
-            raise _err(f"{w}.{unknown[0]}", "unknown key (expected one of: field, name, unit, "
-                       f"{', '.join(CHECK_RULES)})")
-        rules = {k: c[k] for k in CHECK_RULES if k in c}
-        if not rules:
-            raise _err(w, f"expected at least one of {', '.join(CHECK_RULES)}")
-        for k, v in rules.items():
-            if k != "equals":
-                _number(v, f"{w}.{k}", str(c.get("unit", "")))
-        out.append(Check(field=_str(c.get("field"), f"{w}.field", "a field path (a.b[0].c)"),
-                         rules=rules, name=str(c.get("name", "")), unit=str(c.get("unit", ""))))
+    for name, path, c in _items(raw, source, key):
+        if isinstance(c, dict) and "measure" not in c:
+            other = next((f for f in FORMS if f in c), None)
+            if other is not None:
+                raise _err(f"{source}: {path}.{other}", "a check: criterion is the scalar form "
+                           "(measure: PATH); channels, settling, faults, baselines and "
+                           "left_safe belong in a run test's expect:")
+        out.append(parse_criterion(name, c, source, path, channels=(), check_files=False,
+                                   open_paths=True))
     return tuple(out)
 
 
@@ -218,7 +277,8 @@ def _fmt(v: Any) -> str:
     return f"{v:g}" if isinstance(v, float) else str(v)
 
 
-def _run_cases(t: dict[str, Any], where: str, suite: str, base_dir: Path) -> list[Case]:
+def _run_cases(t: dict[str, Any], where: str, suite: str, base_dir: Path, source: str,
+               key: str) -> list[Case]:
     run_ref = _str(t["run"], f"{where}.run", "a run name or path")
     path = run_path(run_ref)
     if not path.exists() and not path.is_absolute():
@@ -266,7 +326,7 @@ def _run_cases(t: dict[str, Any], where: str, suite: str, base_dir: Path) -> lis
     if not isinstance(virtual_only, bool):
         raise _err(f"{where}.virtual_only", f"expected true or false, got {virtual_only!r}")
     identify = t.get("identify")
-    id_checks: tuple[Check, ...] = ()
+    id_checks: tuple[Criterion, ...] = ()
     if identify is not None:
         if identify is True:
             identify = {}
@@ -276,9 +336,9 @@ def _run_cases(t: dict[str, Any], where: str, suite: str, base_dir: Path) -> lis
         if unknown:
             raise _err(f"{where}.identify.{unknown[0]}",
                        "unknown key (expected one of: check, f_max_hz, n_modes)")
-        id_checks = parse_checks(identify.get("check"), f"{where}.identify.check")
+        id_checks = parse_checks(identify.get("check"), source, f"{key}.identify.check")
         identify = {k: v for k, v in identify.items() if k != "check"}
-    checks = parse_checks(t.get("check"), f"{where}.check")
+    checks = parse_checks(t.get("check"), source, f"{key}.check")
     keys = list(matrix)
     cases = []
     for variant in variants:
@@ -334,10 +394,13 @@ def _compare(t: dict[str, Any], where: str, suite: str, cases: list[Case]) -> Co
         w = f"{where}.compare[{i}]"
         if not isinstance(r, dict):
             raise _err(w, f"expected a mapping {{measure, largest|smallest}}, got {r!r}")
-        unknown = sorted(set(r) - {"measure", "largest", "smallest", "name", "unit"})
+        unknown = sorted(set(r) - {"measure", "largest", "smallest", "name", "unit", "why"})
         if unknown:
             raise _err(f"{w}.{unknown[0]}",
-                       "unknown key (expected one of: largest, measure, name, smallest, unit)")
+                       "unknown key (expected one of: largest, measure, name, smallest, unit, "
+                       "why)")
+        if not isinstance(r.get("why", ""), str):
+            raise _err(f"{w}.why", f"expected a string, got {r['why']!r}")
         _str(r.get("measure"), f"{w}.measure", "a summary.json field path")
         which = [k for k in ("largest", "smallest") if k in r]
         if len(which) != 1:
@@ -379,7 +442,8 @@ def load_suite(name_or_path: str) -> Suite:
     compares: list[Compare] = []
     seen: set[str] = set()
     for i, t in enumerate(tests):
-        where = f"suite file {src}: tests[{i}]"
+        source = f"suite file {src}"
+        where = f"{source}: tests[{i}]"
         if not isinstance(t, dict):
             raise _err(where, f"expected a mapping with run, probe or study, got {t!r}")
         kinds = [k for k in TEST_KEYS if k in t]
@@ -391,7 +455,7 @@ def load_suite(name_or_path: str) -> Suite:
             raise _err(f"{where}.{unknown[0]}", f"unknown key for a {kind} test (expected one "
                        f"of: {', '.join(sorted(TEST_KEYS[kind]))})")
         if kind == "run":
-            new = _run_cases(t, where, name, path.parent)
+            new = _run_cases(t, where, name, path.parent, source, f"tests[{i}]")
             cmp = _compare(t, where, name, new)
             if cmp is not None:
                 compares.append(cmp)
@@ -408,7 +472,7 @@ def load_suite(name_or_path: str) -> Suite:
             test = _str(t.get("name", "probe"), f"{where}.name")
             new = [Case(id=test, kind="probe", suite=name, test=test, where=where,
                         description=str(t.get("description", "")), probe=dict(opts),
-                        checks=parse_checks(t.get("check"), f"{where}.check"))]
+                        checks=parse_checks(t.get("check"), source, f"tests[{i}].check"))]
         else:
             study = _str(t["study"], f"{where}.study", "a study name ('harness study -h')")
             args = t.get("args") or []
@@ -420,7 +484,7 @@ def load_suite(name_or_path: str) -> Suite:
                         description=str(t.get("description", "")), study=study,
                         study_args=tuple(str(a) for a in args),
                         timeout_s=_number(t.get("timeout_s", 1800.0), f"{where}.timeout_s", "s"),
-                        checks=parse_checks(t.get("check"), f"{where}.check"))]
+                        checks=parse_checks(t.get("check"), source, f"tests[{i}].check"))]
         for c in new:
             for item in c.item_names:
                 if item in seen:

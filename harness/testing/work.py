@@ -27,7 +27,7 @@ from typing import Any
 
 from harness.engine import current_worker, stop_requested
 from harness.paths import safe_child
-from harness.testing.checks import combine, judge_check
+from harness.testing.checks import combine, judge_checks
 from harness.testing.suite import Case
 
 EXIT = {"PASS": 0, "FAIL": 1, "MARGINAL": 5, "ERROR": 4}
@@ -101,7 +101,7 @@ def _run(case: Case, out_dir: Path, bus: str | None) -> tuple[dict[str, Any], Pa
     run_dir = result.run_dir
     summary = result.summary
     judged = _judge_or_error(run_dir)
-    checks = [judge_check(c, summary) for c in case.checks]
+    checks = judge_checks(case.checks, summary)
     items[case.id] = _with_checks(judged, checks)
     if case.identify is not None:
         name = f"identify[{case.id}]"
@@ -114,7 +114,7 @@ def _run(case: Case, out_dir: Path, bus: str | None) -> tuple[dict[str, Any], Pa
                 ident = identify_run(run_dir, **case.identify)
                 (run_dir / "identify.json").write_text(json.dumps(ident, indent=2,
                                                                   default=float))
-                crit = [judge_check(c, ident) for c in case.identify_checks]
+                crit = judge_checks(case.identify_checks, ident)
                 verdict, reason = combine(crit, "identified, no criteria")
                 items[name] = item_result(verdict, reason, crit,
                                           modes=_modes_table(ident))
@@ -209,7 +209,7 @@ def _study(case: Case, out_dir: Path) -> dict[str, Any]:
         doc = json.loads(proc.stdout)
     except json.JSONDecodeError as exc:
         return _error(f"harness study {case.study} --json: not JSON ({exc})")
-    crit = [judge_check(c, doc) for c in case.checks]
+    crit = judge_checks(case.checks, doc)
     verdict, reason = combine(crit, "study completed, no criteria")
     return item_result(verdict, reason, crit, document=doc)
 
@@ -235,7 +235,7 @@ def run_case(case: Case, out_dir: str, ship: bool = False,
         elif case.kind == "probe":
             report = run_probe(case.probe, bus)
             res = probe_verdict(report)
-            res = _with_checks(res, [judge_check(c, report) for c in case.checks])
+            res = _with_checks(res, judge_checks(case.checks, report))
             out["items"] = {case.id: {**res, "document": report}}
         elif case.kind == "study":
             out["items"] = {case.id: _study(case, tmp or Path(out_dir))}
