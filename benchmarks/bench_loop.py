@@ -3,11 +3,13 @@
 1. Lockstep real-time factor of `slew-rw` through the full CAN path at 500 Hz (codecs,
    python-can virtual bus, drivers, virtual rig, BLF log, Rerun recording).
 1b. The same lockstep run on python-can's stock VirtualBus, interleaved with ours.
+1c. The monitor's warnings: slew-rw with `monitor.warnings` on and off, interleaved, and
+   the warning checks alone per tick against the whole tick (`--warnings` runs only this).
 2. (Real time moved to benchmarks/bench_realtime.py and bench_rig_options.py.)
 3. The plant step (exact ZOH, one matrix-vector product) against scipy.signal.lsim and
    solve_ivp on the same model, the same piecewise-constant input and comparable accuracy.
 
-    .venv/bin/python benchmarks/bench_loop.py [--repeats 3] [--json]
+    .venv/bin/python benchmarks/bench_loop.py [--repeats 3] [--json] [--warnings]
 """
 
 from __future__ import annotations
@@ -57,6 +59,43 @@ def bench_lockstep(repeats: int, out: Path) -> dict[str, float]:
             "ours_over_stock": float(np.median(np.array(ours) / np.array(stock)))}
 
 
+def bench_warnings(repeats: int, out: Path, n_calls: int = 200_000) -> dict[str, float]:
+    """slew-rw (20 s) with the monitor's warnings on and off, interleaved run by run; and
+    the warning checks alone (``FaultMonitor._warnings`` on a run's interface, state within
+    every threshold) in microseconds per tick against the run's wall time per tick."""
+    from drivers.dbc import load_protocol
+    from harness.rig_interface import RigInterface
+    from harness.session import make_monitor
+    from harness.state import RigCommand, RigState
+
+    on: list[float] = []
+    off: list[float] = []
+    tick_us: list[float] = []
+    for _ in range(repeats):
+        for factors, flag in ((on, True), (off, False)):
+            run = load_run("slew-rw", {"duration_s": 20.0, "monitor": {"warnings": flag}})
+            res = execute_run(run, out_dir=out, show_progress=False)
+            factors.append(res.summary["real_time_factor"])
+            if flag:
+                tick_us.append(1e6 * res.summary["wall_time_s"] / res.summary["ticks"])
+    run = load_run("slew-rw")
+    bus = type("NoBus", (), {"send": lambda self, m: None})()
+    iface = RigInterface(bus, load_protocol(), run.rig, None, run.actuators)
+    mon = make_monitor(run, iface, realtime=False)
+    state, sent = RigState(), RigCommand(wheel_torque_n_m=0.01)
+    state.wheel_speed_rad_s, state.hub_rate_rad_s = 100.0, 0.01
+    for d in iface.drivers.values():
+        d.last_tick = 0
+    t0 = time.perf_counter()
+    for _ in range(n_calls):
+        mon._warnings(0, state, sent)
+    per_us = (time.perf_counter() - t0) * 1e6 / n_calls
+    assert not any(mon.warning_counts.values())
+    return {"on_median": float(np.median(on)), "off_median": float(np.median(off)),
+            "on_over_off": float(np.median(np.array(on) / np.array(off))),
+            "warnings_us_per_tick": per_us, "tick_us": float(np.median(tick_us))}
+
+
 def bench_plant(n_steps: int = 20000) -> dict[str, float]:
     plant = load_rig("sgsrt").plant
     dt = 0.002
@@ -98,16 +137,22 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--warnings", action="store_true", help="only 1c, the monitor's warnings")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
+        print("benchmark: monitor warnings ...", file=sys.stderr)
+        warn = bench_warnings(args.repeats, out)
+        if args.warnings:
+            print(json.dumps(warn, indent=2) if args.json else _warnings_row(warn, args.repeats))
+            return 0
         print("benchmark: lockstep ...", file=sys.stderr)
         lock = bench_lockstep(args.repeats, out)
     print("benchmark: plant step ...", file=sys.stderr)
     plant = bench_plant()
     result = {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
               "python": platform.python_version(), "date": time.strftime("%Y-%m-%d"),
-              "lockstep_real_time_factor": lock, "plant": plant}
+              "lockstep_real_time_factor": lock, "plant": plant, "warnings": warn}
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
@@ -118,6 +163,7 @@ def main() -> int:
           f"{lock['max']:.1f}) |")
     print(f"| same, on python-can's stock VirtualBus (interleaved runs) | "
           f"{lock['stock_median']:.1f}x; ours / stock {lock['ours_over_stock']:.2f} |")
+    print(_warnings_row(warn, args.repeats))
     print(f"| plant step, exact ZOH (matrix-vector) | {plant['zoh_us_per_step']:.2f} us |")
     print(f"| scipy.signal.lsim, same input | {plant['lsim_us_per_step']:.2f} us/step "
           f"({plant['lsim_over_zoh']:.2f}x ZOH; max state diff "
@@ -126,6 +172,13 @@ def main() -> int:
           f"({plant['solve_ivp_over_zoh']:.0f}x ZOH; max state diff "
           f"{plant['max_state_diff_solve_ivp']:.1e}) |")
     return 0
+
+
+def _warnings_row(w: dict[str, float], repeats: int) -> str:
+    return (f"| monitor warnings on / off, slew-rw 20 s lockstep (interleaved, median of "
+            f"{repeats}) | real-time factor {w['on_median']:.1f}x / {w['off_median']:.1f}x, "
+            f"ratio {w['on_over_off']:.2f}; the checks {w['warnings_us_per_tick']:.2f} us of "
+            f"a {w['tick_us']:.0f} us tick |")
 
 
 if __name__ == "__main__":

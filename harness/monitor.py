@@ -27,12 +27,32 @@ heard from is reported silent only after `startup_s` (0.5 s).
 
 The safe state is commanded in the tick the fault is detected, so the actuators are safe one
 tick after detection at the latest (the virtual rig applies commands at the next SYNC).
+
+Warnings: conditions short of a fault that a lab engineer wants flagged without stopping
+the run. Each is logged once when its condition starts (WARN, ``/events/monitor`` in the
+recording, marked on the plots) and counted in summary.json (``monitor_warnings``); it ends
+only when the signal falls below ``1 - warn_hysteresis_fraction`` of its threshold, so a
+signal hovering at the threshold warns once. Thresholds are ``monitor:`` keys of the run
+file, against the run's ``limits`` and the rig file; warnings never stop a run or change
+its verdict by themselves.
+
+| warning | starts when | `monitor:` key, default |
+|---|---|---|
+| wheel_speed | wheel speed > a fraction of its limit | warn_wheel_speed_fraction 0.8 |
+| torque_saturated | torque command at its limit for longer than | warn_torque_saturated_s 1 |
+| hub_angle, hub_rate, tip_accel | > a fraction of the run's limits | warn_limits_fraction 0.8 |
+| accel_range | tip acceleration > a fraction of the sensor range | warn_accel_range_fraction 0.9 |
+| telemetry_missing | frames missing at their tick (count), once per | warn_missing_interval_s 1 |
+
+The wheel's limit is the run's `limits.max_wheel_speed_rad_s` or the rig's, the smaller.
+`warn_hysteresis_fraction` (0.05) sets where a warning ends; `warnings: false` turns them off.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -50,7 +70,21 @@ MONITOR_SCHEMA = {
     "max_error_frames": Field("int", default=10, minimum=0),
     "realtime_grace_s": Field("number", "s", default=0.05, minimum=0.0),
     "startup_s": Field("number", "s", default=0.5, minimum=0.0),
+    # warnings (conditions short of a fault; see the module docstring)
+    "warnings": Field("bool", default=True),
+    "warn_wheel_speed_fraction": Field("number", "fraction of the wheel speed limit",
+                                       default=0.8, exclusive_minimum=0.0, maximum=1.0),
+    "warn_torque_saturated_s": Field("number", "s", default=1.0, minimum=0.0),
+    "warn_limits_fraction": Field("number", "fraction of the run's limits", default=0.8,
+                                  exclusive_minimum=0.0, maximum=1.0),
+    "warn_accel_range_fraction": Field("number", "fraction of the accelerometer's range",
+                                       default=0.9, exclusive_minimum=0.0, maximum=1.0),
+    "warn_hysteresis_fraction": Field("number", "fraction of the threshold", default=0.05,
+                                      minimum=0.0, maximum=0.5),
+    "warn_missing_interval_s": Field("number", "s", default=1.0, exclusive_minimum=0.0),
 }
+WARNING_KINDS = ("wheel_speed", "torque_saturated", "hub_angle", "hub_rate", "tip_accel",
+                 "accel_range", "telemetry_missing")
 LIMITS_SCHEMA = {
     "max_angle_deg": Field("number", "deg", default=180.0, exclusive_minimum=0.0),
     "max_rate_deg_s": Field("number", "deg/s", default=10.0, exclusive_minimum=0.0),
@@ -74,10 +108,45 @@ class FaultEvent:
         return f"{self.device}: {self.kind}: {self.message} (t = {self.time_s:.3f} s)"
 
 
+@dataclass(frozen=True)
+class MonitorWarning:
+    """A condition short of a fault, at its start (``kind`` one of ``WARNING_KINDS``)."""
+
+    tick: int
+    time_s: float
+    kind: str
+    message: str
+
+    def __str__(self) -> str:
+        return f"monitor: {self.kind.replace('_', ' ')}: {self.message} (t = {self.time_s:.3f} s)"
+
+
+class Hysteresis:
+    """``x > on`` starts the condition (``update`` returns True once, at its start); it ends
+    only when ``x < off`` (``off <= on``), so a signal hovering at ``on`` starts it once."""
+
+    __slots__ = ("on", "off", "active")
+
+    def __init__(self, on: float, off: float) -> None:
+        self.on, self.off, self.active = on, min(off, on), False
+
+    def update(self, x: float) -> bool:
+        if self.active:
+            if x < self.off:
+                self.active = False
+            return False
+        if x > self.on:
+            self.active = True
+            return True
+        return False
+
+
 class FaultMonitor:
     def __init__(self, interface: RigInterface, monitor: dict[str, Any], limits: dict[str, Any],
                  wheel_max_speed_rad_s: float, accel_range_m_s2: float, valve_close_delay_s: float,
-                 dt_s: float, realtime: bool = False, valve_min_on_s: float = 0.0) -> None:
+                 dt_s: float, realtime: bool = False, valve_min_on_s: float = 0.0,
+                 wheel_max_torque_n_m: float = math.inf,
+                 on_warning: Callable[[MonitorWarning], None] | None = None) -> None:
         self.iface = interface
         # on the wall clock a frame can be a few ticks late without anything being wrong
         self.realtime_grace = math.ceil(monitor["realtime_grace_s"] / dt_s) if realtime else 0
@@ -104,11 +173,117 @@ class FaultMonitor:
         self._wheel_tick = -1
         self._valve_closed_since = 0
         self._seen_tick: dict[str, int] = {}
+        self.on_warning = on_warning
+        self._init_warnings(monitor, wheel_max_torque_n_m)
+
+    # ------------------------------------------------------------------ warnings
+    def _init_warnings(self, cfg: dict[str, Any], wheel_max_torque_n_m: float) -> None:
+        get = cfg.get
+        self.warnings_on = bool(get("enabled", True) and get("warnings", True))
+        self.warning_counts: dict[str, int] = dict.fromkeys(WARNING_KINDS, 0)
+        off = 1.0 - float(get("warn_hysteresis_fraction", 0.05))
+        lim = self.limits
+        speed_limit = min(lim["max_wheel_speed_rad_s"], self.wheel_max)
+        f_lim = float(get("warn_limits_fraction", 0.8))
+        # kind -> (fraction, limit, unit, what the limit is): |value| > fraction x limit
+        self._levels = {
+            "wheel_speed": (float(get("warn_wheel_speed_fraction", 0.8)), speed_limit, "rad/s",
+                            "the wheel speed limit"),
+            "hub_angle": (f_lim, lim["max_angle_deg"], "deg", "limits.max_angle_deg"),
+            "hub_rate": (f_lim, lim["max_rate_deg_s"], "deg/s", "limits.max_rate_deg_s"),
+            "tip_accel": (f_lim, lim["max_tip_accel_m_s2"], "m/s^2",
+                          "limits.max_tip_accel_m_s2"),
+            "accel_range": (float(get("warn_accel_range_fraction", 0.9)), self.accel_range,
+                            "m/s^2", "the accelerometer's range"),
+        }
+        self._hyst = {k: Hysteresis(f * limit, off * f * limit)
+                      for k, (f, limit, _, _) in self._levels.items()}
+        self._torque_limit = wheel_max_torque_n_m
+        self._torque_hold_ticks = math.ceil(float(get("warn_torque_saturated_s", 1.0))
+                                            / self.dt_s - 1e-9)
+        self._torque_held = 0
+        self._torque_active = False  # saturated past the hold, not yet released
+        self._torque_off = off * wheel_max_torque_n_m
+        self._missing_every = max(1, round(float(get("warn_missing_interval_s", 1.0)) / self.dt_s))
+        self._missing_next = 0  # first tick a missing-frame count may be reported at
+        self._missing: dict[str, int] = dict.fromkeys(self.div, 0)
+        self._missing_since: int | None = None
+        self._last_tick = 0
+        self._due = [(name, drv, self.div[name]) for name, drv in self.iface.drivers.items()]
+
+    def _warn(self, tick: int, kind: str, message: str) -> None:
+        self.warning_counts[kind] += 1
+        if self.on_warning is not None:
+            self.on_warning(MonitorWarning(tick, tick * self.dt_s, kind, message))
+
+    def _warnings(self, tick: int, state: RigState, sent: RigCommand) -> None:
+        self._last_tick = tick
+        h = self._hyst
+        values = (("wheel_speed", abs(state.wheel_speed_rad_s)),
+                  ("hub_angle", abs(state.hub_angle_rad) * 57.29577951308232),
+                  ("hub_rate", abs(state.hub_rate_rad_s) * 57.29577951308232),
+                  ("tip_accel", abs(state.tip_accel_m_s2)),
+                  ("accel_range", abs(state.tip_accel_m_s2)))
+        for kind, x in values:
+            if h[kind].update(x):
+                frac, limit, unit, what = self._levels[kind]
+                self._warn(tick, kind, f"{x:.5g} {unit} is past {100 * frac:g} % of {what} "
+                                       f"{limit:.4g} {unit} ({frac * limit:.5g} {unit})")
+        torque = abs(sent.wheel_torque_n_m)
+        if torque >= self._torque_limit * (1.0 - 1e-9):
+            self._torque_held += 1
+        else:
+            self._torque_held = 0
+        if self._torque_active:
+            if torque < self._torque_off:
+                self._torque_active = False
+        elif self._torque_held > self._torque_hold_ticks:
+            self._torque_active = True
+            self._warn(tick, "torque_saturated",
+                       f"commanded wheel torque held at its limit {self._torque_limit:g} N m for "
+                       f"{self._torque_held * self.dt_s:.3g} s (since t = "
+                       f"{(tick - self._torque_held + 1) * self.dt_s:.3f} s)")
+        missed = False
+        for name, drv, div in self._due:
+            if tick % div == 0 and drv.last_tick != tick \
+                    and (drv.last_tick > -10**8 or tick >= self.startup_ticks):
+                self._missing[name] += 1
+                missed = True
+        if missed:
+            if self._missing_since is None:
+                self._missing_since = tick
+            if tick >= self._missing_next:
+                self._report_missing(tick)
+
+    def _report_missing(self, tick: int) -> None:
+        counts = {n: c for n, c in self._missing.items() if c}
+        if not counts:
+            return
+        since = self._missing_since if self._missing_since is not None else tick
+        total = sum(counts.values())
+        if since == tick and total == len(counts):
+            message = f"no telemetry from {', '.join(counts)} at its tick {tick}"
+        else:
+            message = (f"{total} due telemetry frames missing at their ticks since t = "
+                       f"{since * self.dt_s:.3f} s (" +
+                       ", ".join(f"{n} {c}" for n, c in counts.items()) + ")")
+        self._warn(tick, "telemetry_missing", message)
+        self._missing = dict.fromkeys(self._missing, 0)
+        self._missing_since = None
+        self._missing_next = tick + self._missing_every
+
+    def finish(self) -> None:
+        """At the end of a run: report, at the last tick checked, the missing frames counted
+        since the last report (the rate limit held them back)."""
+        if self.warnings_on and self._missing_since is not None:
+            self._report_missing(self._last_tick)
 
     # ------------------------------------------------------------------
     def check(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
         if not self.cfg["enabled"]:
             return None
+        if self.warnings_on:
+            self._warnings(tick, state, sent)
         for check in (self._bus, self._silent_and_lost, self._accelerometer, self._hub,
                       self._wheel, self._valves, self._piezo, self._limits):
             event = check(tick, state, sent)

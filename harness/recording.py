@@ -69,7 +69,8 @@ class Recorder:
                  block_rows: int = 500, blueprint: rrb.Blueprint | None = None,
                  live_view_url: str | None = None, retain_rows: int = 0,
                  flush_every_blocks: int = 0, max_pending_blocks: int = 30,
-                 observers: list[BlockObserver] | None = None) -> None:
+                 observers: list[BlockObserver] | None = None,
+                 max_pending_events: int = 100) -> None:
         self.path = path
         self.channels = list(channels)
         self.index = {c: i for i, c in enumerate(self.channels)}
@@ -84,6 +85,10 @@ class Recorder:
         self._data = np.full((self.block_rows, len(self.channels)), np.nan)
         self._fill = 0
         self._pending: deque[_Block] = deque()
+        # events queued in the tick (queue_event), sent by drain() in the slack
+        self._events: deque[tuple[float, str, str, str, dict[str, float], str | None,
+                                  str | None]] = deque()
+        self.max_pending_events = max(1, int(max_pending_events))
         self._tail: deque[_Block] = deque()
         self._tail_rows = 0
         self._blocks_sent = 0
@@ -103,6 +108,9 @@ class Recorder:
                                rr.GrpcSink(live_view_url))
             self.rec.send_blueprint(bp)
         self.rec.send_recording_name(recording_name)
+        from harness.review.names import log_series_names
+
+        log_series_names(self.rec, self.channels)
 
     def row(self, time_s: float) -> np.ndarray:
         """The next row to fill (a view); call ``commit()`` when written."""
@@ -140,8 +148,11 @@ class Recorder:
         return len(self._pending)
 
     def drain(self, max_blocks: int | None = None) -> int:
-        """Send up to ``max_blocks`` pending channel-blocks (all if None)."""
+        """Send up to ``max_blocks`` pending events and channel-blocks (all if None)."""
         n = 0
+        while self._events and (max_blocks is None or n < max_blocks):
+            self._send_event(self._events.popleft())
+            n += 1
         while self._pending and (max_blocks is None or n < max_blocks):
             self._send_one(self._pending[0])
             n += 1
@@ -178,6 +189,27 @@ class Recorder:
         from harness.review.events import log_event
 
         log_event(self.rec, time_s, entity, text, level, self.latest_values())
+
+    def queue_event(self, time_s: float, entity: str, text: str, level: str = "WARN",
+                    series: str | None = None, name: str | None = None) -> None:
+        """As ``log_event`` (markers at the last committed row's values), but sent by the
+        next ``drain()``, outside the tick's critical path; past ``max_pending_events``
+        queued, the oldest is sent at once (memory stays bounded). ``series`` and ``name``:
+        the markers' series and legend name (harness.review.events.log_event)."""
+        self._events.append((time_s, entity, text, level, self.latest_values(), series, name))
+        while len(self._events) > self.max_pending_events:
+            self._send_event(self._events.popleft())
+
+    @property
+    def pending_events(self) -> int:
+        return len(self._events)
+
+    def _send_event(self, event: tuple[float, str, str, str, dict[str, float], str | None,
+                                       str | None]) -> None:
+        from harness.review.events import log_event
+
+        time_s, entity, text, level, values, series, name = event
+        log_event(self.rec, time_s, entity, text, level, values, name=name, series=series)
 
     def latest_values(self) -> dict[str, float]:
         """Every channel's value in the last committed row (empty before the first)."""

@@ -27,7 +27,7 @@ from harness.busload import compute_bus_load
 from harness.can_log import CanLog
 from harness.clock import LockstepClock, RealTimeClock, RealTimeSetup, choose_cpus
 from harness.loop import CHANNELS, RESERVE_FRACTION, LoopStats, run_loop
-from harness.monitor import FaultMonitor
+from harness.monitor import FaultMonitor, MonitorWarning
 from harness.paths import safe_child, safe_name
 from harness.periodic import steady_state_amplitude
 from harness.recording import Recorder
@@ -248,7 +248,8 @@ def make_monitor(run: RunConfig, interface: RigInterface, realtime: bool) -> Fau
         interface, run.data["monitor"], run.data["limits"],
         run.rig.section("reaction_wheel")["max_speed_rad_s"], run.rig.accel_range_m_s2,
         run.rig.section("thruster_valves")["close_delay_s"], run.dt_s, realtime=realtime,
-        valve_min_on_s=run.rig.section("thruster_valves")["min_on_time_s"])
+        valve_min_on_s=run.rig.section("thruster_valves")["min_on_time_s"],
+        wheel_max_torque_n_m=run.rig.section("reaction_wheel")["max_torque_n_m"])
 
 
 def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
@@ -299,6 +300,7 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                                  dry_run=dry_run)
         heartbeat_every = max(1, round(run.data["rate_hz"] / run.data["heartbeat_hz"]))
         monitor = make_monitor(run, interface, realtime=clock_name == "realtime")
+        monitor.on_warning = _warning_logger(recorder, show_progress)
         reference = getattr(controller, "reference", None)
         recorder.log_static_text("/run/config", "```yaml\n" + yaml.safe_dump(
             run.resolved(), sort_keys=False) + "```")
@@ -311,8 +313,14 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
         finally:
             if show_progress:
                 print("", file=sys.stderr)
+            try:
+                monitor.finish()  # the missing frames the rate limit held back
+            except Exception as exc:  # never lose the summary for a warning
+                print(f"harness: could not report the monitor's last warning ({exc})",
+                      file=sys.stderr)
             summary = summarise(run, recorder, stats, load.percent, interface, clock_name,
                                 str(spec), setup, rig, running)
+            summary["monitor_warnings"] = dict(monitor.warning_counts)
             summary.update(periodic_summary(run, recorder, controller, running))
             design_report = getattr(controller, "design_report", None)
             if callable(design_report):
@@ -336,6 +344,18 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
         if rig_bus is not None:
             rig_bus.shutdown()
     return RunResult(run_dir, summary, stats, recorder, rig)
+
+
+def _warning_logger(recorder: Recorder, show: bool) -> Callable[[MonitorWarning], None]:
+    """The monitor's warnings: a WARN event under /events/monitor at its time (sent in the
+    loop's slack, ``Recorder.queue_event``), marked on the plots, and a line on stderr."""
+    def on_warning(w: MonitorWarning) -> None:
+        recorder.queue_event(w.time_s, "/events/monitor", str(w), "WARN",
+                             series=f"warning/{w.kind}",
+                             name=f"WARNING {w.kind.replace('_', ' ')}")
+        if show:
+            print(f"\nharness: WARNING {w}", file=sys.stderr)
+    return on_warning
 
 
 def retain_rows_for(run: RunConfig) -> int:

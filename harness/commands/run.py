@@ -115,6 +115,11 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
                      " m/s^2" if "steady_tip_accel_amplitude_m_s2" in s else "")
                   + f", {s['real_time_factor']}x real time; recording in {result.run_dir}",
                   file=sys.stderr)
+            warned = {k: n for k, n in (s.get("monitor_warnings") or {}).items() if n}
+            if warned:
+                print("harness: monitor warnings: " + ", ".join(
+                    f"{k} {n}" for k, n in warned.items()) + " (events under /events/monitor)",
+                      file=sys.stderr)
             for f in s.get("faults", []):
                 print(f"harness: FAULT {f['device']}: {f['kind']}: {f['message']} at "
                       f"t = {f['time_s']:.3f} s; actuators commanded safe", file=sys.stderr)

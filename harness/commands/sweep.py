@@ -125,6 +125,9 @@ def save_rrd(path: Path, name: str, lambdas: np.ndarray, betas: np.ndarray,
                              columns=rr.Scalars.columns(scalars=amps[:, j, o]))
             rec.send_columns(f"/sweep/log10/{out}/beta_{b:.2f}", indexes=index,
                              columns=rr.Scalars.columns(scalars=np.log10(amps[:, j, o])))
+            for kind in ("curves", "log10"):  # the legend: "beta 0.60", not the path
+                rec.log(f"/sweep/{kind}/{out}/beta_{b:.2f}",
+                        rr.SeriesLines(names=f"beta {b:.2f}"), static=True)
     rec.log("/sweep/about", rr.TextDocument(
         f"# Sweep {name}\n\nx axis: the `{SWEEP_TIMELINE}` timeline, lambda = w_m / w_ref "
         f"times 1000 ({lambdas[0]:g} to {lambdas[-1]:g}, {len(lambdas)} points); one curve "

@@ -37,6 +37,7 @@ import numpy as np
 import rerun as rr
 
 from drivers.dbc import FrameCodec, Protocol, load_protocol
+from harness.review.names import log_series_names
 
 # device -> (telemetry frame, command frame or None), as the drivers define them
 DEVICES: dict[str, tuple[str, str | None]] = {
@@ -187,6 +188,11 @@ def write_bus(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime: bool,
     rx_after = {fid: _Series(sink, f"/bus/{d}/rx_after_sync_ms", block_rows)
                 for fid, d in tlm_device.items()}
     missing_series = _Series(sink, "/bus/late_or_missing", block_rows)
+    # the legends' names: the frame and signal (``WHEEL_CMD torque_cmd``), the device
+    log_series_names(rec, [e for fid, f in frames.items() for e in f.entities],
+                     {e: f"{by_id[fid].name} {s.name}" for fid, f in frames.items()
+                      for e, s in zip(f.entities, by_id[fid].signals, strict=True)})
+    log_series_names(rec, [r.entity for r in rx_after.values()] + [missing_series.entity])
     due = {d: int(dividers.get(d, 1)) for d in DEVICES if d in dividers}
     tick_mask = sync.signals[0].mask
     stats = BusStats()

@@ -4,8 +4,9 @@ plot at the event's time, and the run's summary as a markdown table.
 A marker is a point of the plot's own first signal at the event's time (so it sits on the
 curve, at the plot's scale) in a series per kind of event (``/markers/<plot>/<kind>``), its
 name in the plot's legend. Kinds: ``fault`` (``/events/<device>``, level ERROR),
-``interrupt`` / ``error`` (``/events/harness``), ``warning`` (``/events/monitor``,
-``/events/can_log``) and ``verdict`` (``/events/verdict``).
+``interrupt`` / ``error`` (``/events/harness``), ``warning`` (``/events/monitor``, one
+series per kind of warning, ``/markers/<plot>/warning/<kind>``; ``/events/can_log`` is not
+marked) and ``verdict`` (``/events/verdict``).
 """
 
 from __future__ import annotations
@@ -52,20 +53,22 @@ def marker_name(kind: str, text: str) -> str:
 
 def log_event(rec: rr.RecordingStream, time_s: float, entity: str, text: str,
               level: str = "WARN", values: Mapping[str, float] | None = None,
-              name: str | None = None) -> None:
+              name: str | None = None, series: str | None = None) -> None:
     """``text`` as a TextLog at ``entity`` (``/events/...``) at ``time_s`` on the ``time``
     timeline, and a marker on every plot whose first signal's value at that time is in
-    ``values`` (channel -> value; NaN and missing channels are skipped)."""
+    ``values`` (channel -> value; NaN and missing channels are skipped), in the series
+    ``/markers/<plot>/<series>`` (default: the event's kind)."""
     rec.set_time("time", duration=time_s)
     rec.log(entity, rr.TextLog(text, level=level))
     if values:
         kind = event_kind(entity, level)
-        log_markers(rec, time_s, kind, name or marker_name(kind, text), values)
+        log_markers(rec, time_s, kind, name or marker_name(kind, text), values, series)
 
 
 def log_markers(rec: rr.RecordingStream, time_s: float, kind: str, name: str,
-                values: Mapping[str, float]) -> int:
-    """One marker per plot at ``time_s`` (see module docstring); returns how many."""
+                values: Mapping[str, float], series: str | None = None) -> int:
+    """One marker per plot at ``time_s`` (see module docstring) in the series
+    ``/markers/<plot>/<series or kind>``; returns how many."""
     shape, colour, size = MARKER_STYLE.get(kind, MARKER_STYLE["warning"])
     rec.set_time("time", duration=time_s)
     n = 0
@@ -74,7 +77,7 @@ def log_markers(rec: rr.RecordingStream, time_s: float, kind: str, name: str,
                       if c in values and not math.isnan(values[c])), None)
         if value is None:
             continue
-        rec.log(f"{plot.marker_path}/{kind}", rr.Scalars(float(value)), rr.SeriesPoints(
+        rec.log(f"{plot.marker_path}/{series or kind}", rr.Scalars(float(value)), rr.SeriesPoints(
             names=name, markers=shape, colors=[colour], marker_sizes=size))
         n += 1
     return n
@@ -123,6 +126,7 @@ SUMMARY_ROWS: tuple[tuple[str, str], ...] = (
     ("work_ms", "work per tick (ms)"),
     ("bus_load_percent", "bus load, worst case (%)"),
     ("frames", "frames"),
+    ("monitor_warnings", "monitor warnings"),
     ("wall_time_s", "wall time (s)"),
     ("real_time_factor", "real-time factor"),
 )
@@ -156,6 +160,9 @@ def summary_markdown(summary: Mapping[str, Any]) -> str:
         value = summary.get(key)
         if value in (None, "", []):
             pass
+        elif key == "monitor_warnings" and isinstance(value, dict):
+            lines.append(f"| {label} | " + (", ".join(
+                f"{k.replace('_', ' ')} {n}" for k, n in value.items() if n) or "none") + " |")
         elif key == "frames" and isinstance(value, dict):
             lines += [f"| frames {k.replace('_', ' ')} | {_fmt(v)} |" for k, v in value.items()]
         else:

@@ -53,6 +53,21 @@ def read_text(rrd: Path, entity: str) -> str | None:
     return text
 
 
+def read_series_names(rrd: Path, points: bool = False) -> dict[str, list[str]]:
+    """entity -> the legend's names of its series: the static ``SeriesLines:names`` of the
+    plotted channels, or with ``points`` the (last) ``SeriesPoints:names`` of the markers."""
+    column = "SeriesPoints:names" if points else "SeriesLines:names"
+    out: dict[str, list[str]] = {}
+    for chunk in iter_chunks(rrd):
+        if not (chunk.is_static or points):
+            continue
+        batch = chunk.to_record_batch()
+        if column in batch.schema.names:
+            names = batch.column(column).to_pylist()[-1]
+            out[chunk.entity_path] = [str(n) for n in (names or [])]
+    return out
+
+
 def entities(rrd: Path) -> set[str]:
     """Every entity path with data in the recording."""
     return {c.entity_path for c in iter_chunks(rrd)}

@@ -459,6 +459,8 @@ def print_tables(out: dict) -> None:
 def write_rrd(path: Path, cases: list[CaseResult]) -> None:
     import rerun as rr
 
+    from harness.review.names import log_series_names
+
     rec = rr.RecordingStream("harness_parman2022")
     rec.save(str(path))
     for c in cases:
@@ -478,6 +480,10 @@ def write_rrd(path: Path, cases: list[CaseResult]) -> None:
                 indexes=times,
                 columns=rr.Scalars.columns(scalars=c.torque_n_m[:, k]),
             )
+        # legends: the axis (roll, pitch, yaw) and "node27", not the entity path
+        log_series_names(rec, [f"{base}/node27_m"]
+                         + [f"{base}/{q}/{axis}" for q in ("attitude_deg", "torque_n_m")
+                            for axis in AXES])
     rec.flush()
 
 

@@ -297,6 +297,8 @@ def write_recording(
     """Histories to a Rerun .rrd (columnar sends, no viewer): wang2022/drive/shaper/case/..."""
     import rerun as rr
 
+    from harness.review.names import log_multi_series_names
+
     rec = rr.RecordingStream("sgsrt_wang2022")
     rec.save(path)
     for key, hist in histories.items():
@@ -310,7 +312,16 @@ def write_recording(
             "quaternion": hist.q,
             "attitude_error_deg": np.degrees(quaternion_angle_error(hist.q, q_target))[:, None],
         }
+        legends = {
+            "eta": [f"mode {i + 1}" for i in range(hist.eta.shape[1])],
+            "tip_deflection_m": ["tip deflection"],
+            "body_rate_rad_s": ["x", "y", "z"],
+            "torque_n_m": ["x", "y", "z"],
+            "quaternion": ["q0 (scalar)", "q1", "q2", "q3"],
+            "attitude_error_deg": ["attitude error"],
+        }
         for name, values in series.items():
+            log_multi_series_names(rec, f"{base}/{name}", legends[name][: values.shape[1]])
             rec.send_columns(
                 f"{base}/{name}", indexes=times, columns=rr.Scalars.columns(scalars=values)
             )

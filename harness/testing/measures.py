@@ -82,6 +82,14 @@ SUMMARY_MEASURES: dict[str, str] = {
     "steady_angle_amplitude_deg": "deg",
     # computed by the judge from summary.json's lists
     "faults.count": "count",
+    # the fault monitor's warnings, per kind (harness.monitor.WARNING_KINDS)
+    "monitor_warnings.wheel_speed": "count",
+    "monitor_warnings.torque_saturated": "count",
+    "monitor_warnings.hub_angle": "count",
+    "monitor_warnings.hub_rate": "count",
+    "monitor_warnings.tip_accel": "count",
+    "monitor_warnings.accel_range": "count",
+    "monitor_warnings.telemetry_missing": "count",
 }
 
 OPEN_PREFIXES = ("controller_design.",)
