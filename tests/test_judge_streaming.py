@@ -5,8 +5,13 @@ reference below is that code (before streaming), kept here as the oracle."""
 
 from __future__ import annotations
 
+import json
 import math
+import os
+import subprocess
+import sys
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -28,6 +33,8 @@ from harness.testing.evaluate import (
     window_mask,
 )
 from harness.testing.measures import WORST_SAMPLE
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 # ------------------------------------------------------------ the whole-array reference
@@ -300,3 +307,69 @@ def test_missing_channel_and_unreadable_recording() -> None:
     each, settles, peak = evaluate(crits, Facts(MEASURES, blocks=broken))
     assert each.message == settles.message == "missing data: run.rrd: cannot read (x)"
     assert peak.worst_time_s is None and not math.isnan(peak.value)
+
+
+# ------------------------------------------------------------------------ memory
+_JUDGE_TWICE = """
+import json, resource, sys
+from harness.testing import judge_run, write_verdict
+def judge(run_dir):
+    v = judge_run(run_dir)
+    write_verdict(v, run_dir)
+    return [c.verdict for c in v.criteria]
+first = judge(sys.argv[1])  # warm-up: imports, the reader, a first pass
+base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+second = judge(sys.argv[2])
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(json.dumps({"growth_kb": peak - base, "verdicts": second}))
+"""
+
+
+def _recorded_run(run_dir: Path, seconds: float) -> Path:
+    """A run directory with a recording of ``seconds`` at 500 Hz written as harness.recording
+    writes a run's (blocks of 500 rows), and the criteria that read channels."""
+    import json as json_
+
+    import yaml
+
+    from harness.recording import Recorder
+
+    run_dir.mkdir()
+    expect = {
+        "settles": {"settles": ERR, "band_deg": 0.1, "after": "slew_profile_end_s",
+                    "within_s": 11.1, "stays_s": 10},
+        "accel": {"channel": ACC, "max_abs_m_s2": 0.5, "after": "slew_profile_end_s"},
+        "accel_rms": {"channel": ACC, "reduce": "rms", "max_m_s2": 0.1, "last_s": 6.0},
+        "peak": {"measure": "peak_tip_accel_m_s2", "max_m_s2": 0.4},
+        "final_error": {"measure": "final_angle_error_deg", "max_abs_deg": 0.1},
+    }
+    (run_dir / "config.yaml").write_text(yaml.safe_dump({"run": {"name": "mem",
+                                                                 "expect": expect}}))
+    (run_dir / "summary.json").write_text(json_.dumps(dict(MEASURES, ticks=0)))
+    rec = Recorder(run_dir / "run.rrd", [ERR, ACC], 0, run_dir.name)
+    for k in range(int(seconds * RATE)):
+        t = k / RATE
+        row = rec.row(t)
+        row[0] = 3.0 * math.exp(-t) * math.cos(5 * t)
+        row[1] = 0.05 * math.sin(8.0 * t)
+        rec.commit()
+        if k % 500 == 499:
+            rec.drain()
+    rec.close()
+    return run_dir
+
+
+def test_judging_memory_does_not_grow_with_recording_length(tmp_path: Path) -> None:
+    """In fresh processes: judging a 4000 s recording after a 20 s one grows no more than
+    judging the 20 s one again (whole channels read into arrays: 139 MB more; streamed: 0)."""
+    short = _recorded_run(tmp_path / "short", 20.0)
+    long = _recorded_run(tmp_path / "long", 4000.0)
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    got = {}
+    for name, second in (("short", short), ("long", long)):
+        out = subprocess.run([sys.executable, "-c", _JUDGE_TWICE, str(short), str(second)],
+                             cwd=ROOT, env=env, capture_output=True, text=True, check=True)
+        got[name] = json.loads(out.stdout.strip().splitlines()[-1])
+    # the long recording was judged (the channel forms had samples to judge)
+    assert "ERROR" not in got["long"]["verdicts"][:3], got
+    assert got["long"]["growth_kb"] - got["short"]["growth_kb"] < 1_500, got

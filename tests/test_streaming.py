@@ -179,20 +179,6 @@ print(json.dumps({"base_kb": base, "peak_kb": peak, "run_dir": str(res.run_dir),
 """
 
 
-_JUDGE_SCRIPT = """
-import json, resource, sys
-from harness.testing import judge_run, write_verdict
-def judge(run_dir):
-    v = judge_run(run_dir)
-    write_verdict(v, run_dir)
-judge(sys.argv[1])  # warm-up: imports, the reader, a first pass
-base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-judge(sys.argv[2])
-peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print(json.dumps({"base_kb": base, "peak_kb": peak}))
-"""
-
-
 @pytest.mark.slow
 def test_memory_does_not_grow_with_run_length(tmp_path: Path) -> None:
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
@@ -202,18 +188,6 @@ def test_memory_does_not_grow_with_run_length(tmp_path: Path) -> None:
                              cwd=ROOT, env=env, capture_output=True, text=True, check=True)
         res[d] = json.loads(out.stdout.strip().splitlines()[-1])
     short, long = res[20], res[200]
-    # judging alone, in fresh processes (its peak may sit under the run's): judging the
-    # long run after the short one grows no more than judging the short one again (whole
-    # channels read into arrays, before judging streamed, grew 3.2 MB more for this 200 s
-    # run, 11.7 MB more for a 400 s one; streamed: -0.4 and -0.5 MB)
-    judged = {}
-    for which in ("short", "long"):
-        out = subprocess.run([sys.executable, "-c", _JUDGE_SCRIPT, short["run_dir"],
-                              (short if which == "short" else long)["run_dir"]],
-                             cwd=ROOT, env=env, capture_output=True, text=True, check=True)
-        r = json.loads(out.stdout.strip().splitlines()[-1])
-        judged[which] = r["peak_kb"] - r["base_kb"]
-    assert judged["long"] - judged["short"] < 1_500, judged
     # peak within 10 %, and the run itself (peak over the warmed-up base) grows < 5 MB
     assert long["peak_kb"] <= 1.10 * short["peak_kb"], res
     growth_short = short["peak_kb"] - short["base_kb"]
