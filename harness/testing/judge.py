@@ -33,7 +33,6 @@ from harness.testing.evaluate import (
     run_checks,
     worst_verdict,
 )
-from harness.testing.measures import WORST_SAMPLE
 from rig_models.schema import ConfigError
 
 APPLICATION_ID = "sgsrt-harness"  # as harness.recording's (same recording in the viewer)
@@ -338,9 +337,8 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
     for name in ("run.rrd", "can.blf"):
         if not (run_dir / name).is_file():
             results.append(_missing(name, f"no {name} in the run directory"))
-    wanted = {c.target for c in criteria if c.kind in ("channel", "settles", "baseline")}
-    wanted |= {WORST_SAMPLE[c.target][0] for c in criteria
-               if c.kind == "scalar" and c.target in WORST_SAMPLE}
+    # a baseline run's channels are read whole: only those its criteria compare
+    wanted = {c.target for c in criteria if c.kind == "baseline"}
     source = ChannelSource(run_dir / "run.rrd")
     facts = Facts(summary, source, BaselineCache(wanted),
                   lambda: left_safe_problems(run_dir / "can.blf"), source.blocks)
