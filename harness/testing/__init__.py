@@ -23,9 +23,11 @@ base_dir=None, check_files=True, open_paths=False) -> list[Criterion]``
     and the marginal band. The one scalar implementation of run files and suites.
 
 ``evaluate(criteria, facts) -> list[CriterionResult]``
-    Every criterion against ``Facts(measures, channel, baseline_channel, left_safe)``:
-    ``channel(entity) -> (t_s, values)`` and the others are called only by the forms that
-    need them. Missing data gives that criterion ERROR, never an exception.
+    Every criterion against ``Facts(measures, channel, baseline_channel, left_safe,
+    blocks)``: ``blocks(entities)`` yields ``(entity, t_s, values)`` chunk by chunk in one
+    pass (the channel forms stream over it in bounded memory); without it each
+    ``channel(entity) -> (t_s, values)`` is read whole. The others are called only by the
+    forms that need them. Missing data gives that criterion ERROR, never an exception.
 
 ``make_verdict(results, identity=None) -> Verdict``
     The worst result wins (PASS < MARGINAL < FAIL < ERROR); no results is PASS.

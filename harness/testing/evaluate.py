@@ -11,7 +11,9 @@ criterion failed). The worst wins.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+import warnings
+from collections import deque
+from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -27,6 +29,9 @@ Channel = Callable[[str], tuple[np.ndarray, np.ndarray]]
 """entity -> (time s, values); raises KeyError/ValueError if the channel is missing."""
 BaselineChannel = Callable[[str, str], tuple[np.ndarray, np.ndarray]]
 """(baseline path, entity) -> (time s, values)."""
+ChannelBlocks = Callable[[list[str]], Iterator[tuple[str, np.ndarray, np.ndarray]]]
+"""entities -> one pass over the recording: (entity, time s, values) blocks in the file's
+order (each entity's in time order); raises MissingData if the recording cannot be read."""
 
 MAX_EVENTS = 10
 """Violation times kept per criterion (for the recording's events)."""
@@ -71,9 +76,12 @@ class Facts:
 
     measures: Mapping[str, Any]
     channel: Channel | None = None
+    """A channel whole (the baseline form; a channel not in time order in ``blocks``)."""
     baseline_channel: BaselineChannel | None = None
     left_safe: Callable[[], list[str]] | None = None
     """-> what was not left safe (empty: safe); raises MissingData without a CAN log."""
+    blocks: ChannelBlocks | None = None
+    """The channels block by block (bounded memory); without it, each ``channel`` whole."""
 
 
 def _clean(v: Any) -> Any:
@@ -281,74 +289,187 @@ def _samples(c: Criterion, facts: Facts) -> tuple[np.ndarray, np.ndarray, float]
     return t[mask], x[mask], start
 
 
-def _violation_starts(t: np.ndarray, bad: np.ndarray, worst: float | None) -> list[float]:
-    starts = np.nonzero(bad & ~np.concatenate(([False], bad[:-1])))[0]
-    out = [float(t[i]) for i in starts[:MAX_EVENTS - 1]]
-    if worst is not None and worst not in out:
-        out.append(worst)
-    return out
+class _Starts:
+    """The start times of violations (a sample bad after one that was not), fed block by
+    block in time order; at most MAX_EVENTS - 1 kept, then the worst."""
+
+    def __init__(self) -> None:
+        self.out: list[float] = []
+        self.prev = False
+
+    def feed(self, t: np.ndarray, bad: np.ndarray) -> _Starts:
+        if len(bad) and len(self.out) < MAX_EVENTS - 1:
+            before = np.concatenate(([self.prev], bad[:-1]))
+            idx = np.nonzero(bad & ~before)[0][:MAX_EVENTS - 1 - len(self.out)]
+            self.out += [float(t[i]) for i in idx]
+        if len(bad):
+            self.prev = bool(bad[-1])
+        return self
+
+    def times(self, worst: float | None) -> list[float]:
+        out = list(self.out)
+        if worst is not None and worst not in out:
+            out.append(worst)
+        return out
 
 
-def evaluate_channel(c: Criterion, facts: Facts) -> CriterionResult:
-    t, x, _ = _samples(c, facts)
+Block = tuple[np.ndarray, np.ndarray]
+"""(time s, values) of consecutive samples of one channel, in time order."""
+Consumer = Generator[None, Block | None, CriterionResult]
+"""Receives a channel's blocks in time order (``send``), then None; returns the result."""
+
+
+def _finish(gen: Generator[None, Any, Any]) -> Any:
+    try:
+        gen.send(None)
+    except StopIteration as stop:
+        return stop.value
+    raise RuntimeError("a channel consumer did not finish")  # pragma: no cover
+
+
+def _started(gen: Generator[None, Any, Any]) -> Generator[None, Any, Any]:
+    next(gen)
+    return gen
+
+
+def _windowed(c: Criterion, measures: Mapping[str, Any],
+              core: Callable[[float], Generator[None, Any, CriterionResult]]) -> Consumer:
+    """The criterion's window over a channel's blocks (NaN samples left out), sent on to
+    ``core(window start)``. ``last_s`` keeps only the blocks that can still be in the last
+    ``last_s`` of the channel (memory bounded by the window, not the run)."""
+    eps = 1e-9
+    w = c.window
+    gen: Generator[None, Any, CriterionResult] | None = None
+    n = kept = 0
+    start = end = 0.0
+    tail: deque[Block] = deque()
+    t_last = 0.0
+    while (blk := (yield)) is not None:
+        t, x = blk
+        if not len(t):
+            continue
+        n += len(t)
+        if w.last_s is not None:
+            t_last = float(t[-1])
+            tail.append((t, x))
+            while tail and float(tail[0][0][-1]) < t_last - w.last_s - eps:
+                tail.popleft()
+            continue
+        if gen is None:
+            base = event_time(measures, w.after) if w.after else 0.0
+            start = base + (w.from_s or 0.0) if (w.after or w.from_s is not None) \
+                else float(t[0])
+            end = base + w.to_s if w.to_s is not None else math.inf
+            gen = _started(core(start))
+        m = (t >= start - eps) & (t <= end + eps) & ~np.isnan(x)
+        if m.any():
+            kept += int(m.sum())
+            gen.send((t[m], x[m]))
+    if n == 0:
+        raise MissingData("the channel has no samples")
+    if w.last_s is not None:
+        start = t_last - w.last_s
+        t = np.concatenate([b[0] for b in tail])
+        x = np.concatenate([b[1] for b in tail])
+        m = (t >= start - eps) & ~np.isnan(x)
+        gen = _started(core(start))
+        if m.any():
+            kept = int(m.sum())
+            gen.send((t[m], x[m]))
+    if not kept:
+        raise MissingData(f"no {c.target} samples in the window ({w.describe()})")
+    assert gen is not None
+    return _finish(gen)
+
+
+def _channel_core(c: Criterion, start: float) -> Generator[None, Any, CriterionResult]:
+    """A ``channel:`` criterion over its window's samples."""
     where = c.window.describe()
+    best = math.inf
+    best_x = best_t = t_last = x_last = 0.0
+    total = 0.0
+    n = 0
+    starts = _Starts()
+    while (blk := (yield)) is not None:
+        t, x = blk
+        n += len(t)
+        t_last, x_last = float(t[-1]), float(x[-1])
+        if c.reduce == "each":
+            margins = band_margins(x, c.limit)
+            i = int(np.argmin(margins))
+            if n == len(t) or margins[i] < best:  # the first of equal worst samples
+                best, best_x, best_t = float(margins[i]), float(x[i]), float(t[i])
+            starts.feed(t, margins < 0)
+        elif c.reduce == "rms":
+            total += np.sum(x ** 2, dtype=np.float64)
+        elif c.reduce == "mean":
+            total += np.sum(x, dtype=np.float64)
     if c.reduce == "each":
-        margins = band_margins(x, c.limit)
-        i = int(np.argmin(margins))
-        margin = float(margins[i])
-        verdict = grade(margin, c.marginal)
-        worst = float(t[i])
-        violations = _violation_starts(t, margins < 0, worst) if verdict == FAIL else []
-        return _result(c, float(x[i]), margin, verdict, worst,
-                       f"{c.target} worst sample {_fmt(float(x[i]))} {c.unit} at t = "
-                       f"{worst:.3f} s ({where}) {_verb(verdict)} {_limits_text(c)}",
-                       violations)
+        verdict = grade(best, c.marginal)
+        return _result(c, best_x, best, verdict, best_t,
+                       f"{c.target} worst sample {_fmt(best_x)} {c.unit} at t = "
+                       f"{best_t:.3f} s ({where}) {_verb(verdict)} {_limits_text(c)}",
+                       starts.times(best_t) if verdict == FAIL else [])
+    worst: float | None
     if c.reduce == "rms":
-        value, worst = float(np.sqrt(np.mean(x ** 2))), None
+        value, worst = float(np.sqrt(total / n)), None
     elif c.reduce == "mean":
-        value, worst = float(np.mean(x)), None
+        value, worst = float(total / n), None
     else:  # final
-        value, worst = float(x[-1]), float(t[-1])
+        value, worst = x_last, t_last
     margin = float(band_margins(np.array([value]), c.limit)[0])
     verdict = grade(margin, c.marginal)
-    at = worst if worst is not None else float(t[-1])
+    at = worst if worst is not None else t_last
     return _result(c, value, margin, verdict, worst,
                    f"{c.reduce} of {c.target} ({where}) = {_fmt(value)} {c.unit} "
                    f"{_verb(verdict)} {_limits_text(c)}",
                    [at] if verdict == FAIL else [])
 
 
-def evaluate_settles(c: Criterion, facts: Facts) -> CriterionResult:
-    t, x, trigger = _samples(c, facts)
+def _settles_core(c: Criterion, trigger: float) -> Generator[None, Any, CriterionResult]:
+    """A ``settles:`` criterion: the first entry into the band that then stays ``stays_s``
+    (segments carried across blocks); else the worst sample after trigger + within_s."""
     band, center, stays = c.params["band"], c.params["center"], c.params["stays_s"]
     u = c.params["channel_unit"]
-    inside = np.abs(x - center) <= band
-    # segments of consecutive samples inside the band
-    edges = np.diff(np.concatenate(([0], inside.astype(np.int8), [0])))
-    starts, ends = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0] - 1
-    entry = None
-    for a, b in zip(starts, ends, strict=True):
-        if t[b] - t[a] >= stays - 1e-9:
-            entry = float(t[a])
-            break
+    late_from = trigger + c.limit["max"] - 1e-9
+    entry: float | None = None
+    seg: float | None = None  # start time of the segment in the band at the last sample
+    t_last = 0.0
+    worst = [(-math.inf, 0.0, 0.0, False), (-math.inf, 0.0, 0.0, False)]  # all, late
+    while (blk := (yield)) is not None:
+        t, x = blk
+        t_last = float(t[-1])
+        if entry is not None:
+            continue
+        dev = np.abs(x - center)
+        inside = dev <= band
+        before = np.concatenate(([seg is not None], inside[:-1]))
+        first = np.where(inside & ~before, np.arange(len(t)), -1)
+        idx = np.maximum.accumulate(first)
+        seg_t = np.where(idx >= 0, t[np.maximum(idx, 0)], math.nan if seg is None else seg)
+        ok = inside & (t - seg_t >= stays - 1e-9)
+        if ok.any():
+            entry = float(seg_t[int(np.argmax(ok))])
+            continue
+        seg = float(seg_t[-1]) if inside[-1] else None
+        for k, sel in enumerate((None, t >= late_from)):
+            if sel is not None and not sel.any():
+                continue
+            i = int(np.argmax(dev if sel is None else np.where(sel, dev, -np.inf)))
+            if not worst[k][3] or dev[i] > worst[k][0]:
+                worst[k] = (float(dev[i]), float(t[i]), float(x[i]), True)
     what = f"{c.target} within {center:g} +- {band:g} {u} for {stays:g} s"
-    if entry is None and len(starts) and ends[-1] == len(t) - 1 \
-            and t[starts[-1]] - trigger <= c.limit["max"] + 1e-9:
+    if entry is None and seg is not None and seg - trigger <= c.limit["max"] + 1e-9:
         # in the band in time and still in it at the end, but the run ended before it had
         # stayed stays_s: too short to judge, not a failure to settle
-        a = float(t[starts[-1]])
         raise MissingData(
-            f"{what}: in the band from t = {a:.3f} s to the run's end at t = "
-            f"{float(t[-1]):.3f} s; judging needs the run to last until t = {a + stays:.3f} s")
+            f"{what}: in the band from t = {seg:.3f} s to the run's end at t = "
+            f"{t_last:.3f} s; judging needs the run to last until t = {seg + stays:.3f} s")
     if entry is None:
-        dev = np.abs(x - center)
-        late = t >= trigger + c.limit["max"] - 1e-9
-        sel = late if late.any() else np.ones_like(late)
-        i = int(np.argmax(np.where(sel, dev, -np.inf)))
-        return _result(c, None, None, FAIL, float(t[i]),
+        _, wt, wx, _ = worst[1] if worst[1][3] else worst[0]
+        return _result(c, None, None, FAIL, wt,
                        f"{what}: never settled after t = {trigger:.3f} s (worst "
-                       f"{_fmt(float(x[i]))} {u} at t = {float(t[i]):.3f} s)",
-                       [float(t[i])])
+                       f"{_fmt(wx)} {u} at t = {wt:.3f} s)", [wt])
     value = round(entry - trigger, 9)  # sample times minus an event time: no float dust
     margin = c.limit["max"] - value
     verdict = grade(margin, c.marginal)
@@ -356,6 +477,17 @@ def evaluate_settles(c: Criterion, facts: Facts) -> CriterionResult:
                    f"{what}: settled {_fmt(value)} s after t = {trigger:.3f} s "
                    f"{_verb(verdict)} within_s {c.limit['max']:g}", [entry] *
                    (verdict == FAIL))
+
+
+def evaluate_channel(c: Criterion, measures: Mapping[str, Any]) -> Consumer:
+    """A ``channel:`` criterion (reduce each / rms / mean / final over its window) as a
+    consumer of its channel's blocks."""
+    return _windowed(c, measures, lambda start: _channel_core(c, start))
+
+
+def evaluate_settles(c: Criterion, measures: Mapping[str, Any]) -> Consumer:
+    """A ``settles:`` criterion as a consumer of its channel's blocks."""
+    return _windowed(c, measures, lambda start: _settles_core(c, start))
 
 
 def evaluate_baseline(c: Criterion, facts: Facts) -> CriterionResult:
@@ -403,7 +535,7 @@ def evaluate_baseline(c: Criterion, facts: Facts) -> CriterionResult:
         f"{c.target} vs baseline {base}: worst deviation {_fmt(dev)} {c.unit} at t = "
         f"{worst:.3f} s (run {_fmt(float(xc[i]))}, baseline {_fmt(float(b[i]))}; tolerance "
         f"{_fmt(tol_i)} {c.unit}; time shift {shift:+.3f} s) {_verb(verdict)} tolerance",
-        _violation_starts(tc, excess > 0, worst) if verdict == FAIL else [])
+        _Starts().feed(tc, excess > 0).times(worst) if verdict == FAIL else [])
 
 
 def fault_ticks(measures: Mapping[str, Any], fault: Mapping[str, Any]) -> int | None:
@@ -455,58 +587,213 @@ def evaluate_left_safe(c: Criterion, facts: Facts) -> CriterionResult:
                    if not n else "rig not left safe: " + "; ".join(unsafe))
 
 
-def scalar_worst_time(c: Criterion, facts: Facts) -> float | None:
-    """The time of the sample a summary peak or final came from (None if unknown)."""
-    if c.target == "settle_time_s":
-        v = facts.measures.get("settle_time_s")
-        return float(v) if isinstance(v, int | float) else None
-    if c.target not in WORST_SAMPLE or facts.channel is None:
+def scalar_worst_time(c: Criterion, measures: Mapping[str, Any]
+                      ) -> Generator[None, Any, float | None]:
+    """The time of the sample a summary peak or final came from (None if unknown), from
+    the blocks of its channel (WORST_SAMPLE)."""
+    how = WORST_SAMPLE[c.target][1]
+    window = measures.get("residual_window_s")
+    residual = how == "abs_residual" and isinstance(window, int | float)
+    tail: deque[Block] = deque()
+    best, best_t, found = -math.inf, 0.0, False
+    last_t: float | None = None
+    while (blk := (yield)) is not None:
+        t, x = blk
+        if not len(t):
+            continue
+        if residual:  # the blocks that can still be in the last ``window`` s
+            tail.append((t, x))
+            while tail and float(tail[0][0][-1]) < float(t[-1]) - float(window):
+                tail.popleft()
+            continue
+        ok = ~np.isnan(x)
+        if not ok.any():
+            continue
+        if how == "last":
+            last_t = float(t[ok][-1])
+            continue
+        a = np.where(ok, np.abs(x), -np.inf)
+        i = int(np.argmax(a))
+        if not found or a[i] > best:
+            best, best_t, found = float(a[i]), float(t[i]), True
+    if residual and tail:
+        t = np.concatenate([b[0] for b in tail])
+        x = np.concatenate([b[1] for b in tail])
+        ok = ~np.isnan(x) & (t >= t[-1] - float(window))
+        if ok.any():
+            return float(t[ok][int(np.argmax(np.abs(x[ok])))])
         return None
-    entity, how = WORST_SAMPLE[c.target]
+    if how == "last":
+        return last_t
+    return best_t if found else None
+
+
+def _scalar_consumer(c: Criterion, measures: Mapping[str, Any], r: CriterionResult
+                     ) -> Consumer:
+    """A ``measure:`` result completed with the time of its sample, where the recording
+    names it (an unreadable channel leaves it without)."""
     try:
-        t, x = facts.channel(entity)
-    except (KeyError, ValueError, OSError, MissingData):
-        return None
-    ok = ~np.isnan(x)
-    if how == "abs_residual":
-        window = facts.measures.get("residual_window_s")
-        if isinstance(window, int | float) and len(t):
-            ok &= t >= t[-1] - float(window)
-    if not ok.any():
-        return None
-    t, x = t[ok], x[ok]
-    return float(t[-1]) if how == "last" else float(t[int(np.argmax(np.abs(x)))])
-
-
-def _scalar(c: Criterion, facts: Facts) -> CriterionResult:
-    r = evaluate_scalar(c, facts.measures)
-    if r.worst_time_s is None and r.value is not None:
-        r.worst_time_s = scalar_worst_time(c, facts)
-        if r.verdict == FAIL and r.worst_time_s is not None:
-            r.violations_s = [r.worst_time_s]
-            r.message += f" (at t = {r.worst_time_s:.3f} s)"
+        r.worst_time_s = yield from scalar_worst_time(c, measures)
+    except MissingData:
+        return r
+    if r.verdict == FAIL and r.worst_time_s is not None:
+        r.violations_s = [r.worst_time_s]
+        r.message += f" (at t = {r.worst_time_s:.3f} s)"
     return r
 
 
+def _scalar(c: Criterion, facts: Facts) -> tuple[CriterionResult, str | None]:
+    """The result, and the channel to read for its sample's time (or None)."""
+    r = evaluate_scalar(c, facts.measures)
+    if r.worst_time_s is None and r.value is not None:
+        if c.target == "settle_time_s":
+            v = facts.measures.get("settle_time_s")
+            r.worst_time_s = float(v) if isinstance(v, int | float) else None
+            if r.verdict == FAIL and r.worst_time_s is not None:
+                r.violations_s = [r.worst_time_s]
+                r.message += f" (at t = {r.worst_time_s:.3f} s)"
+        elif c.target in WORST_SAMPLE and (facts.channel or facts.blocks) is not None:
+            return r, WORST_SAMPLE[c.target][0]
+    return r, None
+
+
 EVALUATORS: dict[str, Callable[[Criterion, Facts], CriterionResult]] = {
-    "scalar": _scalar,
-    "channel": evaluate_channel,
-    "settles": evaluate_settles,
     "baseline": evaluate_baseline,
     "fault": evaluate_fault,
     "left_safe": evaluate_left_safe,
 }
+"""The forms judged from whole data; ``scalar``, ``channel`` and ``settles`` stream."""
+STREAMED: dict[str, Callable[[Criterion, Mapping[str, Any]], Consumer]] = {
+    "channel": evaluate_channel,
+    "settles": evaluate_settles,
+}
+
+
+@dataclass
+class _Reader:
+    """One criterion reading a channel: how to start it, and its consumer while running."""
+
+    index: int
+    criterion: Criterion
+    start: Callable[[], Consumer]
+    gen: Consumer | None = None
 
 
 def evaluate(criteria: Sequence[Criterion], facts: Facts) -> list[CriterionResult]:
-    """Every criterion; missing data gives that criterion ERROR (never an exception)."""
-    out = []
-    for c in criteria:
+    """Every criterion; missing data gives that criterion ERROR (never an exception). The
+    criteria that read channels are judged in one pass over the recording's blocks
+    (``facts.blocks``; or each ``facts.channel`` whole, as one block), in bounded memory."""
+    out: list[CriterionResult | None] = [None] * len(criteria)
+    readers: dict[str, list[_Reader]] = {}
+    for i, c in enumerate(criteria):
         try:
-            out.append(EVALUATORS[c.kind](c, facts))
+            if c.kind == "scalar":
+                r, entity = _scalar(c, facts)
+                out[i] = r
+                if entity is not None:
+                    readers.setdefault(entity, []).append(_Reader(
+                        i, c, lambda c=c, r=r: _scalar_consumer(c, facts.measures, r)))
+            elif c.kind in STREAMED:
+                if facts.channel is None and facts.blocks is None:
+                    raise MissingData(f"no recording to read {c.target} from")
+                readers.setdefault(c.target, []).append(_Reader(
+                    i, c, lambda c=c: STREAMED[c.kind](c, facts.measures)))
+            else:
+                out[i] = EVALUATORS[c.kind](c, facts)
         except MissingData as exc:
-            out.append(_error(c, f"missing data: {exc}"))
-    return out
+            out[i] = _error(c, f"missing data: {exc}")
+    if readers:
+        _read_channels(readers, facts, out)
+    assert all(r is not None for r in out)
+    return out  # type: ignore[return-value]
+
+
+def _send(rd: _Reader, blk: Block | None, out: list[CriterionResult | None]) -> None:
+    if rd.gen is None:
+        return
+    try:
+        rd.gen.send(blk)
+    except StopIteration as stop:
+        out[rd.index], rd.gen = stop.value, None
+    except MissingData as exc:
+        out[rd.index], rd.gen = _error(rd.criterion, f"missing data: {exc}"), None
+
+
+def _throw(rd: _Reader, exc: MissingData, out: list[CriterionResult | None]) -> None:
+    if rd.gen is None:
+        return
+    try:
+        rd.gen.throw(exc)
+    except StopIteration as stop:
+        out[rd.index] = stop.value
+    except MissingData as err:
+        out[rd.index] = _error(rd.criterion, f"missing data: {err}")
+    rd.gen = None
+
+
+def _whole_blocks(facts: Facts, entities: list[str]) -> Iterator[tuple[str, np.ndarray,
+                                                                       np.ndarray]]:
+    assert facts.channel is not None
+    for e in entities:
+        try:
+            t, x = facts.channel(e)
+        except (KeyError, ValueError, OSError):
+            continue  # not seen: the reader asks again for the message
+        yield e, t, x
+
+
+def _read_channels(readers: dict[str, list[_Reader]], facts: Facts,
+                   out: list[CriterionResult | None]) -> None:
+    """Feeds every reader its channel's blocks in one pass. A channel whose blocks go back
+    in time is judged again from the whole channel, sorted (as read whole)."""
+    for rds in readers.values():
+        for rd in rds:
+            rd.gen = _started(rd.start())
+    last: dict[str, float] = {}
+    unordered: set[str] = set()
+    blocks = facts.blocks(sorted(readers)) if facts.blocks is not None \
+        else _whole_blocks(facts, sorted(readers))
+    try:
+        for e, t, x in blocks:
+            if e not in readers or e in unordered:
+                continue
+            if len(t) and (t[0] < last.get(e, -math.inf) or bool(np.any(np.diff(t) < 0))):
+                unordered.add(e)
+                warnings.warn(f"{e}: recorded blocks not in time order; judged from the "
+                              "whole channel", stacklevel=2)
+                continue
+            if len(t):
+                last[e] = float(t[-1])
+            for rd in readers[e]:
+                _send(rd, (t, x), out)
+    except MissingData as exc:  # the recording cannot be read (any more)
+        for rds in readers.values():
+            for rd in rds:
+                _throw(rd, exc, out)
+        return
+    for e, rds in readers.items():
+        if e in last and e not in unordered:
+            for rd in rds:
+                _send(rd, None, out)
+            continue
+        try:  # not seen in the pass (or out of order): the channel whole, or why not
+            if facts.channel is None:
+                raise KeyError(f"no channel {e}")
+            t, x = facts.channel(e)
+        except (KeyError, ValueError, OSError) as exc:
+            err = MissingData(f"channel {e} not readable: {exc}")
+            for rd in rds:
+                _throw(rd, err, out)
+            continue
+        except MissingData as err:
+            for rd in rds:
+                _throw(rd, err, out)
+            continue
+        for rd in rds:
+            if e in unordered:
+                rd.gen = _started(rd.start())
+            _send(rd, (t, x), out)
+            _send(rd, None, out)
 
 
 def run_checks(criteria: Sequence[Criterion], measures: Mapping[str, Any]

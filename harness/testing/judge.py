@@ -13,7 +13,7 @@ import importlib.metadata
 import json
 import subprocess
 import sys
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,7 +33,6 @@ from harness.testing.evaluate import (
     run_checks,
     worst_verdict,
 )
-from harness.testing.measures import WORST_SAMPLE
 from rig_models.schema import ConfigError
 
 APPLICATION_ID = "sgsrt-harness"  # as harness.recording's (same recording in the viewer)
@@ -118,30 +117,40 @@ def identity_of(run_dir: Path, cfg: Mapping[str, Any], summary: Mapping[str, Any
 
 
 # ----------------------------------------------------------------------------- readers
+def _scalars(chunk: Any, wanted: set[str] | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """(time s, values) of a chunk of a scalar channel on the ``time`` timeline, or None."""
+    if chunk.is_static or "time" not in chunk.timeline_names or (
+            wanted is not None and chunk.entity_path not in wanted):
+        return None
+    batch = chunk.to_record_batch()
+    if "Scalars:scalars" not in batch.schema.names:
+        return None
+    t = batch.column("time").cast("int64").to_numpy(zero_copy_only=False) * 1e-9
+    col = batch.column("Scalars:scalars")
+    flat = col.flatten().to_numpy(zero_copy_only=False).astype(float)
+    if len(flat) != len(t):  # not one scalar per row: take each row's first
+        flat = np.array([x[0] if x else np.nan for x in col.to_pylist()], dtype=float)
+    return t, flat
+
+
+def _chunks(rrd: Path, wanted: set[str] | None) -> Any:
+    from harness.recording_reader import iter_chunks  # lazy, quiet on footer-less files
+
+    return iter_chunks(rrd, content=sorted(wanted)) if wanted is not None \
+        else iter_chunks(rrd, drop="/bus/**")
+
+
 def read_channels(rrd: Path, wanted: set[str] | None = None
                   ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """The scalar channels of a recording on the ``time`` timeline (``wanted`` ones, or
-    all), in one pass."""
-    from harness.recording_reader import iter_chunks  # lazy, quiet on footer-less files
-
+    all), in one pass, each whole."""
     parts: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
-    chunks = iter_chunks(rrd, content=sorted(wanted)) if wanted is not None \
-        else iter_chunks(rrd, drop="/bus/**")
-    for chunk in chunks:
-        if chunk.is_static or "time" not in chunk.timeline_names or (
-                wanted is not None and chunk.entity_path not in wanted):
+    for chunk in _chunks(rrd, wanted):
+        if (tx := _scalars(chunk, wanted)) is None:
             continue
-        batch = chunk.to_record_batch()
-        if "Scalars:scalars" not in batch.schema.names:
-            continue
-        t = batch.column("time").cast("int64").to_numpy(zero_copy_only=False) * 1e-9
-        col = batch.column("Scalars:scalars")
-        flat = col.flatten().to_numpy(zero_copy_only=False).astype(float)
-        if len(flat) != len(t):  # not one scalar per row: take each row's first
-            flat = np.array([x[0] if x else np.nan for x in col.to_pylist()], dtype=float)
         ts, vs = parts.setdefault(chunk.entity_path, ([], []))
-        ts.append(t)
-        vs.append(flat)
+        ts.append(tx[0])
+        vs.append(tx[1])
     out = {}
     for entity, (ts, vs) in parts.items():
         t, v = np.concatenate(ts), np.concatenate(vs)
@@ -151,7 +160,8 @@ def read_channels(rrd: Path, wanted: set[str] | None = None
 
 
 class ChannelCache:
-    """Reads a recording once, on first use (only ``wanted`` channels if given)."""
+    """Reads a recording once, on first use (only ``wanted`` channels if given), each
+    channel whole (a baseline run's)."""
 
     def __init__(self, rrd: Path, wanted: set[str] | None = None) -> None:
         self.rrd = rrd
@@ -160,16 +170,52 @@ class ChannelCache:
 
     def __call__(self, entity: str) -> tuple[np.ndarray, np.ndarray]:
         if self._data is None:
-            if not self.rrd.is_file():
-                raise MissingData(f"{self.rrd} does not exist")
-            try:
-                self._data = read_channels(self.rrd, self.wanted)
-            except Exception as exc:  # a damaged recording: rerun raises various kinds
-                raise MissingData(f"{self.rrd}: cannot read ({type(exc).__name__}: {exc})"
-                                  ) from exc
+            self._data = _read(self.rrd, self.wanted)
         if entity not in self._data:
             raise KeyError(f"{self.rrd.name} has no channel {entity}")
         return self._data[entity]
+
+
+def _read(rrd: Path, wanted: set[str] | None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    if not rrd.is_file():
+        raise MissingData(f"{rrd} does not exist")
+    try:
+        return read_channels(rrd, wanted)
+    except Exception as exc:  # a damaged recording: rerun raises various kinds
+        raise MissingData(f"{rrd}: cannot read ({type(exc).__name__}: {exc})") from exc
+
+
+class ChannelSource:
+    """The run's recording for the judge: ``blocks`` streams the channels asked for in one
+    pass, a chunk at a time (memory bounded by a chunk, whatever the run's length);
+    ``__call__`` reads one channel whole (a baseline criterion's own run, or a channel whose
+    chunks are not in time order)."""
+
+    def __init__(self, rrd: Path) -> None:
+        self.rrd = rrd
+        self._seen: set[str] | None = None  # the channels the last pass found
+
+    def blocks(self, entities: list[str]) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
+        if not self.rrd.is_file():
+            raise MissingData(f"{self.rrd} does not exist")
+        wanted, seen = set(entities), set()
+        try:
+            for chunk in _chunks(self.rrd, wanted):
+                if (tx := _scalars(chunk, wanted)) is not None:
+                    seen.add(chunk.entity_path)
+                    yield chunk.entity_path, tx[0], tx[1]
+        except Exception as exc:  # a damaged recording: rerun raises various kinds
+            raise MissingData(f"{self.rrd}: cannot read ({type(exc).__name__}: {exc})"
+                              ) from exc
+        self._seen = seen
+
+    def __call__(self, entity: str) -> tuple[np.ndarray, np.ndarray]:
+        if self._seen is not None and entity not in self._seen:
+            raise KeyError(f"{self.rrd.name} has no channel {entity}")
+        data = _read(self.rrd, {entity})
+        if entity not in data:
+            raise KeyError(f"{self.rrd.name} has no channel {entity}")
+        return data[entity]
 
 
 class BaselineCache:
@@ -291,11 +337,11 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
     for name in ("run.rrd", "can.blf"):
         if not (run_dir / name).is_file():
             results.append(_missing(name, f"no {name} in the run directory"))
-    wanted = {c.target for c in criteria if c.kind in ("channel", "settles", "baseline")}
-    wanted |= {WORST_SAMPLE[c.target][0] for c in criteria
-               if c.kind == "scalar" and c.target in WORST_SAMPLE}
-    facts = Facts(summary, ChannelCache(run_dir / "run.rrd", wanted), BaselineCache(wanted),
-                  lambda: left_safe_problems(run_dir / "can.blf"))
+    # a baseline run's channels are read whole: only those its criteria compare
+    wanted = {c.target for c in criteria if c.kind == "baseline"}
+    source = ChannelSource(run_dir / "run.rrd")
+    facts = Facts(summary, source, BaselineCache(wanted),
+                  lambda: left_safe_problems(run_dir / "can.blf"), source.blocks)
     note = ""
     if summary.get("dry_run"):  # nothing was commanded: only the safe state and the checks
         criteria = [c for c in criteria if c.kind == "left_safe"]
