@@ -128,6 +128,7 @@ def main() -> int:
     h: dict[str, Any] = {"ticks": 0, "overruns": 0, "episodes": 0, "missing": 0,
                          "missing_on_time": 0,
                          "missing_both": 0, "missing_rig_slow": 0, "slow_answers": [],
+                         "missing_preempted": 0,
                          "rig_syncs": 0, "rig_not_held": 0,
                          "rig_wake_p99_ms": 0.0, "rig_wake_max_ms": 0.0,
                          "rig_work_p99_ms": 0.0,
@@ -155,6 +156,7 @@ def main() -> int:
                     h["missing_both"] += fr.get("missing_in_ticks_held_by_both",
                                                 st.missing_frames_on_time)
                     h["missing_rig_slow"] += fr.get("missing_rig_answered_after_window", 0)
+                    h["missing_preempted"] += fr.get("missing_in_ticks_rig_preempted", 0)
                     rt = s.get("virtual_rig_timing") or {}
                     if rt:
                         h["rig_syncs"] += rt["syncs"]
@@ -230,6 +232,8 @@ def main() -> int:
           f"{h_work.percentiles_ms()['p50']:.3f} | |")
     print(f"| telemetry frames missing (in ticks the loop held; and the rig too) | | "
           f"{h['missing']} ({h['missing_on_time']}; {h['missing_both']}) | |")
+    print(f"| of those in ticks the loop held: the rig's answer preempted by the host (its "
+          f"thread ran less than half the time) | | {h['missing_preempted']} | |")
     print(f"| of those in ticks both held: the rig answered after the loop stopped waiting | "
           f"| {h['missing_rig_slow']} | |")
     if h["rig_syncs"]:
@@ -247,9 +251,10 @@ def main() -> int:
               f"{mem['peak_mb']:.1f}; overruns {mem['overruns']} / {mem['ticks']}, "
               f"missing frames {mem['missing_frames']} ({mem['missing_in_ticks_on_time']}; "
               f"{mem['missing_in_ticks_held_by_both']}) | |")
-    for pair, tick, wake, work in h["slow_answers"][:10]:
-        print(f"  pair {pair}, tick {tick}: the rig woke {wake:.3f} ms after the SYNC and "
-              f"took {work:.3f} ms to answer")
+    for pair, tick, wake, work, *ran in h["slow_answers"][:10]:
+        cpu = f" (its thread ran {ran[0]:.3f} ms of it)" if ran and ran[0] >= 0 else ""
+        print(f"  late answer: pair {pair}, tick {tick}: the rig woke {wake:.3f} ms after the "
+              f"SYNC and took {work:.3f} ms to answer{cpu}")
     for k, v in crit.items():
         print(f"criterion {k}: " + ("not measured (--memory-run-s)" if v is None else
                                      "met" if v else "NOT met"))

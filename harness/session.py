@@ -191,28 +191,37 @@ def attribute_missing(miss_ticks: list[tuple[int, int, float]], missing_on_time:
 
     - ``missing_in_ticks_host_delayed``: the host's delays of the tick (the loop's lateness
       plus the rig's wake-up) reached ``RIG_HELD_FRACTION`` of a period, the rule the loop
-      applies to its own lateness: the host's;
+      applies to its own lateness; or the rig answered after the loop stopped waiting and
+      its thread ran less than half of its answer's wall time (the host took the CPU away:
+      ``missing_in_ticks_rig_preempted`` of them): the host's;
     - ``missing_in_ticks_held_by_both``: the rest, the harness's own; of those
       ``missing_rig_answered_after_window`` were sent by the rig after the loop stopped
-      waiting (``rig_answers_after_window_ms`` lists the first ones' [tick, wake, work]),
+      waiting (``rig_answers_after_window_ms`` lists the first late answers' [tick, wake,
+      work, work's CPU time] in ms, the host's preempted ones too),
       the others were sent in time and still not read in the tick (the transport or the
       loop).
 
     Frames beyond the ticks kept by tick (``MAX_MISS_TICKS``) or the rig's late list are
     counted as the harness's."""
-    late = {int(row[0]): (row[1] * 1e-3, (row[2] if len(row) > 2 else 0.0) * 1e-3)
-            for row in late_syncs}
-    host = answered_late = 0
+    late = {int(row[0]): (row[1] * 1e-3, (row[2] if len(row) > 2 else 0.0) * 1e-3,
+                          (row[3] if len(row) > 3 else -1.0) * 1e-3) for row in late_syncs}
+    host = preempted = answered_late = 0
     examples: list[list[float]] = []
     for tick, n, lateness in miss_ticks:
-        wake, work = late.get(tick, (0.0, 0.0))
+        wake, work, ran = late.get(tick, (0.0, 0.0, -1e-3))
         if lateness + wake >= RIG_HELD_FRACTION * dt_s:
             host += n
         elif wake + work >= (1.0 - RESERVE_FRACTION) * dt_s - lateness:
-            answered_late += n
             if len(examples) < 10:
-                examples.append([tick, round(wake * 1e3, 3), round(work * 1e3, 3)])
+                examples.append([tick, round(wake * 1e3, 3), round(work * 1e3, 3),
+                                 round(ran * 1e3, 3)])
+            if 0.0 <= ran < 0.5 * work:
+                host += n
+                preempted += n
+            else:
+                answered_late += n
     return {"missing_in_ticks_host_delayed": host,
+            "missing_in_ticks_rig_preempted": preempted,
             "missing_in_ticks_held_by_both": missing_on_time - host,
             "missing_rig_answered_after_window": answered_late,
             "rig_answers_after_window_ms": examples}
@@ -504,6 +513,7 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
             # split by a rig process's SYNC timing (attribute_missing); without it (the rig
             # as a thread, lockstep, a real rig) every such frame counts as the harness's
             "missing_in_ticks_host_delayed": 0,
+            "missing_in_ticks_rig_preempted": 0,
             "missing_in_ticks_held_by_both": stats.missing_frames_on_time,
             "missing_rig_answered_after_window": 0,
             "error_frames": interface.counters.error_frames,

@@ -61,8 +61,10 @@ class SyncTiming:
     latency on the rig's CPU plus the transport. ``work``: from then to the last telemetry
     frame sent (the rig's own physics and codecs). Both in 10 us bins up to 0.5 s (exact
     maximum kept); SYNCs answered (wake + work) later than ``late_s`` are kept as (tick,
-    wake, work), the first ``max_late`` of them (the count stays exact), so the harness can
-    tell a telemetry frame the host kept back from one the rig was too slow to send.
+    wake, work, work's CPU time: how long this thread actually ran during it), the first
+    ``max_late`` of them (the count stays exact), so the harness can tell a telemetry frame
+    the host kept back (a late wake-up, or the CPU taken away during the answer) from one
+    the rig was too slow to send.
     """
 
     BIN_S = 10e-6
@@ -77,12 +79,12 @@ class SyncTiming:
         self.work_max_s = 0.0
         self.syncs = 0
         self.late_count = 0
-        self.late: list[tuple[int, float, float]] = []
+        self.late: list[tuple[int, float, float, float]] = []
 
     def _bin(self, v: float) -> int:
         return min(self.N_BINS, max(0, int(v / self.BIN_S)))
 
-    def add(self, tick: int, wake_s: float, work_s: float) -> None:
+    def add(self, tick: int, wake_s: float, work_s: float, work_cpu_s: float = -1.0) -> None:
         self.syncs += 1
         self.wake[self._bin(wake_s)] += 1
         self.work[self._bin(work_s)] += 1
@@ -91,7 +93,7 @@ class SyncTiming:
         if wake_s + work_s > self.late_s:
             self.late_count += 1
             if len(self.late) < self.max_late:
-                self.late.append((tick, wake_s, work_s))
+                self.late.append((tick, wake_s, work_s, work_cpu_s))
 
     def _percentiles_ms(self, hist: np.ndarray, vmax: float) -> dict[str, float]:
         n = int(hist.sum())
@@ -109,7 +111,8 @@ class SyncTiming:
                 "work_ms": self._percentiles_ms(self.work, self.work_max_s),
                 "late_threshold_ms": round(self.late_s * 1e3, 3),
                 "late_syncs": self.late_count,
-                "late": [[t, round(w * 1e3, 3), round(k * 1e3, 3)] for t, w, k in self.late]}
+                "late": [[t, round(w * 1e3, 3), round(k * 1e3, 3), round(c * 1e3, 3)]
+                         for t, w, k, c in self.late]}
 
 
 @dataclass
@@ -232,15 +235,16 @@ class VirtualRig:
         sync_id = self.protocol["SYNC"].frame_id
         collect = not gc.isenabled()
         next_collect = time.monotonic() + 1.0
-        clock = time.time
+        clock, cpu = time.time, time.thread_time
         while not stop():
             msg = self.bus.recv(poll_s)
             if msg is not None:
                 if msg.arbitration_id == sync_id and not msg.is_error_frame:
-                    woke = clock()
+                    woke, ran = clock(), cpu()
                     self.handle(msg)
                     if timing is not None and msg.timestamp > 0:
-                        timing.add(self.tick, woke - msg.timestamp, clock() - woke)
+                        timing.add(self.tick, woke - msg.timestamp, clock() - woke,
+                                   cpu() - ran)
                     if collect and time.monotonic() > next_collect:
                         gc.collect(1)
                         next_collect = time.monotonic() + 1.0

@@ -59,6 +59,7 @@ SUMMARY_MEASURES: dict[str, str] = {
     "frames.missing_in_ticks_on_time": "count",
     "overrun_episodes": "count",
     "frames.missing_in_ticks_host_delayed": "count",
+    "frames.missing_in_ticks_rig_preempted": "count",
     "frames.missing_in_ticks_held_by_both": "count",
     "frames.missing_rig_answered_after_window": "count",
     "frames.error_frames": "count",
