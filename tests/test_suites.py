@@ -302,8 +302,13 @@ def test_interrupt_stops_the_runs_at_a_tick_and_exits_130(tmp_path):
     deadline = time.monotonic() + 120
     while not list(out.glob("*-long/*-slew-rw-*/run.rrd")) and time.monotonic() < deadline:
         time.sleep(0.2)
+    time.sleep(1.0)  # the suite is past collection and waiting for its jobs
     proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
+    try:
+        _, err = proc.communicate(timeout=10)
+    except subprocess.TimeoutExpired:  # a loaded machine lost the first: Ctrl-C again
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err[-2000:]
     folder = suite_dir_of(out, "long")
     summaries = [json.loads(p.read_text()) for p in folder.glob("*/summary.json")]
