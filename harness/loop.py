@@ -84,6 +84,10 @@ RESERVE_FRACTION = 0.3
 left (for the controller, the commands and the recording): a frame that comes later is
 missing for its tick."""
 
+HELD_FRACTION = 0.5
+"""A tick is held when it starts less than this fraction of the period late and does not
+overrun (the host's delays of a rig process's answer are judged by the same rule)."""
+
 MAX_MISS_TICKS = 20_000
 """Ticks with frames missing though the loop held them, kept by tick (the count is exact)."""
 
@@ -156,7 +160,7 @@ def run_loop(
             if overrun:
                 stats.overruns += 1
                 stats.overrun_episodes += not prev_overrun
-            elif missing > 0 and lateness < 0.5 * dt_s:
+            elif missing > 0 and lateness < HELD_FRACTION * dt_s:
                 stats.missing_frames_on_time += missing
                 if len(stats.missing_on_time_ticks) < MAX_MISS_TICKS:
                     stats.missing_on_time_ticks.append((tick, missing, lateness))

@@ -26,7 +26,7 @@ from harness.bus import BusSpec, open_bus, parse_bus
 from harness.busload import compute_bus_load
 from harness.can_log import CanLog
 from harness.clock import LockstepClock, RealTimeClock, RealTimeSetup, choose_cpus
-from harness.loop import CHANNELS, RESERVE_FRACTION, LoopStats, run_loop
+from harness.loop import CHANNELS, HELD_FRACTION, RESERVE_FRACTION, LoopStats, run_loop
 from harness.monitor import FaultMonitor, MonitorWarning
 from harness.paths import safe_child, safe_name
 from harness.periodic import steady_state_amplitude
@@ -172,11 +172,10 @@ def execute_run(
         return result
 
 
-RIG_HELD_FRACTION = 0.5
+RIG_HELD_FRACTION = HELD_FRACTION
 """The host held a tick for the loop and the rig process when its delays of the tick (the
 loop's lateness plus the rig's wake-up after the SYNC) stayed below this fraction of the
-period: the rule the loop applies to itself (a tick is held when it starts less than half
-a period late and does not overrun)."""
+period: the loop's own rule for its lateness (``harness.loop.HELD_FRACTION``)."""
 
 
 def attribute_missing(miss_ticks: list[tuple[int, int, float]], missing_on_time: int,
