@@ -64,7 +64,7 @@ def bench_warnings(repeats: int, out: Path, n_calls: int = 200_000) -> dict[str,
     the warning checks alone (``FaultMonitor._warnings`` on a run's interface, state within
     every threshold) in microseconds per tick against the run's wall time per tick."""
     from drivers.dbc import load_protocol
-    from harness.rig_interface import RigInterface
+    from harness.bus.rig_interface import RigInterface
     from harness.session import make_monitor
     from harness.state import RigCommand, RigState
 

@@ -7,7 +7,7 @@ Options (slew-rw at 500 Hz on the virtual bus, real-time measures on unless said
   process-tcp       the rig in its own process over socketcand (TCP loopback), pinned to
                     the other CPU at SCHED_FIFO 49
   process-tcp-free  the same, nothing pinned (CPU affinity off for loop and rig)
-  process-unix      the rig in its own process over a Unix-domain socket (harness.unixbus),
+  process-unix      the rig in its own process over a Unix-domain socket (harness.bus.unix),
                     pinned to the other CPU at SCHED_FIFO 49
   process-unix-free the same, nothing pinned
 

@@ -16,9 +16,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from harness.bus.rig_interface import RigInterface
 from harness.clock import LockstepClock, RealTimeClock
 from harness.recording import Recorder
-from harness.rig_interface import RigInterface
 from harness.state import RigCommand
 from harness.streaming import LatencyHistogram
 

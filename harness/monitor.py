@@ -56,7 +56,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from harness.rig_interface import RigInterface
+from harness.bus.rig_interface import RigInterface
 from harness.state import RigCommand, RigState
 from rig_models.schema import Field
 

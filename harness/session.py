@@ -23,7 +23,9 @@ import yaml
 
 from drivers.dbc import load_protocol
 from harness.bus import BusSpec, open_bus, parse_bus
-from harness.busload import compute_bus_load
+from harness.bus.load import compute_bus_load
+from harness.bus.rig_interface import RigInterface
+from harness.bus.rig_process import RigProcess
 from harness.can_log import CanLog
 from harness.clock import LockstepClock, RealTimeClock, RealTimeSetup, choose_cpus
 from harness.loop import CHANNELS, HELD_FRACTION, RESERVE_FRACTION, LoopStats, run_loop
@@ -35,8 +37,6 @@ from harness.recording_reader import RecordedColumns
 from harness.review.bus import write_bus
 from harness.review.events import log_event
 from harness.review.layouts import PlotStats, layout_for_run, write_layout_file
-from harness.rig_interface import RigInterface
-from harness.rig_process import RigProcess
 from harness.runs import RunConfig, build_controller
 from harness.streaming import RunningSummary
 from rig_models.faults import FaultSpec

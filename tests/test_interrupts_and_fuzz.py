@@ -15,7 +15,7 @@ from rerun.chunk import RrdReader
 
 from drivers.dbc import load_protocol
 from harness.bus import CopyingVirtualBus
-from harness.rig_interface import RigInterface
+from harness.bus.rig_interface import RigInterface
 from rig_models.rig_file import load_rig
 from rig_models.virtual_rig import VirtualRig
 

@@ -9,10 +9,10 @@ import can
 import pytest
 
 from harness.bus import parse_bus
+from harness.bus.unix import UnixCanBus, UnixCanServerBus
 from harness.clock import RealTimeClock, RealTimeSetup
 from harness.runs import load_run
 from harness.session import REALTIME_RIG_DEFAULT, execute_run, virtual_rig_mode
-from harness.unixbus import UnixCanBus, UnixCanServerBus
 from rig_models.faults import make_fault
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from harness.rig_process import fault_argument
+from harness.bus.rig_process import fault_argument
 from harness.runs import load_run
 from harness.session import RunRefused, execute_run
 from rig_models.faults import make_fault, parse_fault

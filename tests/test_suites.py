@@ -320,7 +320,7 @@ def test_interrupt_stops_the_runs_at_a_tick_and_exits_130(tmp_path):
 def test_real_bus_refuses_when_the_probe_fails(tmp_path):
     """A rig in its own process whose hub sensor is silent: the pre-flight probe fails, no
     test arms anything (no run directory), every test is an error naming the probe."""
-    from harness.rig_process import RigProcess
+    from harness.bus.rig_process import RigProcess
     from rig_models.faults import parse_fault
     from rig_models.rig_file import load_rig
 
@@ -346,7 +346,7 @@ def test_real_bus_runs_one_at_a_time_after_a_good_probe(tmp_path):
     """A healthy rig in its own process (socketcand on 127.0.0.1) as the 'real' bus: the
     probe passes, the runs go over that bus on the real-time clock, inline, and the
     fault-injection test is skipped."""
-    from harness.rig_process import RigProcess
+    from harness.bus.rig_process import RigProcess
     from rig_models.rig_file import load_rig
 
     suite = tmp_path / "on-rig.yaml"

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from drivers.dbc import load_protocol
-from harness.busload import compute_bus_load
+from harness.bus.load import compute_bus_load
 from harness.identification.cramer_rao import DampedMode, cramer_rao_bound
 from rig_models.rig_file import RIGS_DIR, RigConfig, rig_path
 from rig_models.schema import ConfigError

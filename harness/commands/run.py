@@ -9,8 +9,8 @@ import traceback
 from pathlib import Path
 
 from harness.bus import BusSpecError
+from harness.bus.rig_process import RigProcessError
 from harness.interrupts import StopRequest, stop_on_signals
-from harness.rig_process import RigProcessError
 from harness.runs import load_run
 from harness.session import RunRefused, execute_run
 from harness.testing import JudgeInputError, format_block, judge_run, write_verdict

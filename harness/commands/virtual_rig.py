@@ -24,7 +24,7 @@ from rig_models.virtual_rig import SyncTiming, VirtualRig
 
 TIMING_PREFIX = "harness virtual-rig: timing "
 """The line (then JSON) on stderr at exit with the SYNC timing (``SyncTiming``) and the
-real-time measures this process took; ``harness.rig_process`` reads it back from rig.log."""
+real-time measures this process took; ``harness.bus.rig_process`` reads it back from rig.log."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -60,7 +60,7 @@ def cmd_virtual_rig(args: argparse.Namespace) -> int:
             bus = SocketcandServerBus(host="127.0.0.1", port=args.serve_socketcand)
             where = f"socketcand:127.0.0.1:{bus.port}"
         elif args.serve_unix is not None:
-            from harness.unixbus import UnixCanServerBus
+            from harness.bus.unix import UnixCanServerBus
 
             bus = UnixCanServerBus(args.serve_unix)
             where = f"unix:{args.serve_unix}"

@@ -74,7 +74,7 @@ def private_channel() -> str:
 
 def _run(case: Case, out_dir: Path, bus: str | None) -> tuple[dict[str, Any], Path | None]:
     from harness.bus import BusSpecError, parse_bus
-    from harness.rig_process import RigProcessError
+    from harness.bus.rig_process import RigProcessError
     from harness.runs import load_run
     from harness.session import RunRefused, execute_run
     from rig_models.schema import ConfigError
@@ -144,8 +144,8 @@ def _modes_table(ident: dict[str, Any]) -> list[dict[str, Any]]:
 def run_probe(opts: dict[str, Any], bus: str | None, rig: str = "sgsrt") -> dict[str, Any]:
     """The pre-flight probe (``harness probe``) as a JSON document."""
     from harness.bus import open_bus, parse_bus
+    from harness.bus.probe import probe
     from harness.commands.probe import to_dict
-    from harness.probe import probe
     from rig_models.rig_file import load_rig
     from rig_models.virtual_rig import VirtualRig
 

@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 import can
 
 from drivers.dbc import load_protocol
+from harness.bus.rig_interface import RigInterface
 from harness.clock import LockstepClock, RealTimeClock
-from harness.rig_interface import RigInterface
 from rig_models.rig_file import RigConfig
 
 HEARTBEAT_HZ = 20.0

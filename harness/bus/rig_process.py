@@ -60,7 +60,7 @@ class RigProcess:
                  faults: list[FaultSpec] | None = None, lifetime_s: float = 0.0,
                  transport: str = "tcp", cpu: int | None = None, priority: int = 0,
                  realtime: bool = False) -> None:
-        """``transport`` "tcp" (socketcand on 127.0.0.1) or "unix" (``harness.unixbus``);
+        """``transport`` "tcp" (socketcand on 127.0.0.1) or "unix" (``harness.bus.unix``);
         ``cpu`` pins the rig process, ``priority`` > 0 asks SCHED_FIFO for it (both set
         from here once it runs; what was granted or refused is in ``measures``);
         ``realtime`` makes the process lock its memory and run its collector in the slack

@@ -1,10 +1,21 @@
-"""Opening the CAN bus named by ``--bus INTERFACE:CHANNEL`` or a run file.
+"""The bus side: frames, not physics.
+
+This package opens the bus (here), carries frames over a Unix-domain socket (``unix``),
+measures bus load (``load``), puts every device driver on one bus (``rig_interface``), runs
+the virtual rig as its own process (``rig_process``) and checks the rig before a run
+(``probe``). It may import ``drivers``, ``rig_models``, ``harness.state`` and
+``harness.record.can_log`` (the interface logs every frame); never ``harness.core``'s
+session or loop. Two edges against that direction remain: ``probe`` ticks with
+``harness.core.clock`` and ``rig_process`` takes a line prefix from
+``harness.commands.virtual_rig`` (both lazy or leaf modules, no import cycle).
+
+Opening the CAN bus named by ``--bus INTERFACE:CHANNEL`` or a run file.
 
 Accepted: ``virtual:NAME`` (python-can's in-process bus; the default, what CI uses),
 ``socketcan:vcan0`` / ``socketcan:can0`` (Linux lab machines), and
 ``socketcand:HOST:PORT`` (a virtual rig in its own process serving socketcand on loopback)
 and ``unix:NAME`` (a virtual rig in its own process on a Unix-domain socket of this machine,
-``harness.unixbus``).
+``harness.bus.unix``).
 python-can's ``udp_multicast`` interface is refused: it sends on the real network.
 """
 
@@ -165,7 +176,7 @@ def open_bus(spec: BusSpec, receive_own_messages: bool = False) -> can.BusABC:
             return can.Bus(interface="socketcan", channel=spec.channel,
                            receive_own_messages=receive_own_messages)
         if spec.interface == "unix":
-            from harness.unixbus import UnixCanBus
+            from harness.bus.unix import UnixCanBus
 
             return UnixCanBus(spec.channel)
         _quiet_socketcand_client()
