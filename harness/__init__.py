@@ -8,7 +8,7 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-# Recordings are written without an RRD footer on purpose (harness.recording: its manifest
+# Recordings are written without an RRD footer on purpose (harness.record.recording: its manifest
 # grows with the run); Rerun warns about that on every file. Only that module's warnings are
 # silenced, only when RUST_LOG is unset. Must precede rerun's import.
 os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd::file_sink=error")

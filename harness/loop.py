@@ -18,7 +18,7 @@ from typing import Any
 
 from harness.bus.rig_interface import RigInterface
 from harness.clock import LockstepClock, RealTimeClock
-from harness.recording import Recorder
+from harness.record.recording import Recorder
 from harness.state import RigCommand
 from harness.streaming import LatencyHistogram
 

@@ -26,14 +26,14 @@ from harness.bus import BusSpec, open_bus, parse_bus
 from harness.bus.load import compute_bus_load
 from harness.bus.rig_interface import RigInterface
 from harness.bus.rig_process import RigProcess
-from harness.can_log import CanLog
 from harness.clock import LockstepClock, RealTimeClock, RealTimeSetup, choose_cpus
 from harness.loop import CHANNELS, HELD_FRACTION, RESERVE_FRACTION, LoopStats, run_loop
 from harness.monitor import FaultMonitor, MonitorWarning
 from harness.paths import safe_child, safe_name
 from harness.periodic import steady_state_amplitude
-from harness.recording import Recorder
-from harness.recording_reader import RecordedColumns
+from harness.record.can_log import CanLog
+from harness.record.reader import RecordedColumns
+from harness.record.recording import Recorder
 from harness.review.bus import write_bus
 from harness.review.events import log_event
 from harness.review.layouts import PlotStats, layout_for_run, write_layout_file

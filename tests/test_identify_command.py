@@ -74,7 +74,7 @@ def test_the_long_free_decay_alone_gives_modes_1_and_2_only(free_decay):
 
 
 def test_identify_reads_a_csv(free_decay, tmp_path):
-    from harness.recording_reader import read_scalar_channel
+    from harness.record.reader import read_scalar_channel
 
     t, a = read_scalar_channel(free_decay.run_dir / "run.rrd", "/tip/accel_m_s2")
     csv = tmp_path / "decay.csv"

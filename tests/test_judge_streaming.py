@@ -326,13 +326,13 @@ print(json.dumps({"growth_kb": peak - base, "verdicts": second}))
 
 
 def _recorded_run(run_dir: Path, seconds: float) -> Path:
-    """A run directory with a recording of ``seconds`` at 500 Hz written as harness.recording
+    """A run directory with a recording of ``seconds`` at 500 Hz written as harness.record.recording
     writes a run's (blocks of 500 rows), and the criteria that read channels."""
     import json as json_
 
     import yaml
 
-    from harness.recording import Recorder
+    from harness.record.recording import Recorder
 
     run_dir.mkdir()
     expect = {

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from harness.monitor import WARNING_KINDS, FaultMonitor, Hysteresis, MonitorWarning
-from harness.recording_reader import read_scalar_channel
+from harness.record.reader import read_scalar_channel
 from harness.review.reader import entities, read_events, read_text
 from harness.runs import load_run
 from harness.session import execute_run

@@ -12,7 +12,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from harness.loop import CHANNELS
-from harness.recording import APPLICATION_ID
+from harness.record.recording import APPLICATION_ID
 from harness.review import layouts as L
 from harness.review.reader import entities, read_blueprints, read_events, read_text
 from harness.runs import load_run
@@ -150,7 +150,7 @@ def test_faulted_run_recording_holds_event_markers_summary_config_bus(faulted):
 
 
 def test_bus_frames_sit_at_their_tick(faulted):
-    from harness.recording_reader import read_scalar_channel
+    from harness.record.reader import read_scalar_channel
 
     t, tick = read_scalar_channel(faulted.run_dir / "run.rrd", "/bus/harness/sync/tick")
     dt = faulted.summary["rate_hz"] ** -1
@@ -197,7 +197,7 @@ def test_verdict_rrd_opens_with_the_runs_layout(faulted):
     key = sorted((v.name, v.kind, v.origin, v.contents) for v in ours)
     assert key == sorted((v.name, v.kind, v.origin, v.contents) for v in theirs)
     # its violation is marked on the plots at the run's values at 0.5 s
-    from harness.recording_reader import read_scalar_channel
+    from harness.record.reader import read_scalar_channel
     from harness.review.events import values_at
 
     t, angle = read_scalar_channel(verdict, "/markers/angle/verdict")
@@ -315,7 +315,7 @@ def test_judged_run_verdict_rrd_has_layout_events_and_markers(faulted, tmp_path)
 def test_realtime_bus_frames_at_their_receive_time(tmp_path):
     """On the real-time clock a frame sits at its own timestamp after the first SYNC: the
     SYNCs near their ticks (the clock's lateness), telemetry just after its SYNC."""
-    from harness.recording_reader import read_scalar_channel
+    from harness.record.reader import read_scalar_channel
 
     run = load_run("slew-rw", {"duration_s": 1.0})
     res = execute_run(run, out_dir=tmp_path, clock="realtime", show_progress=False)

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from harness.loop import CHANNELS
-from harness.recording_reader import read_scalar_channel
+from harness.record.reader import read_scalar_channel
 from harness.review import layouts as L
 from harness.review.names import SERIES_NAMES, series_name, strip_unit
 from harness.review.reader import read_series_names

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.can_log import CanLog, read_can_log
 from harness.loop import CHANNELS
-from harness.recording import Recorder
-from harness.recording_reader import RecordedColumns, read_scalar_channels
+from harness.record.can_log import CanLog, read_can_log
+from harness.record.reader import RecordedColumns, read_scalar_channels
+from harness.record.recording import Recorder
 from harness.streaming import LatencyHistogram, RunningSummary
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -27,7 +27,7 @@ from harness.controllers.thruster_slew import (
     rig_ppf_design_model,
     scaled_pd_gains,
 )
-from harness.recording_reader import read_scalar_channel
+from harness.record.reader import read_scalar_channel
 from harness.runs import build_controller, load_run
 from harness.state import RigState
 from harness.studies.hu2006_rig import (

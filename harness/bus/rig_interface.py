@@ -19,7 +19,7 @@ from drivers.hub_sensor import HubSensorDriver
 from drivers.piezo_amplifier import PiezoAmplifierDriver
 from drivers.reaction_wheel import ReactionWheelDriver
 from drivers.thruster_valves import ThrusterValvesDriver
-from harness.can_log import CanLog
+from harness.record.can_log import CanLog
 from harness.state import SAFE_COMMAND, RigCommand, RigState
 from rig_models.rig_file import RigConfig
 

@@ -48,7 +48,7 @@ import yaml
 
 from harness.identification.csv_input import read_accel_csv
 from harness.identification.windows import AnalysisWindow, MultiWindowResult, identify_windows
-from harness.recording_reader import read_scalar_channel
+from harness.record.reader import read_scalar_channel
 from rig_models.rig_file import rig_from_dict
 
 # Paper 003 Table 1 (rad/s), comparison only.

@@ -179,7 +179,7 @@ def summary_markdown(summary: Mapping[str, Any]) -> str:
 def values_at(rrd: Path, times_s: Sequence[float]) -> list[dict[str, float]]:
     """For each time, every plotted channel's recorded value at the last row at or before it
     (one streaming pass over the recording; memory bounded by the chunk size)."""
-    from harness.recording_reader import iter_chunks
+    from harness.record.reader import iter_chunks
 
     wanted = {c for p in PLOTS.values() for c in p.channels if not c.startswith("/bus/")}
     times = np.asarray(times_s, dtype=float)

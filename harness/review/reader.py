@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from harness.recording_reader import RrdReader, iter_chunks
+from harness.record.reader import RrdReader, iter_chunks
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from harness.identification.windows import MultiWindowResult
-from harness.recording import APPLICATION_ID
+from harness.record.recording import APPLICATION_ID
 from harness.review.layouts import blueprint_for_run_dir, layout_for_run, spectrum_views
 
 SPECTRUM_COLOUR = (40, 90, 180)

@@ -35,7 +35,7 @@ from harness.testing.evaluate import (
 )
 from rig_models.schema import ConfigError
 
-APPLICATION_ID = "sgsrt-harness"  # as harness.recording's (same recording in the viewer)
+APPLICATION_ID = "sgsrt-harness"  # as harness.record.recording's (same recording in the viewer)
 PACKAGE = "sgsrt-harness"
 
 
@@ -134,7 +134,7 @@ def _scalars(chunk: Any, wanted: set[str] | None) -> tuple[np.ndarray, np.ndarra
 
 
 def _chunks(rrd: Path, wanted: set[str] | None) -> Any:
-    from harness.recording_reader import iter_chunks  # lazy, quiet on footer-less files
+    from harness.record.reader import iter_chunks  # lazy, quiet on footer-less files
 
     return iter_chunks(rrd, content=sorted(wanted)) if wanted is not None \
         else iter_chunks(rrd, drop="/bus/**")

@@ -11,7 +11,7 @@ from rerun.chunk import RrdReader as _RrdReader
 
 def RrdReader(path: Path) -> _RrdReader:  # noqa: N802 - stands in for the class
     """Rerun's reader, without its warning on files written with no footer (ours are, on
-    purpose: harness.recording) or cut short by a SIGKILL; both are read by streaming."""
+    purpose: harness.record.recording) or cut short by a SIGKILL; both are read by streaming."""
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="RRD file has no footer")
         return _RrdReader(path)

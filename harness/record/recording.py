@@ -98,7 +98,7 @@ class Recorder:
         bp = blueprint or default_blueprint()
         # no RRD footer: writing one keeps a manifest entry per chunk in memory until the
         # file is closed (measured: ~1.2 MB per 100 000 rows, 0.5 GB for a day); the file
-        # stays a valid RRD, read by streaming (harness.recording_reader)
+        # stays a valid RRD, read by streaming (harness.record.reader)
         if live_view_url is None:
             self.rec.save(str(path), default_blueprint=bp, write_footer=False)
         else:
@@ -255,7 +255,7 @@ class Recorder:
 
     def column(self, channel: str) -> np.ndarray:
         """The retained tail of one channel (not the whole run: read run.rrd for that,
-        ``harness.recording_reader``)."""
+        ``harness.record.reader``)."""
         c = self.index[channel]
         parts = [b.data[:, c] for b in self._tail] + [self._data[: self._fill, c]]
         return np.concatenate(parts) if parts else np.zeros(0)

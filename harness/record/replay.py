@@ -45,7 +45,7 @@ import yaml
 from drivers.dbc import FrameCodec, FrameError, Protocol, load_protocol
 from harness.bus.rig_interface import RigInterface
 from harness.monitor import FaultEvent
-from harness.recording import Recorder
+from harness.record.recording import Recorder
 from harness.runs import RunConfig, build_controller, run_from_dict
 from harness.state import RigCommand, RigState
 from rig_models.rig_file import RigConfig, rig_from_dict
