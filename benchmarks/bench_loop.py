@@ -26,8 +26,8 @@ import numpy as np
 import scipy.signal as sig
 from scipy.integrate import solve_ivp
 
-from harness.runs import load_run
-from harness.session import execute_run
+from harness.core.runs import load_run
+from harness.core.session import execute_run
 from rig_models.rig_file import load_rig
 
 
@@ -41,7 +41,7 @@ def _stock_virtual_bus(spec, receive_own_messages: bool = False):  # noqa: ANN00
 def bench_lockstep(repeats: int, out: Path) -> dict[str, float]:
     """Our bus and python-can's stock VirtualBus, interleaved run by run so that the ratio is
     measured under the same machine load."""
-    import harness.session as session
+    import harness.core.session as session
 
     ours: list[float] = []
     stock: list[float] = []
@@ -65,7 +65,7 @@ def bench_warnings(repeats: int, out: Path, n_calls: int = 200_000) -> dict[str,
     every threshold) in microseconds per tick against the run's wall time per tick."""
     from drivers.dbc import load_protocol
     from harness.bus.rig_interface import RigInterface
-    from harness.session import make_monitor
+    from harness.core.session import make_monitor
     from harness.state import RigCommand, RigState
 
     on: list[float] = []

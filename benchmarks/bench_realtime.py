@@ -42,10 +42,10 @@ import time
 from pathlib import Path
 from typing import Any
 
+from harness.core.runs import ACTUATORS, load_run
+from harness.core.session import execute_run
+from harness.core.streaming import LatencyHistogram
 from harness.realtime.floor import DEFAULT_WORK_S, FloorResult, run_floor
-from harness.runs import ACTUATORS, load_run
-from harness.session import execute_run
-from harness.streaming import LatencyHistogram
 
 
 def rss_mb() -> float:

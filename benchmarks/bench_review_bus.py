@@ -20,9 +20,9 @@ from pathlib import Path
 import can
 import rerun as rr
 
+from harness.core.runs import load_run
+from harness.core.session import execute_run
 from harness.review.bus import write_bus
-from harness.runs import load_run
-from harness.session import execute_run
 
 
 def main() -> int:

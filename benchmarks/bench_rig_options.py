@@ -25,8 +25,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from harness.runs import load_run
-from harness.session import execute_run
+from harness.core.runs import load_run
+from harness.core.session import execute_run
 
 OPTIONS: dict[str, dict[str, Any]] = {
     "thread": {"virtual_rig": "thread"},

@@ -128,7 +128,7 @@ class LocalEngine:
     ships_files = False
 
     def __init__(self, workers: int | None = None,
-                 preload: Iterable[str] = ("harness.session",)) -> None:
+                 preload: Iterable[str] = ("harness.core.session",)) -> None:
         self.workers = max(1, workers or os.cpu_count() or 1)
         self.name = f"local ({self.workers} processes)"
         ctx = multiprocessing.get_context("forkserver")
@@ -190,7 +190,7 @@ class DaskEngine:
 
 
 def make_engine(cluster: str | None = None, workers: int | None = None,
-                preload: Iterable[str] = ("harness.session",)) -> Engine:
+                preload: Iterable[str] = ("harness.core.session",)) -> Engine:
     """``cluster`` (else ``$SGSRT_CLUSTER``): a Dask scheduler address; otherwise
     ``workers`` local processes (default every core; 1 runs inline)."""
     address = cluster or os.environ.get(CLUSTER_ENV) or None

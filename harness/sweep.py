@@ -5,7 +5,7 @@ For each lambda the rotor spins at w = lambda w_ref and puts A sin(w t) on the h
 an ideal square wave here). The hub-beam model is stepped exactly (ZOH) with every beta of the
 grid at once (one state column per beta), until the free transient has died, and the
 steady-state amplitudes of the tip acceleration and of the tip's elastic deflection are taken
-from a harmonic fit over whole periods (``harness.periodic``). Lambdas are spread over worker
+from a harmonic fit over whole periods (``harness.core.periodic``). Lambdas are spread over worker
 processes or a Dask cluster (``harness.engine``).
 
 ``harmonic_steady_state`` gives the same steady state in closed form (sum of the square
@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from harness.core.periodic import steady_state_amplitude
 from harness.engine import Engine, make_engine
-from harness.periodic import steady_state_amplitude
 from rig_models.flexible_hub import HubBeamModel
 
 

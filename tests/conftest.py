@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from harness.runs import load_run
-from harness.session import execute_run
+from harness.core.runs import load_run
+from harness.core.session import execute_run
 
 
 @pytest.fixture(scope="session")

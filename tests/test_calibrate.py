@@ -32,8 +32,8 @@ from harness.calibration.workflow import (
 )
 from harness.cli import main
 from harness.controllers.shaped_wheel_slew import Mode
-from harness.runs import load_run
-from harness.session import execute_run
+from harness.core.runs import load_run
+from harness.core.session import execute_run
 from harness.shaping.impulse_shapers import residual_vibration, si, zv, zvd
 from harness.shaping.robust import mode_band, worst_residual_percent
 from rig_models.rig_file import load_rig, rig_from_dict
@@ -112,7 +112,7 @@ def test_plan_places_a_burst_at_every_reachable_predicted_mode() -> None:
         assert b.predicted_rel_sigma_omega <= 0.002 + 1e-12
     assert plan.unreachable == []
     # the run file it makes is a valid wheel_bursts run
-    from harness.runs import run_from_dict
+    from harness.core.runs import run_from_dict
 
     run = run_from_dict(plan.run_dict(), source="plan")
     assert run.controller["type"] == "wheel_bursts"
@@ -347,7 +347,7 @@ def test_calibrate_fixture_rigs_wheel(tmp_path: Path, capsys, rig: str) -> None:
 
 
 def test_si_shaper_from_a_run_file_holds_its_band_on_the_ticks() -> None:
-    from harness.runs import build_controller, load_run
+    from harness.core.runs import build_controller, load_run
 
     modes = [{"omega_rad_s": m.omega_rad_s, "damping_ratio": m.damping_ratio,
               "sigma_omega_rad_s": m.sigma_omega_rad_s, "sigma_damping": m.sigma_damping}
@@ -363,7 +363,7 @@ def test_si_shaper_from_a_run_file_holds_its_band_on_the_ticks() -> None:
 
 def test_valve_bursts_fire_whole_cycles_and_give_identify_its_windows() -> None:
     from harness.commands.identify import analysis_windows
-    from harness.runs import build_controller, run_from_dict
+    from harness.core.runs import build_controller, run_from_dict
     from harness.state import RigState
 
     plan = plan_excitation(load_rig("sgsrt"), "valves")

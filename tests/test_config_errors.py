@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 from harness.bus import BusSpecError, parse_bus
-from harness.runs import load_run, run_from_dict
-from harness.session import RunRefused, execute_run
+from harness.core.runs import load_run, run_from_dict
+from harness.core.session import RunRefused, execute_run
 from rig_models.rig_file import load_rig, rig_from_dict
 from rig_models.schema import ConfigError
 

@@ -11,9 +11,9 @@ import pytest
 from harness.commands.report import collect
 from harness.commands.sweep import analyse
 from harness.controllers.square_wave import DisturbanceLaw, square_wave_torque
-from harness.periodic import steady_state_amplitude
-from harness.runs import load_run
-from harness.session import execute_run
+from harness.core.periodic import steady_state_amplitude
+from harness.core.runs import load_run
+from harness.core.session import execute_run
 from harness.sweep import SweepSpec, harmonic_steady_state, run_sweep, simulate_lambda
 from rig_models.devices import DisturbanceRotor
 from rig_models.rig_file import load_rig
@@ -42,7 +42,7 @@ def test_square_wave_opposes_the_disturbance():
 
 def test_compensation_above_wheel_limit_refused_before_the_run():
     run = load_run("case-a", {"controller": {"beta": 3.0}})
-    from harness.runs import build_controller
+    from harness.core.runs import build_controller
 
     with pytest.raises(ConfigError, match="exceeds the wheel's torque limit"):
         build_controller(run)

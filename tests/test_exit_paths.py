@@ -14,8 +14,8 @@ from rerun.chunk import RrdReader
 
 from drivers.dbc import load_protocol
 from harness.controllers import registry
-from harness.runs import load_run, run_from_dict
-from harness.session import execute_run
+from harness.core.runs import load_run, run_from_dict
+from harness.core.session import execute_run
 from harness.state import RigCommand
 
 P = load_protocol()

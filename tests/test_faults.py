@@ -10,14 +10,14 @@ import pytest
 from rerun.chunk import RrdReader
 
 from drivers.dbc import load_protocol
-from harness.runs import load_run
-from harness.session import execute_run
+from harness.core.runs import load_run
+from harness.core.session import execute_run
 from rig_models.faults import FAULT_KINDS, parse_fault
 
 P = load_protocol()
 AT_S = 3.0
 AT_TICK = 1500
-# (fault, device, kind detected, detection bound in ticks: see harness/monitor.py)
+# (fault, device, kind detected, detection bound in ticks: see harness/core/monitor.py)
 CASES = [
     ("drop_frames@3:hub_sensor", "hub_sensor", "frames lost", 10),
     ("delay_frames@3:accelerometer", "accelerometer", "late", 3),

@@ -5,8 +5,8 @@ from __future__ import annotations
 import json
 
 from harness.cli import main
-from harness.runs import load_run
-from harness.session import execute_run
+from harness.core.runs import load_run
+from harness.core.session import execute_run
 from rig_models.faults import parse_fault
 
 

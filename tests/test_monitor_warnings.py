@@ -1,4 +1,4 @@
-"""The fault monitor's warnings (harness/monitor.py, docs/faults.md): conditions short of a
+"""The fault monitor's warnings (harness/core/monitor.py, docs/faults.md): conditions short of a
 fault, logged once when they start (hysteresis), as WARN events under /events/monitor in
 run.rrd at their time, marked on the plots, counted in summary.json; thresholds from the run
 file, a bad one refused by its key path."""
@@ -13,11 +13,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from harness.monitor import WARNING_KINDS, FaultMonitor, Hysteresis, MonitorWarning
+from harness.core.monitor import WARNING_KINDS, FaultMonitor, Hysteresis, MonitorWarning
+from harness.core.runs import load_run
+from harness.core.session import execute_run
 from harness.record.reader import read_scalar_channel
 from harness.review.reader import entities, read_events, read_text
-from harness.runs import load_run
-from harness.session import execute_run
 from harness.state import RigCommand, RigState
 from rig_models.schema import ConfigError
 

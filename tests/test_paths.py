@@ -1,4 +1,4 @@
-"""Run-file strings never choose a path outside the output folder (harness/paths.py)."""
+"""Run-file strings never choose a path outside the output folder (harness/core/paths.py)."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from harness.paths import MAX_NAME_BYTES, UnsafePathError, safe_child, safe_name
-from harness.runs import load_run
-from harness.session import make_run_dir
+from harness.core.paths import MAX_NAME_BYTES, UnsafePathError, safe_child, safe_name
+from harness.core.runs import load_run
+from harness.core.session import make_run_dir
 from rig_models.schema import ConfigError
 
 UNSAFE = ["../../etc/x", "/etc/passwd", "..", ".", "", "a/../../b", "..\\..\\win",
@@ -58,7 +58,7 @@ def test_run_name_cannot_leave_the_output_folder(tmp_path: Path) -> None:
 
 
 def test_run_file_name_with_traversal_runs_inside_out(tmp_path: Path) -> None:
-    from harness.session import execute_run
+    from harness.core.session import execute_run
 
     run = load_run("slew-rw", {"name": "../../etc/x", "duration_s": 0.05})
     res = execute_run(run, out_dir=tmp_path / "logs", show_progress=False)

@@ -10,9 +10,9 @@ import pytest
 
 from harness.bus import parse_bus
 from harness.bus.unix import UnixCanBus, UnixCanServerBus
-from harness.clock import RealTimeClock, RealTimeSetup
-from harness.runs import load_run
-from harness.session import REALTIME_RIG_DEFAULT, execute_run, virtual_rig_mode
+from harness.core.clock import RealTimeClock, RealTimeSetup
+from harness.core.runs import load_run
+from harness.core.session import REALTIME_RIG_DEFAULT, execute_run, virtual_rig_mode
 from rig_models.faults import make_fault
 
 

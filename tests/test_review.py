@@ -11,12 +11,12 @@ import pytest
 import rerun as rr
 import rerun.blueprint as rrb
 
-from harness.loop import CHANNELS
+from harness.core.loop import CHANNELS
+from harness.core.runs import load_run
+from harness.core.session import execute_run
 from harness.record.recording import APPLICATION_ID
 from harness.review import layouts as L
 from harness.review.reader import entities, read_blueprints, read_events, read_text
-from harness.runs import load_run
-from harness.session import execute_run
 from rig_models.faults import parse_fault
 
 RUN_KINDS = {
@@ -63,7 +63,7 @@ def test_layout_holds_the_views_the_docs_describe(kind):
 
 
 def test_every_built_in_run_gets_a_layout():
-    from harness.runs import list_runs
+    from harness.core.runs import list_runs
 
     for name, _ in list_runs():
         run = load_run(name).resolved()

@@ -8,7 +8,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from harness.loop import CHANNELS
+from harness.core.loop import CHANNELS
 from harness.record.reader import read_scalar_channel
 from harness.review import layouts as L
 from harness.review.names import SERIES_NAMES, series_name, strip_unit

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 from harness.bus.rig_process import fault_argument
-from harness.runs import load_run
-from harness.session import RunRefused, execute_run
+from harness.core.runs import load_run
+from harness.core.session import RunRefused, execute_run
 from rig_models.faults import make_fault, parse_fault
 from rig_models.schema import ConfigError
 

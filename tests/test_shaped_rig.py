@@ -28,7 +28,7 @@ from harness.controllers.thruster_two_level import (
     valve_usage,
     with_extra_zv,
 )
-from harness.runs import load_run
+from harness.core.runs import load_run
 from harness.shaping.impulse_shapers import residual_vibration
 from harness.state import RigState
 from harness.studies.shaped_rig import (
@@ -104,7 +104,7 @@ def test_wheel_controller_bad_input_names_the_parameter():
         parse_modes([])
     over = {"controller": {"torque_n_m": 0.07}}
     run = load_run("slew-rw-zvd", over)
-    from harness.runs import build_controller
+    from harness.core.runs import build_controller
 
     with pytest.raises(ConfigError, match="torque_n_m"):
         build_controller(run)
@@ -232,7 +232,7 @@ def test_zv_for_mode_3_cancels_it_in_the_continuous_profile_and_keeps_modes_1_2(
 
 
 def test_extra_zv_modes_is_validated_by_name():
-    from harness.runs import build_controller
+    from harness.core.runs import build_controller
 
     for bad in ([4], [0], [3, 3], "3", [True], [2.0]):
         with pytest.raises(ConfigError, match="extra_zv_modes"):
@@ -278,7 +278,7 @@ def test_damped_design_finds_no_sequence_with_mode_3_at_1_percent_too(profile):
 
 
 def test_thruster_run_files_design_for_the_first_two_of_the_three_modes():
-    from harness.runs import build_controller
+    from harness.core.runs import build_controller
 
     run = load_run("slew-thruster-lhhl", {"controller": {"design": "paper"}})
     assert len(parse_modes(run.controller["modes"])) == 3

@@ -8,7 +8,7 @@ import can
 import numpy as np
 from rerun.chunk import RrdReader
 
-from harness.loop import CHANNELS
+from harness.core.loop import CHANNELS
 
 
 def test_slew_reaches_target_within_wheel_limit(slew_result):

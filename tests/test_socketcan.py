@@ -36,8 +36,8 @@ import pytest
 import yaml
 
 from drivers.dbc import DBC_PATH
+from harness.core.runs import load_run, run_path
 from harness.record.can_log import read_can_log
-from harness.runs import load_run, run_path
 from rig_models.rig_file import load_rig
 
 pytestmark = pytest.mark.socketcan

@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.loop import CHANNELS
+from harness.core.loop import CHANNELS
+from harness.core.streaming import LatencyHistogram, RunningSummary
 from harness.record.can_log import CanLog, read_can_log
 from harness.record.reader import RecordedColumns, read_scalar_channels
 from harness.record.recording import Recorder
-from harness.streaming import LatencyHistogram, RunningSummary
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -161,8 +161,8 @@ def test_sigkill_leaves_all_but_the_last_blocks_readable(tmp_path: Path) -> None
 _MEM_SCRIPT = """
 import json, resource, sys, tempfile
 from pathlib import Path
-from harness.runs import load_run
-from harness.session import execute_run
+from harness.core.runs import load_run
+from harness.core.session import execute_run
 from harness.testing import judge_run, write_verdict
 out = Path(sys.argv[2])
 def run_and_judge(seconds):  # what `harness run` does: the run, then its verdict

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from harness.runs import RUNS_DIR
+from harness.core.runs import RUNS_DIR
 from harness.testing.checks import judge_checks, judge_compare
 from harness.testing.measures import resolve
 from harness.testing.suite import load_suite, parse_checks

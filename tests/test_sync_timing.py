@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from harness.loop import RESERVE_FRACTION
-from harness.session import RIG_HELD_FRACTION, attribute_missing
+from harness.core.loop import RESERVE_FRACTION
+from harness.core.session import RIG_HELD_FRACTION, attribute_missing
 from rig_models.virtual_rig import SyncTiming
 
 

@@ -27,8 +27,8 @@ from harness.controllers.thruster_slew import (
     rig_ppf_design_model,
     scaled_pd_gains,
 )
+from harness.core.runs import build_controller, load_run
 from harness.record.reader import read_scalar_channel
-from harness.runs import build_controller, load_run
 from harness.state import RigState
 from harness.studies.hu2006_rig import (
     RUNS,
@@ -58,7 +58,7 @@ class TruthRig(VirtualRig):
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    import harness.session as session
+    import harness.core.session as session
 
     out = Path(tmp_path_factory.mktemp("thruster_logs"))
     results = {}

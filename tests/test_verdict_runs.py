@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from harness.cli import main
-from harness.runs import RUNS_DIR, load_run
+from harness.core.runs import RUNS_DIR, load_run
 from harness.testing import judge_run
 
 DURATION_S = 4.0
@@ -283,7 +283,7 @@ def test_dry_run_judges_only_the_safe_state(tmp_path):
 
 def test_every_built_in_run_states_its_criteria():
     """Every built-in run file (and variant) has an expect: section, checked, with a why."""
-    from harness.runs import list_runs
+    from harness.core.runs import list_runs
     from harness.testing import parse_criteria
 
     for name, _ in list_runs():

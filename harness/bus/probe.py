@@ -21,7 +21,7 @@ import can
 
 from drivers.dbc import load_protocol
 from harness.bus.rig_interface import RigInterface
-from harness.clock import LockstepClock, RealTimeClock
+from harness.core.clock import LockstepClock, RealTimeClock
 from rig_models.rig_file import RigConfig
 
 HEARTBEAT_HZ = 20.0

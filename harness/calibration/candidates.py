@@ -1,7 +1,7 @@
 """Shaped-slew candidates over the identified modes, and their predicted scores (pure: no bus).
 
 Every candidate is a run-file controller section; it is scored on the controller that the
-harness would build from it (``harness.runs``), so the score is of what would be sent:
+harness would build from it (``harness.core.runs``), so the score is of what would be sent:
 
 * wheel (``shaped_wheel_slew``): the same bang-bang convolved with one ZV, ZVD, EI (5 %) or
   SI shaper per identified mode (SI: specified insensitivity, residual below
@@ -29,7 +29,7 @@ import numpy as np
 
 from harness.controllers.shaped_wheel_slew import Mode
 from harness.controllers.thruster_two_level import damped_residual_percent
-from harness.runs import RunConfig, build_controller, run_from_dict
+from harness.core.runs import RunConfig, build_controller, run_from_dict
 from harness.shaping.impulse_shapers import residual_vibration
 from harness.shaping.robust import ModeBand, mode_band
 from rig_models.rig_file import RigConfig

@@ -53,9 +53,9 @@ from harness.calibration.plan import (
 )
 from harness.calibration.residual import fit_modal_residual, true_residual
 from harness.controllers.shaped_wheel_slew import Mode
-from harness.paths import safe_child, safe_name
-from harness.runs import RunConfig, run_from_dict
-from harness.session import RunResult, execute_run
+from harness.core.paths import safe_child, safe_name
+from harness.core.runs import RunConfig, run_from_dict
+from harness.core.session import RunResult, execute_run
 from rig_models.rig_file import RigConfig, load_rig
 from rig_models.schema import ConfigError
 

@@ -45,7 +45,7 @@ from pathlib import Path
 import yaml
 
 from harness.bus import BusSpecError
-from harness.session import RunRefused
+from harness.core.session import RunRefused
 from rig_models.schema import ConfigError
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from harness.runs import list_runs
+from harness.core.runs import list_runs
 
 
 def register(sub: argparse._SubParsersAction) -> None:

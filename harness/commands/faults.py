@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from harness import monitor
+from harness.core import monitor
 from rig_models.faults import DEVICE_FAULTS, FAULT_KINDS
 
 

@@ -10,9 +10,9 @@ from pathlib import Path
 
 from harness.bus import BusSpecError
 from harness.bus.rig_process import RigProcessError
-from harness.interrupts import StopRequest, stop_on_signals
-from harness.runs import load_run
-from harness.session import RunRefused, execute_run
+from harness.core.interrupts import StopRequest, stop_on_signals
+from harness.core.runs import load_run
+from harness.core.session import RunRefused, execute_run
 from harness.testing import JudgeInputError, format_block, judge_run, write_verdict
 from rig_models.faults import parse_fault
 from rig_models.schema import ConfigError

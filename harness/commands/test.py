@@ -31,9 +31,9 @@ import sys
 from pathlib import Path
 
 from harness.bus import BusSpecError, parse_bus
+from harness.core.paths import safe_name
+from harness.core.session import make_run_dir
 from harness.engine import CLUSTER_ENV, EngineError, InlineEngine, make_engine
-from harness.paths import safe_name
-from harness.session import make_run_dir
 from harness.testing.suite import list_suites, load_suite
 from rig_models.schema import ConfigError
 

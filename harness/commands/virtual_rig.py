@@ -83,7 +83,7 @@ def cmd_virtual_rig(args: argparse.Namespace) -> int:
     rig = VirtualRig(rig_cfg, bus, 1.0 / args.rate_hz, faults=faults)
     measures: dict[str, list[str]] = {}
     if args.realtime:
-        from harness.clock import RealTimeSetup
+        from harness.core.clock import RealTimeSetup
 
         measures = RealTimeSetup().apply(sched_fifo=False, priority=0, cpu=-1,
                                          lock_memory=True, gc_freeze=True,

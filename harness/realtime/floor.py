@@ -8,8 +8,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from harness.clock import RealTimeClock, RealTimeSetup
-from harness.streaming import LatencyHistogram
+from harness.core.clock import RealTimeClock, RealTimeSetup
+from harness.core.streaming import LatencyHistogram
 
 DEFAULT_WORK_S = 150e-6
 """Busy work a tick: about what the harness's own tick takes at 500 Hz (codecs, bus,

@@ -44,9 +44,9 @@ import yaml
 
 from drivers.dbc import FrameCodec, FrameError, Protocol, load_protocol
 from harness.bus.rig_interface import RigInterface
-from harness.monitor import FaultEvent
+from harness.core.monitor import FaultEvent
+from harness.core.runs import RunConfig, build_controller, run_from_dict
 from harness.record.recording import Recorder
-from harness.runs import RunConfig, build_controller, run_from_dict
 from harness.state import RigCommand, RigState
 from rig_models.rig_file import RigConfig, rig_from_dict
 from rig_models.schema import ConfigError
@@ -421,7 +421,7 @@ class MonitorReplay:
         if self.first is not None:
             return  # the run stopped at its first fault
         if self.monitor is None:
-            from harness.session import make_monitor  # the run's own construction
+            from harness.core.session import make_monitor  # the run's own construction
 
             self.monitor = make_monitor(self.run, iface, realtime=self.realtime)
         sent = RigCommand()

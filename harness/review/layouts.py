@@ -374,7 +374,7 @@ def blueprint_for_run_dir(run_dir: Path) -> rrb.Blueprint:
     ``default_blueprint`` so that the files open together in any order."""
     import yaml
 
-    from harness.loop import CHANNELS
+    from harness.core.loop import CHANNELS
 
     cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
     layout = run_dir / LAYOUT_FILE

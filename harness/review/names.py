@@ -11,7 +11,7 @@ from collections.abc import Iterable, Mapping, Sequence
 
 import rerun as rr
 
-# the loop's channels (harness.loop.CHANNELS) and the bus pass's count
+# the loop's channels (harness.core.loop.CHANNELS) and the bus pass's count
 SERIES_NAMES: dict[str, str] = {
     "/attitude/angle_deg": "measured angle",
     "/attitude/reference_deg": "reference angle",

@@ -84,7 +84,7 @@ def identify_blueprint(run_dir: Path, cfg: Mapping[str, Any] | None) -> rrb.Blue
     if cfg:
         if (run_dir / "config.yaml").exists():
             return blueprint_for_run_dir(run_dir)
-        from harness.loop import CHANNELS
+        from harness.core.loop import CHANNELS
 
         return layout_for_run(cfg, CHANNELS)
     spec, windows, table = spectrum_views()

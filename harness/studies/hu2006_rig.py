@@ -1,7 +1,7 @@
 """`harness study hu2006-rig`: Hu (2006)'s five slew configurations on the virtual SGSRT,
 through the harness over CAN (run files ``harness/runs/thruster-*.yaml``).
 
-Each run is executed with ``harness.session.execute_run`` (virtual rig in lockstep, every
+Each run is executed with ``harness.core.session.execute_run`` (virtual rig in lockstep, every
 frame through python-can, recordings in ``--out``). The table is computed from what the
 harness recorded (``RunResult.columns()``, read back from ``run.rrd``):
 
@@ -40,8 +40,8 @@ import numpy as np
 from scipy.linalg import solve_discrete_are
 
 from harness.controllers.thruster_slew import ThrusterSlewController
-from harness.runs import RunConfig, build_controller, load_run
-from harness.session import RunResult, execute_run
+from harness.core.runs import RunConfig, build_controller, load_run
+from harness.core.session import RunResult, execute_run
 from harness.studies.hu2006 import PAPER_HU2006, _fmt, _json_default
 from rig_models.devices import ThrusterValves
 from rig_models.rig_file import RigConfig

@@ -44,8 +44,8 @@ import numpy as np
 from harness.calibration.residual import fit_modal_residual, true_residual
 from harness.controllers.shaped_wheel_slew import Mode, parse_modes
 from harness.controllers.thruster_two_level import damped_residual_percent
-from harness.runs import RunConfig, build_controller, load_run
-from harness.session import execute_run
+from harness.core.runs import RunConfig, build_controller, load_run
+from harness.core.session import execute_run
 
 MARGIN_S = 0.1  # after the manoeuvre's end, before the residual window
 

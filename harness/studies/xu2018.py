@@ -32,9 +32,9 @@ from harness.commands.identify import PAPER_TABLE1, analysis_windows, load_recor
 from harness.commands.model import PAPER_003, model_report
 from harness.commands.report import PAPER_TABLE2
 from harness.commands.sweep import analyse
+from harness.core.runs import load_run
+from harness.core.session import execute_run
 from harness.identification.windows import identify_windows
-from harness.runs import load_run
-from harness.session import execute_run
 from harness.sweep import SweepSpec, run_sweep
 from rig_models.rig_file import load_rig
 

@@ -467,7 +467,7 @@ def parse_criteria(raw: Any, source: str = "expect", known_measures: Iterable[st
     to the loop's recorded channels; pass ``channels=()`` to judge results without a
     recording (scalar criteria only)."""
     if channels is None:
-        from harness.loop import CHANNELS
+        from harness.core.loop import CHANNELS
         channels = CHANNELS
     channels = list(channels)
     return [parse_criterion(name, c, source, path, known_measures, channels, base_dir,

@@ -24,7 +24,7 @@ UNIT_SUFFIXES = ("deg_s", "rad_s", "m_s2", "n_m", "percent", "count", "hz", "ms"
 
 DIMENSIONLESS = ("count", "ratio")
 
-# summary.json (harness/session.py summarise / periodic_summary): path -> unit. Every
+# summary.json (harness/core/session.py summarise / periodic_summary): path -> unit. Every
 # numeric or boolean leaf is here; tests check it against a real summary.json.
 SUMMARY_MEASURES: dict[str, str] = {
     "rate_hz": "hz",
@@ -83,7 +83,7 @@ SUMMARY_MEASURES: dict[str, str] = {
     "steady_angle_amplitude_deg": "deg",
     # computed by the judge from summary.json's lists
     "faults.count": "count",
-    # the fault monitor's warnings, per kind (harness.monitor.WARNING_KINDS)
+    # the fault monitor's warnings, per kind (harness.core.monitor.WARNING_KINDS)
     "monitor_warnings.wheel_speed": "count",
     "monitor_warnings.torque_saturated": "count",
     "monitor_warnings.hub_angle": "count",

@@ -35,8 +35,8 @@ from typing import Any
 
 import pytest
 
+from harness.core.paths import safe_child
 from harness.engine import Engine
-from harness.paths import safe_child
 from harness.testing.checks import combine, judge_compare
 from harness.testing.suite import Case, Compare, Suite
 from harness.testing.work import EXIT, item_result, probe_verdict, run_case, run_probe

@@ -65,8 +65,8 @@ from typing import Any
 
 import yaml
 
-from harness.paths import safe_name
-from harness.runs import _deep_merge, load_run, run_path
+from harness.core.paths import safe_name
+from harness.core.runs import _deep_merge, load_run, run_path
 from harness.testing.criteria import FORMS, Criterion, _items, parse_criterion
 from harness.testing.measures import path_error, unit_of_path
 from rig_models.schema import ConfigError

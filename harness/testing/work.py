@@ -25,8 +25,8 @@ import uuid
 from pathlib import Path
 from typing import Any
 
+from harness.core.paths import safe_child
 from harness.engine import current_worker, stop_requested
-from harness.paths import safe_child
 from harness.testing.checks import combine, judge_checks
 from harness.testing.suite import Case
 
@@ -75,8 +75,8 @@ def private_channel() -> str:
 def _run(case: Case, out_dir: Path, bus: str | None) -> tuple[dict[str, Any], Path | None]:
     from harness.bus import BusSpecError, parse_bus
     from harness.bus.rig_process import RigProcessError
-    from harness.runs import load_run
-    from harness.session import RunRefused, execute_run
+    from harness.core.runs import load_run
+    from harness.core.session import RunRefused, execute_run
     from rig_models.schema import ConfigError
 
     items: dict[str, Any] = {}

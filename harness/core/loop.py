@@ -17,10 +17,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from harness.bus.rig_interface import RigInterface
-from harness.clock import LockstepClock, RealTimeClock
+from harness.core.clock import LockstepClock, RealTimeClock
+from harness.core.streaming import LatencyHistogram
 from harness.record.recording import Recorder
 from harness.state import RigCommand
-from harness.streaming import LatencyHistogram
 
 # what the loop records every tick (entity path = channel; the unit is in the name)
 CHANNELS = [
@@ -51,7 +51,7 @@ CHANNELS = [
 @dataclass
 class LoopStats:
     """The loop's counters; lateness and work per tick are streaming histograms
-    (``harness.streaming.LatencyHistogram``: fixed memory for any run length)."""
+    (``harness.core.streaming.LatencyHistogram``: fixed memory for any run length)."""
 
     ticks: int = 0
     overruns: int = 0

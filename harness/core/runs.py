@@ -15,12 +15,12 @@ from typing import Any
 import yaml
 
 from harness.controllers.registry import CONTROLLERS
-from harness.monitor import LIMITS_SCHEMA, MONITOR_SCHEMA
+from harness.core.monitor import LIMITS_SCHEMA, MONITOR_SCHEMA
 from rig_models.faults import FaultSpec, make_fault
 from rig_models.rig_file import RigConfig, load_rig, rig_from_dict
 from rig_models.schema import ConfigError, Field, validate
 
-RUNS_DIR = Path(__file__).parent / "runs"
+RUNS_DIR = Path(__file__).parent.parent / "runs"
 ACTUATORS = ("reaction_wheel", "thruster_valves", "piezo_amplifier", "disturbance_rotor")
 
 RUN_SCHEMA: dict[str, Any] = {

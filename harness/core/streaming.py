@@ -3,7 +3,7 @@
 - ``LatencyHistogram``: per-tick durations (lateness, work) counted in 1 us bins up to
   20 ms and in 1 % wide logarithmic bins above; percentiles are read from the counts
   (exact to the bin: 1 us below 20 ms), the maximum is kept exactly. Fixed memory.
-- ``RunningSummary``: what ``harness.session.summarise`` needs from the whole run, updated
+- ``RunningSummary``: what ``harness.core.session.summarise`` needs from the whole run, updated
   one recorded block at a time (vectorised): running maxima, the last row, the first time the
   reference reached the target, the last time the hub was outside the settle band, and the
   sums of a least-squares line through the hub angle.

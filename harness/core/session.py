@@ -26,19 +26,19 @@ from harness.bus import BusSpec, open_bus, parse_bus
 from harness.bus.load import compute_bus_load
 from harness.bus.rig_interface import RigInterface
 from harness.bus.rig_process import RigProcess
-from harness.clock import LockstepClock, RealTimeClock, RealTimeSetup, choose_cpus
-from harness.loop import CHANNELS, HELD_FRACTION, RESERVE_FRACTION, LoopStats, run_loop
-from harness.monitor import FaultMonitor, MonitorWarning
-from harness.paths import safe_child, safe_name
-from harness.periodic import steady_state_amplitude
+from harness.core.clock import LockstepClock, RealTimeClock, RealTimeSetup, choose_cpus
+from harness.core.loop import CHANNELS, HELD_FRACTION, RESERVE_FRACTION, LoopStats, run_loop
+from harness.core.monitor import FaultMonitor, MonitorWarning
+from harness.core.paths import safe_child, safe_name
+from harness.core.periodic import steady_state_amplitude
+from harness.core.runs import RunConfig, build_controller
+from harness.core.streaming import RunningSummary
 from harness.record.can_log import CanLog
 from harness.record.reader import RecordedColumns
 from harness.record.recording import Recorder
 from harness.review.bus import write_bus
 from harness.review.events import log_event
 from harness.review.layouts import PlotStats, layout_for_run, write_layout_file
-from harness.runs import RunConfig, build_controller
-from harness.streaming import RunningSummary
 from rig_models.faults import FaultSpec
 from rig_models.schema import ConfigError
 from rig_models.virtual_rig import VirtualRig
@@ -175,7 +175,7 @@ def execute_run(
 RIG_HELD_FRACTION = HELD_FRACTION
 """The host held a tick for the loop and the rig process when its delays of the tick (the
 loop's lateness plus the rig's wake-up after the SYNC) stayed below this fraction of the
-period: the loop's own rule for its lateness (``harness.loop.HELD_FRACTION``)."""
+period: the loop's own rule for its lateness (``harness.core.loop.HELD_FRACTION``)."""
 
 
 def attribute_missing(miss_ticks: list[tuple[int, int, float]], missing_on_time: int,
