@@ -14,7 +14,7 @@ from harness.controllers.square_wave import DisturbanceLaw, square_wave_torque
 from harness.core.periodic import steady_state_amplitude
 from harness.core.runs import load_run
 from harness.core.session import execute_run
-from harness.sweep import SweepSpec, harmonic_steady_state, run_sweep, simulate_lambda
+from harness.studies.sweep import SweepSpec, harmonic_steady_state, run_sweep, simulate_lambda
 from rig_models.devices import DisturbanceRotor
 from rig_models.rig_file import load_rig
 from rig_models.schema import ConfigError

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from harness.cli import main
-from harness.results_docs import PAPER_SUITES, fmt_limit, suite_markdown
+from harness.testing.results_docs import PAPER_SUITES, fmt_limit, suite_markdown
 from harness.testing.suite import load_suite
 
 

@@ -19,7 +19,7 @@ import json
 import sys
 from pathlib import Path
 
-from harness.results_docs import PAPER_SUITES, suite_markdown
+from harness.testing.results_docs import PAPER_SUITES, suite_markdown
 
 # Paper 003 (Xu 2018), Table 2: tip acceleration amplitude (m/s^2). Comparison only.
 PAPER_TABLE2 = {

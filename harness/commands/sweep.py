@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from harness.engine import CLUSTER_ENV, EngineError, make_engine
-from harness.sweep import SweepSpec, run_sweep
+from harness.studies.sweep import SweepSpec, run_sweep
 from rig_models.rig_file import load_rig
 from rig_models.schema import ConfigError
 
@@ -172,7 +172,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         if not 0 <= args.beta_min < args.beta_max:
             raise ConfigError("--beta-min must be >= 0 and < --beta-max")
         rig = load_rig(args.rig)
-        engine = make_engine(args.cluster, args.workers, preload=("harness.sweep",))
+        engine = make_engine(args.cluster, args.workers, preload=("harness.studies.sweep",))
     except (ConfigError, EngineError) as exc:
         print(f"harness sweep: {exc}", file=sys.stderr)
         return 2

@@ -35,7 +35,7 @@ from harness.commands.sweep import analyse
 from harness.core.runs import load_run
 from harness.core.session import execute_run
 from harness.identification.windows import identify_windows
-from harness.sweep import SweepSpec, run_sweep
+from harness.studies.sweep import SweepSpec, run_sweep
 from rig_models.rig_file import load_rig
 
 PARTS = ("model", "cases", "identify", "sweep")

@@ -125,7 +125,7 @@ def run_sweep(model: HubBeamModel, spec: SweepSpec, workers: int | None = None,
     chunks = [idx[i : i + batch] for i in range(0, len(idx), batch)]
     own = engine is None
     if engine is None:
-        engine = make_engine(workers=workers, preload=("harness.sweep",))
+        engine = make_engine(workers=workers, preload=("harness.studies.sweep",))
     try:
         futures = [engine.submit(_worker, (model, spec, spec.lambdas[c])) for c in chunks]
         done = 0
