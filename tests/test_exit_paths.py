@@ -113,3 +113,42 @@ def test_rig_in_its_own_process_over_socketcand(tmp_path):
     assert s["stopped_by"] == "completed"
     assert s["frames"]["received"] > 0.9 * 4 * s["ticks"]
     assert "stopped after" in out
+
+
+def test_rig_process_dying_mid_run_ends_in_an_error_verdict_without_traceback(tmp_path):
+    """The virtual rig's own process is killed during a real-time run: the run ends with
+    exit 4 and a one-line reason naming the bus (not a traceback), the recording and the
+    CAN log up to that tick read back, and the verdict says why."""
+    import os
+    import signal
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "harness", "run", "slew-rw", "--clock",
+                             "realtime", "--duration-s", "20", "--quiet", "--out",
+                             str(tmp_path)], stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        rig_pid = None
+        while rig_pid is None and time.monotonic() < deadline:
+            logs = list(tmp_path.glob("*/rig.log"))
+            if logs and "Ctrl-C to stop" in logs[0].read_text():
+                out = subprocess.run(["pgrep", "-f", "--", f"--rig {logs[0].parent}/rig.yaml"],
+                                     capture_output=True, text=True).stdout.split()
+                rig_pid = int(out[0]) if out else None
+            time.sleep(0.2)
+        assert rig_pid is not None, "the rig process did not start"
+        time.sleep(1.0)
+        os.kill(rig_pid, signal.SIGKILL)
+        err = proc.communicate(timeout=60)[1]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 4, err
+    assert "Traceback" not in err
+    assert "the bus failed" in err and "rig.log" in err
+    run_dir = next(tmp_path.glob("*-slew-rw"))
+    verdict = json.loads((run_dir / "verdict.json").read_text())
+    run_row = next(c for c in verdict["criteria"] if c["name"] == "run")
+    assert run_row["verdict"] == "ERROR" and "closed the bus" in run_row["message"]
+    frames = sum(1 for _ in can.LogReader(str(run_dir / "can.blf")))
+    assert frames > 500  # about a second of traffic at least, read back whole

@@ -8,6 +8,8 @@ import sys
 import traceback
 from pathlib import Path
 
+import can
+
 from harness.bus import BusSpecError
 from harness.bus.rig_process import RigProcessError
 from harness.core.interrupts import StopRequest, stop_on_signals
@@ -100,7 +102,14 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
                 raise
             except Exception as exc:  # the run raised (controller, driver): judged ERROR
                 run_dir = getattr(exc, "run_dir", None)
-                traceback.print_exc()
+                if isinstance(exc, can.CanError):  # the bus failed, not our code: one line
+                    rig_log = Path(run_dir or ".") / "rig.log"
+                    print(f"harness: the run stopped: the bus failed: {exc}"
+                          + (f" (the virtual rig's own log: {rig_log})"
+                             if run_dir is not None and rig_log.exists() else ""),
+                          file=sys.stderr)
+                else:
+                    traceback.print_exc()
                 if run_dir is None:
                     return 4
                 codes.append(_judge(run_dir, None))
