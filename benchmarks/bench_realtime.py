@@ -13,8 +13,12 @@ at minute 1 and at the end.
 Prints overruns, lateness p50/p99/max of both, the ratios harness/floor, the harness's
 missing telemetry frames (all; those in ticks the loop itself held: started on time and no
 overrun; and those in ticks both the loop and the rig process held: the rig process had the
-tick's SYNC in hand within half a period, by its own SYNC timing), how promptly the rig
-process woke to each SYNC and answered it, resident memory, and the issue's criteria.
+tick's SYNC in hand within half a period, by its own SYNC timing, and the CPU was not taken
+from its answer: preempted, its thread ran less than half the answer's time; or stalled, one
+fixed operation, a physics step or one frame's encode and send, took ten times its p99 with
+no page fault and no context switch, see harness.core.session.attribute_missing), how promptly
+the rig process woke to each SYNC and answered it, resident memory, and the issue's
+criteria.
 
 The floor loop measures the loop's CPU; the rig process's wake-up after each SYNC is the
 same measurement on the rig's CPU, taken inside the harness's own run: a frame missing
@@ -128,7 +132,8 @@ def main() -> int:
     h: dict[str, Any] = {"ticks": 0, "overruns": 0, "episodes": 0, "missing": 0,
                          "missing_on_time": 0,
                          "missing_both": 0, "missing_rig_slow": 0, "slow_answers": [],
-                         "missing_preempted": 0,
+                         "missing_preempted": 0, "missing_stalled": 0,
+                         "rig_op_p99_ms": 0.0,
                          "rig_syncs": 0, "rig_not_held": 0,
                          "rig_wake_p99_ms": 0.0, "rig_wake_max_ms": 0.0,
                          "rig_work_p99_ms": 0.0,
@@ -157,6 +162,7 @@ def main() -> int:
                                                 st.missing_frames_on_time)
                     h["missing_rig_slow"] += fr.get("missing_rig_answered_after_window", 0)
                     h["missing_preempted"] += fr.get("missing_in_ticks_rig_preempted", 0)
+                    h["missing_stalled"] += fr.get("missing_in_ticks_rig_stalled", 0)
                     rt = s.get("virtual_rig_timing") or {}
                     if rt:
                         h["rig_syncs"] += rt["syncs"]
@@ -164,6 +170,8 @@ def main() -> int:
                         h["rig_wake_p99_ms"] = max(h["rig_wake_p99_ms"], rt["wake_ms"]["p99"])
                         h["rig_wake_max_ms"] = max(h["rig_wake_max_ms"], rt["wake_ms"]["max"])
                         h["rig_work_p99_ms"] = max(h["rig_work_p99_ms"], rt["work_ms"]["p99"])
+                        h["rig_op_p99_ms"] = max(h["rig_op_p99_ms"],
+                                                 rt.get("longest_op_ms", {}).get("p99", 0.0))
                         h["slow_answers"] += [[i + 1, *row] for row in
                                               rt.get("answers_after_window_ms", [])]
                     h["stopped_by"].append(s["stopped_by"])
@@ -234,6 +242,9 @@ def main() -> int:
           f"{h['missing']} ({h['missing_on_time']}; {h['missing_both']}) | |")
     print(f"| of those in ticks the loop held: the rig's answer preempted by the host (its "
           f"thread ran less than half the time) | | {h['missing_preempted']} | |")
+    print(f"| of those in ticks the loop held: one fixed operation of the rig's answer "
+          f"stalled (ten times its p99, no page fault, no context switch: the CPU stopped "
+          f"under the thread) | | {h['missing_stalled']} | |")
     print(f"| of those in ticks both held: the rig answered after the loop stopped waiting | "
           f"| {h['missing_rig_slow']} | |")
     if h["rig_syncs"]:
@@ -242,6 +253,8 @@ def main() -> int:
         print(f"| rig process: wake-up after the SYNC p99 (worst block) / max (ms) | | "
               f"{h['rig_wake_p99_ms']:.3f} / {h['rig_wake_max_ms']:.3f} | |")
         print(f"| rig process: answer p99 (worst block, ms) | | {h['rig_work_p99_ms']:.3f} | |")
+        print(f"| rig process: longest single operation of an answer, p99 (worst block, ms) "
+              f"| | {h['rig_op_p99_ms']:.3f} | |")
     print(f"| resident memory of this process over the blocks, minute 1 -> end (MB) | | "
           f"{minute1:.1f} -> {end_rss:.1f} ({end_rss - minute1:+.1f}) | |")
     if mem:
@@ -251,10 +264,13 @@ def main() -> int:
               f"{mem['peak_mb']:.1f}; overruns {mem['overruns']} / {mem['ticks']}, "
               f"missing frames {mem['missing_frames']} ({mem['missing_in_ticks_on_time']}; "
               f"{mem['missing_in_ticks_held_by_both']}) | |")
-    for pair, tick, wake, work, *ran in h["slow_answers"][:10]:
-        cpu = f" (its thread ran {ran[0]:.3f} ms of it)" if ran and ran[0] >= 0 else ""
+    for pair, tick, wake, work, *rest in h["slow_answers"][:10]:
+        why = rest[-1] if rest and isinstance(rest[-1], str) else ""
+        cpu = f"; its thread ran {rest[0]:.3f} ms of it" if rest and rest[0] >= 0 else ""
+        op = (f"; longest operation: {rest[2]} {rest[1]:.3f} ms, page faults {rest[3]}, "
+              f"context switches {rest[4]}" if len(rest) >= 6 else "")
         print(f"  late answer: pair {pair}, tick {tick}: the rig woke {wake:.3f} ms after the "
-              f"SYNC and took {work:.3f} ms to answer{cpu}")
+              f"SYNC and took {work:.3f} ms to answer{cpu}{op}" + (f" -> {why}" if why else ""))
     for k, v in crit.items():
         print(f"criterion {k}: " + ("not measured (--memory-run-s)" if v is None else
                                      "met" if v else "NOT met"))

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import gc
 import math
+import resource
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -65,6 +66,13 @@ class SyncTiming:
     ``max_late`` of them (the count stays exact), so the harness can tell a telemetry frame
     the host kept back (a late wake-up, or the CPU taken away during the answer) from one
     the rig was too slow to send.
+
+    ``op``: the longest single operation of each answer (one physics step, or one frame's
+    encode and send), a fixed amount of work, in the same bins. A late answer keeps it with
+    its name and the page faults and context switches of the answer's thread: one fixed
+    operation taking many times its usual cost, with neither, means the CPU was taken from
+    under a running thread by something the guest's scheduler does not see (on a VM, the
+    hypervisor: the guest counts that time as the thread's; docs/realtime.md).
     """
 
     BIN_S = 10e-6
@@ -75,25 +83,34 @@ class SyncTiming:
         self.max_late = max_late
         self.wake = np.zeros(self.N_BINS + 1, dtype=np.int64)
         self.work = np.zeros(self.N_BINS + 1, dtype=np.int64)
+        self.op = np.zeros(self.N_BINS + 1, dtype=np.int64)
         self.wake_max_s = 0.0
         self.work_max_s = 0.0
+        self.op_max_s = 0.0
         self.syncs = 0
         self.late_count = 0
-        self.late: list[tuple[int, float, float, float]] = []
+        self.late: list[tuple[int, float, float, float, float, str, int, int]] = []
 
     def _bin(self, v: float) -> int:
         return min(self.N_BINS, max(0, int(v / self.BIN_S)))
 
-    def add(self, tick: int, wake_s: float, work_s: float, work_cpu_s: float = -1.0) -> None:
+    def add(self, tick: int, wake_s: float, work_s: float, work_cpu_s: float = -1.0,
+            op_s: float = 0.0, op: str = "", faults: int = -1, switches: int = -1) -> None:
+        """One answered SYNC. ``op_s``/``op``: its longest single operation; ``faults``,
+        ``switches``: page faults and context switches of the thread during it (-1 not
+        known)."""
         self.syncs += 1
         self.wake[self._bin(wake_s)] += 1
         self.work[self._bin(work_s)] += 1
+        self.op[self._bin(op_s)] += 1
         self.wake_max_s = max(self.wake_max_s, wake_s)
         self.work_max_s = max(self.work_max_s, work_s)
+        self.op_max_s = max(self.op_max_s, op_s)
         if wake_s + work_s > self.late_s:
             self.late_count += 1
             if len(self.late) < self.max_late:
-                self.late.append((tick, wake_s, work_s, work_cpu_s))
+                self.late.append((tick, wake_s, work_s, work_cpu_s, op_s, op, faults,
+                                  switches))
 
     def _percentiles_ms(self, hist: np.ndarray, vmax: float) -> dict[str, float]:
         n = int(hist.sum())
@@ -109,10 +126,23 @@ class SyncTiming:
         return {"syncs": self.syncs,
                 "wake_ms": self._percentiles_ms(self.wake, self.wake_max_s),
                 "work_ms": self._percentiles_ms(self.work, self.work_max_s),
+                "longest_op_ms": self._percentiles_ms(self.op, self.op_max_s),
                 "late_threshold_ms": round(self.late_s * 1e3, 3),
                 "late_syncs": self.late_count,
-                "late": [[t, round(w * 1e3, 3), round(k * 1e3, 3), round(c * 1e3, 3)]
-                         for t, w, k, c in self.late]}
+                # [tick, wake ms, work ms, work's CPU ms, longest op ms, its name,
+                #  page faults, context switches]
+                "late": [[t, round(w * 1e3, 3), round(k * 1e3, 3), round(c * 1e3, 3),
+                          round(o * 1e3, 3), name, f, sw]
+                         for t, w, k, c, o, name, f, sw in self.late]}
+
+
+_RUSAGE_THREAD = getattr(resource, "RUSAGE_THREAD", resource.RUSAGE_SELF)
+
+
+def _thread_usage() -> tuple[int, int]:
+    """(page faults, context switches) of the calling thread so far."""
+    ru = resource.getrusage(_RUSAGE_THREAD)
+    return ru.ru_minflt + ru.ru_majflt, ru.ru_nvcsw + ru.ru_nivcsw
 
 
 @dataclass
@@ -185,6 +215,11 @@ class VirtualRig:
         self.last_heartbeat_s = 0.0  # rig time
         self.last_heartbeat_wall = time.monotonic()
         self.wheel_counter = 0
+        # the longest single operation of the current answer (run_forever with timing only:
+        # lockstep runs do not pay for the clock readings)
+        self.time_ops = False
+        self.longest_op_s = 0.0
+        self.longest_op = ""
         self._hooks: list[Callable[[VirtualRig], None]] = []
         p = self.protocol
         self._handlers: dict[int, Callable[[bytes], None]] = {
@@ -236,15 +271,24 @@ class VirtualRig:
         collect = not gc.isenabled()
         next_collect = time.monotonic() + 1.0
         clock, cpu = time.time, time.thread_time
+        self.time_ops = timing is not None
         while not stop():
             msg = self.bus.recv(poll_s)
             if msg is not None:
                 if msg.arbitration_id == sync_id and not msg.is_error_frame:
                     woke, ran = clock(), cpu()
-                    self.handle(msg)
-                    if timing is not None and msg.timestamp > 0:
-                        timing.add(self.tick, woke - msg.timestamp, clock() - woke,
-                                   cpu() - ran)
+                    if timing is None:
+                        self.handle(msg)
+                    else:
+                        self.longest_op_s, self.longest_op = 0.0, ""
+                        ru0 = _thread_usage()
+                        self.handle(msg)
+                        work, work_cpu = clock() - woke, cpu() - ran
+                        ru1 = _thread_usage()
+                        if msg.timestamp > 0:
+                            timing.add(self.tick, woke - msg.timestamp, work, work_cpu,
+                                       self.longest_op_s, self.longest_op,
+                                       ru1[0] - ru0[0], ru1[1] - ru0[1])
                     if collect and time.monotonic() > next_collect:
                         gc.collect(1)
                         next_collect = time.monotonic() + 1.0
@@ -258,6 +302,7 @@ class VirtualRig:
                 self._sample_and_send(max(self.tick, 0))
 
     def _send(self, name: str, values: dict[str, float], device: str = "") -> None:
+        t0 = time.perf_counter() if self.time_ops else 0.0
         codec = self._tlm[name]
         data = codec.encode(values)
         payloads = [data] if not self.injector.faults else self.injector.telemetry(
@@ -266,6 +311,12 @@ class VirtualRig:
             self.bus.send(can.Message(arbitration_id=codec.frame_id, data=payload,
                                       is_extended_id=False))
             self.counters.frames_out += 1
+        if self.time_ops:
+            self._note_op(name, time.perf_counter() - t0)
+
+    def _note_op(self, name: str, seconds: float) -> None:
+        if seconds > self.longest_op_s:
+            self.longest_op_s, self.longest_op = seconds, name
 
     def _send_fault_frames(self) -> None:
         inj, t = self.injector, self.time_s
@@ -369,8 +420,15 @@ class VirtualRig:
             steps = tick - self.tick
             if steps <= 0 or steps > 10_000:
                 steps = 1  # counter wrap or restart: advance one step
-            for _ in range(steps):
-                self.step()
+            if self.time_ops:
+                perf = time.perf_counter
+                for _ in range(steps):
+                    t0 = perf()
+                    self.step()
+                    self._note_op("physics step", perf() - t0)
+            else:
+                for _ in range(steps):
+                    self.step()
         self.tick = tick
         if self.injector.faults:
             self._apply_device_faults()

@@ -164,7 +164,8 @@ def execute_run(
                     if row[1] * 1e-3 >= RIG_HELD_FRACTION * run.dt_s)
                 split = attribute_missing(
                     result.stats.missing_on_time_ticks, result.stats.missing_frames_on_time,
-                    proc.timing.get("late", []), run.dt_s)
+                    proc.timing.get("late", []), run.dt_s,
+                    op_p99_s=(proc.timing.get("longest_op_ms") or {}).get("p99", 0.0) * 1e-3)
                 timing["answers_after_window_ms"] = split.pop("rig_answers_after_window_ms")
                 result.summary["virtual_rig_timing"] = timing
                 result.summary["frames"].update(split)
@@ -179,51 +180,85 @@ period: the loop's own rule for its lateness (``harness.core.loop.HELD_FRACTION`
 
 
 def attribute_missing(miss_ticks: list[tuple[int, int, float]], missing_on_time: int,
-                      late_syncs: list[list[float]], dt_s: float) -> dict[str, Any]:
+                      late_syncs: list[list[Any]], dt_s: float,
+                      op_p99_s: float = 0.0) -> dict[str, Any]:
     """Split the telemetry frames missing in ticks the loop held (``miss_ticks``: tick,
     frames, the tick's lateness s) by the rig process's SYNC timing (``late_syncs``: tick,
-    wake ms, work ms for the SYNCs it answered late).
+    wake ms, work ms, work's CPU ms, longest operation ms, its name, page faults, context
+    switches, for the SYNCs it answered late; older rows have the first three or four).
 
     A frame's way is: the loop wakes (its lateness), sends the SYNC, the rig process wakes
     (its wake-up), computes and sends (its work), the loop reads. The first two are the
-    host's delays, what a floor loop measures on each CPU; the work is the harness's. So:
+    host's delays, what a floor loop measures on each CPU; the work is the harness's,
+    unless the host took the CPU away during it. So:
 
-    - ``missing_in_ticks_host_delayed``: the host's delays of the tick (the loop's lateness
-      plus the rig's wake-up) reached ``RIG_HELD_FRACTION`` of a period, the rule the loop
-      applies to its own lateness; or the rig answered after the loop stopped waiting and
-      its thread ran less than half of its answer's wall time (the host took the CPU away:
-      ``missing_in_ticks_rig_preempted`` of them): the host's;
+    - ``missing_in_ticks_host_delayed``: the host's, when
+      - the host's delays of the tick (the loop's lateness plus the rig's wake-up) reached
+        ``RIG_HELD_FRACTION`` of a period, the rule the loop applies to its own lateness;
+      - or the rig answered after the loop stopped waiting and
+        - its thread ran less than half of its answer's wall time (the guest's scheduler
+          gave the CPU to something else: ``missing_in_ticks_rig_preempted``);
+        - or one fixed operation of the answer (a physics step, one frame's encode and
+          send) took ``STALL_OP_FACTOR`` times the run's 99th percentile of the longest
+          operation (``op_p99_s``) and at least ``STALL_OP_MIN_FRACTION`` of a period, with
+          no page fault and no context switch of the thread (the CPU stopped under a running
+          thread: on a VM, the hypervisor, which the guest counts as the thread's time;
+          ``missing_in_ticks_rig_stalled``);
     - ``missing_in_ticks_held_by_both``: the rest, the harness's own; of those
       ``missing_rig_answered_after_window`` were sent by the rig after the loop stopped
-      waiting (``rig_answers_after_window_ms`` lists the first late answers' [tick, wake,
-      work, work's CPU time] in ms, the host's preempted ones too),
-      the others were sent in time and still not read in the tick (the transport or the
-      loop).
+      waiting, the others were sent in time and still not read in the tick (the transport
+      or the loop). ``rig_answers_after_window_ms`` lists the first late answers' rows
+      (the host's too), with the verdict of this rule as a last column.
 
     Frames beyond the ticks kept by tick (``MAX_MISS_TICKS``) or the rig's late list are
     counted as the harness's."""
-    late = {int(row[0]): (row[1] * 1e-3, (row[2] if len(row) > 2 else 0.0) * 1e-3,
-                          (row[3] if len(row) > 3 else -1.0) * 1e-3) for row in late_syncs}
-    host = preempted = answered_late = 0
-    examples: list[list[float]] = []
+    late = {int(row[0]): row for row in late_syncs}
+    stall_s = max(STALL_OP_FACTOR * op_p99_s, STALL_OP_MIN_FRACTION * dt_s)
+    host = preempted = stalled = answered_late = 0
+    examples: list[list[Any]] = []
     for tick, n, lateness in miss_ticks:
-        wake, work, ran = late.get(tick, (0.0, 0.0, -1e-3))
+        row = late.get(tick)
+        if row is None:
+            continue  # the rig answered in time: the frames were lost after it sent them
+        wake, work = row[1] * 1e-3, row[2] * 1e-3
+        ran = row[3] * 1e-3 if len(row) > 3 else -1.0
+        op_s = row[4] * 1e-3 if len(row) > 4 else 0.0
+        faults = row[6] if len(row) > 6 else -1
+        switches = row[7] if len(row) > 7 else -1
         if lateness + wake >= RIG_HELD_FRACTION * dt_s:
             host += n
-        elif wake + work >= (1.0 - RESERVE_FRACTION) * dt_s - lateness:
-            if len(examples) < 10:
-                examples.append([tick, round(wake * 1e3, 3), round(work * 1e3, 3),
-                                 round(ran * 1e3, 3)])
-            if 0.0 <= ran < 0.5 * work:
-                host += n
-                preempted += n
-            else:
-                answered_late += n
+            continue
+        if wake + work < (1.0 - RESERVE_FRACTION) * dt_s - lateness:
+            continue
+        if 0.0 <= ran < 0.5 * work:
+            host += n
+            preempted += n
+            why = "preempted"
+        elif op_s >= stall_s and faults == 0 and switches == 0:
+            host += n
+            stalled += n
+            why = "stalled"
+        else:
+            answered_late += n
+            why = "harness"
+        if len(examples) < 10:
+            examples.append([*row, why])
     return {"missing_in_ticks_host_delayed": host,
             "missing_in_ticks_rig_preempted": preempted,
+            "missing_in_ticks_rig_stalled": stalled,
             "missing_in_ticks_held_by_both": missing_on_time - host,
             "missing_rig_answered_after_window": answered_late,
             "rig_answers_after_window_ms": examples}
+
+
+STALL_OP_FACTOR = 10.0
+"""A fixed operation of the rig's answer that took this many times its 99th percentile (and
+``STALL_OP_MIN_FRACTION`` of a period), the thread neither faulting nor switching, stalled
+on a CPU taken from under it (``attribute_missing``)."""
+
+STALL_OP_MIN_FRACTION = 0.1
+"""... and at least this fraction of the period (0.2 ms at 500 Hz), so that a run whose
+operations are all fast does not call a 0.1 ms hiccup a stall."""
 
 
 REALTIME_RIG_DEFAULT = "process-unix"

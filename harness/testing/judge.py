@@ -159,6 +159,59 @@ def read_channels(rrd: Path, wanted: set[str] | None = None
     return out
 
 
+ENVELOPE_BUCKETS = 4000
+"""Time buckets of a plotted channel (``read_envelopes``): a plot is a few hundred pixels
+wide, so 4000 minimum/maximum pairs draw what every sample would."""
+
+
+def read_envelopes(rrd: Path, wanted: set[str], t_end_s: float,
+                   buckets: int = ENVELOPE_BUCKETS) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The ``wanted`` scalar channels for a plot, in memory bounded by ``buckets`` whatever
+    the run's length, in one streaming pass: a channel of at most ``2 * buckets`` samples
+    comes back whole; a longer one as its minimum and maximum in each of ``buckets`` equal
+    time buckets over [0, ``t_end_s``] (later samples go to the last), two points per
+    bucket at its centre, minimum first. NaNs are skipped. Without a length (``t_end_s`` 0:
+    no summary) each channel comes back whole."""
+    if t_end_s <= 0:
+        return read_channels(rrd, wanted)
+    width = t_end_s / buckets
+    raw: dict[str, tuple[list[np.ndarray], list[np.ndarray], list[int]]] = {}
+    env: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for chunk in _chunks(rrd, wanted):
+        if (tx := _scalars(chunk, wanted)) is None:
+            continue
+        name = chunk.entity_path
+        t, v = tx
+        if name not in env:
+            ts, vs, n = raw.setdefault(name, ([], [], [0]))
+            ts.append(t)
+            vs.append(v)
+            n[0] += len(t)
+            if n[0] <= 2 * buckets:
+                continue
+            t, v = np.concatenate(ts), np.concatenate(vs)
+            del raw[name]
+            env[name] = (np.full(buckets, np.inf), np.full(buckets, -np.inf))
+        lo, hi = env[name]
+        b = np.clip((t / width).astype(np.int64), 0, buckets - 1)
+        order = np.argsort(b, kind="stable")
+        b, v = b[order], v[order]
+        starts = np.flatnonzero(np.r_[True, b[1:] != b[:-1]])
+        idx = b[starts]
+        lo[idx] = np.fmin(lo[idx], np.fmin.reduceat(v, starts))
+        hi[idx] = np.fmax(hi[idx], np.fmax.reduceat(v, starts))
+    out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for name, (ts, vs, _) in raw.items():
+        t, v = np.concatenate(ts), np.concatenate(vs)
+        order = np.argsort(t, kind="stable")
+        out[name] = (t[order], v[order])
+    centres = (np.arange(buckets) + 0.5) * width
+    for name, (lo, hi) in env.items():
+        keep = np.isfinite(lo)
+        out[name] = (np.repeat(centres[keep], 2), np.column_stack((lo[keep], hi[keep])).ravel())
+    return out
+
+
 class ChannelCache:
     """Reads a recording once, on first use (only ``wanted`` channels if given), each
     channel whole (a baseline run's)."""

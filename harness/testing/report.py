@@ -74,6 +74,7 @@ def channel_specs(run_dir: Path, criteria_results: list[dict[str, Any]]
                 "kind": c.kind, "window": c.window.describe(),
                 "verdict": verdicts.get(c.name, {}).get("verdict"),
                 "worst_time_s": verdicts.get(c.name, {}).get("worst_time_s"),
+                "value": verdicts.get(c.name, {}).get("value"),
                 "window_fn": (lambda t, w=c.window: window_mask(t, w, summary))}
         if c.kind == "baseline":
             spec["baseline"] = c.params["baseline"]
@@ -97,13 +98,16 @@ def _shade_band(ax: Any, s: dict[str, Any], t0: float, t1: float, v: np.ndarray)
     if lo is None and hi is None:
         return
     reduce = s.get("reduce") or "each"
+    # the criterion's own value (judged on every sample) when the verdict has it: the plot's
+    # samples may be a long run's envelope (read_envelopes)
+    known = s.get("value") if isinstance(s.get("value"), (int, float)) else None
     if reduce == "rms":
-        value = float(np.sqrt(np.nanmean(v ** 2)))
+        value = known if known is not None else float(np.sqrt(np.nanmean(v ** 2)))
         lo = 0.0 if lo is None else lo
     elif reduce == "mean":
-        value = float(np.nanmean(v))
+        value = known if known is not None else float(np.nanmean(v))
     elif reduce == "final":
-        value = float(v[-1])
+        value = known if known is not None else float(v[-1])
     else:
         value = None
     y_lo, y_hi = ax.get_ylim()
@@ -130,7 +134,7 @@ def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dic
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from harness.testing.judge import read_channels
+    from harness.testing.judge import read_envelopes
 
     rrd = run_dir / "run.rrd"
     if not rrd.is_file():
@@ -142,7 +146,10 @@ def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dic
         note = f"criteria not readable: {exc}"
     else:
         note = ""
-    data = read_channels(rrd, {s["channel"] for s in specs} | set(OVERVIEW))
+    # each channel whole for a short run, its min/max envelope for a long one: memory
+    # bounded whatever the run's length (a 24-hour soak run has 43 million rows a channel)
+    t_end = _run_end_s(run_dir)
+    data = read_envelopes(rrd, {s["channel"] for s in specs} | set(OVERVIEW), t_end)
     plots = []
     for s in specs:
         if s["channel"] not in data:
@@ -160,8 +167,9 @@ def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dic
             _shade_band(ax, s, t0, t1, v[mask])
         if s["kind"] == "baseline":
             try:
-                bt, bv = read_channels(Path(s["baseline"]) / "run.rrd" if Path(
-                    s["baseline"]).is_dir() else Path(s["baseline"]))[s["channel"]]
+                bt, bv = read_envelopes(Path(s["baseline"]) / "run.rrd" if Path(
+                    s["baseline"]).is_dir() else Path(s["baseline"]), {s["channel"]},
+                    t_end)[s["channel"]]
                 ax.plot(bt, bv, lw=0.8, color="#8c959f", label="baseline")
             except Exception:  # noqa: BLE001 - the baseline may be on another machine
                 pass
@@ -190,6 +198,15 @@ def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dic
             fig.tight_layout()
             plots.append({"title": "overview", "png": _png(fig)})
     return plots
+
+
+def _run_end_s(run_dir: Path) -> float:
+    """The run's simulated length from its summary (its run file's duration otherwise)."""
+    try:
+        summary = json.loads((run_dir / "summary.json").read_text())
+        return float(summary.get("simulated_time_s") or summary.get("duration_s") or 0.0)
+    except (OSError, ValueError):
+        return 0.0
 
 
 def _counts(records: list[dict[str, Any]]) -> dict[str, int]:
