@@ -9,8 +9,8 @@ import pytest
 
 from drivers.dbc import load_protocol
 from harness.bus import open_bus, parse_bus
-from harness.bus.probe import probe
 from harness.cli import main
+from harness.core.probe import probe
 from rig_models.faults import make_fault, parse_fault
 from rig_models.rig_file import load_rig
 from rig_models.virtual_rig import VirtualRig

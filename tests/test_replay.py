@@ -12,10 +12,10 @@ import pytest
 
 from drivers.dbc import load_protocol
 from harness.cli import main
+from harness.core.replay import check_run, replay_log, split_commands, write_rrd
 from harness.core.runs import load_run
 from harness.core.session import execute_run
 from harness.record.reader import read_scalar_channel
-from harness.record.replay import check_run, replay_log, split_commands, write_rrd
 from rig_models.faults import parse_fault
 from rig_models.rig_file import load_rig
 

@@ -1,13 +1,11 @@
 """The bus side: frames, not physics.
 
 This package opens the bus (here), carries frames over a Unix-domain socket (``unix``),
-measures bus load (``load``), puts every device driver on one bus (``rig_interface``), runs
-the virtual rig as its own process (``rig_process``) and checks the rig before a run
-(``probe``). It may import ``drivers``, ``rig_models``, ``harness.state`` and
-``harness.record.can_log`` (the interface logs every frame); never ``harness.core``'s
-session or loop. Two edges against that direction remain: ``probe`` ticks with
-``harness.core.clock`` and ``rig_process`` takes a line prefix from
-``harness.commands.virtual_rig`` (both lazy or leaf modules, no import cycle).
+measures bus load (``load``), puts every device driver on one bus (``rig_interface``) and
+runs the virtual rig as its own process (``rig_process``). It may import ``drivers``,
+``rig_models``, ``harness.state`` and ``harness.record.can_log`` (the interface logs every
+frame); never ``harness.core``. The pre-flight check, which ticks a loop, is
+``harness.core.probe``.
 
 Opening the CAN bus named by ``--bus INTERFACE:CHANNEL`` or a run file.
 

@@ -35,6 +35,10 @@ from rig_models.rig_file import RigConfig
 
 READY = re.compile(r" on (socketcand:127\.0\.0\.1:\d+|unix:\S+) ")
 START_TIMEOUT_S = 60.0
+TIMING_PREFIX = "harness virtual-rig: timing "
+"""The line (then JSON) the rig process writes on stderr at exit with its SYNC timing
+(``SyncTiming``) and the real-time measures it took; ``RigProcess`` reads it back from
+rig.log."""
 
 
 class RigProcessError(RuntimeError):
@@ -159,8 +163,6 @@ class RigProcess:
         self._stop()
 
     def _read_timing(self) -> None:
-        from harness.commands.virtual_rig import TIMING_PREFIX
-
         with contextlib.suppress(OSError):
             for line in self.log_path.read_text().splitlines():
                 if line.startswith(TIMING_PREFIX):

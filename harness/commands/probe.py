@@ -28,7 +28,7 @@ from dataclasses import asdict
 from typing import Any
 
 from harness.bus import BusSpecError, open_bus, parse_bus
-from harness.bus.probe import ProbeResult, probe
+from harness.core.probe import ProbeResult, probe
 from rig_models.faults import parse_fault
 from rig_models.rig_file import load_rig
 from rig_models.schema import ConfigError

@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.dbc import load_protocol
-from harness.record.replay import (
+from harness.core.replay import (
     CheckResult,
     MonitorReplay,
     Replay,

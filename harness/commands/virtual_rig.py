@@ -17,14 +17,11 @@ import sys
 import threading
 
 from harness.bus import BusSpecError, open_bus, parse_bus
+from harness.bus.rig_process import TIMING_PREFIX
 from rig_models.faults import parse_fault
 from rig_models.rig_file import load_rig
 from rig_models.schema import ConfigError
 from rig_models.virtual_rig import SyncTiming, VirtualRig
-
-TIMING_PREFIX = "harness virtual-rig: timing "
-"""The line (then JSON) on stderr at exit with the SYNC timing (``SyncTiming``) and the
-real-time measures this process took; ``harness.bus.rig_process`` reads it back from rig.log."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:

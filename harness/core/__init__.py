@@ -2,12 +2,12 @@
 
 ``runs`` parses a run file (the built-in ones stay in ``harness/runs/*.yaml``), ``session``
 runs one end to end, ``loop`` is the tick, ``clock`` its lockstep and real-time clocks,
-``monitor`` the fault monitor, ``streaming`` the bounded-memory statistics, ``periodic`` the
-steady-state amplitude in a run's summary, ``interrupts`` Ctrl-C / SIGTERM handling and
-``paths`` the guard that keeps every written file inside the output folder. It may import
-``harness.bus``, ``harness.record``, ``harness.review``, ``harness.state`` and the pure
-packages (``controllers``, ``shaping``, ``identification``); ``harness.bus`` and
-``harness.record`` never import its session or loop (``record.replay`` excepted, see
-``harness.record``). ``runs`` calls ``harness.testing.criteria`` lazily to refuse bad
-criteria before a run.
+``monitor`` the fault monitor, ``probe`` the pre-flight check of the rig's bus, ``replay``
+a CAN log back through the drivers and the run's own controller and monitor, ``streaming``
+the bounded-memory statistics, ``periodic`` the steady-state amplitude in a run's summary,
+``interrupts`` Ctrl-C / SIGTERM handling and ``paths`` the guard that keeps every written
+file inside the output folder. It may import ``harness.bus``, ``harness.record``,
+``harness.review``, ``harness.state`` and the pure packages (``controllers``, ``shaping``,
+``identification``); ``harness.bus`` and ``harness.record`` never import it. ``runs``
+calls ``harness.testing.criteria`` lazily to refuse bad criteria before a run.
 """

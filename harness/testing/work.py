@@ -144,8 +144,8 @@ def _modes_table(ident: dict[str, Any]) -> list[dict[str, Any]]:
 def run_probe(opts: dict[str, Any], bus: str | None, rig: str = "sgsrt") -> dict[str, Any]:
     """The pre-flight probe (``harness probe``) as a JSON document."""
     from harness.bus import open_bus, parse_bus
-    from harness.bus.probe import probe
     from harness.commands.probe import to_dict
+    from harness.core.probe import probe
     from rig_models.rig_file import load_rig
     from rig_models.virtual_rig import VirtualRig
 
