@@ -264,12 +264,17 @@ def main() -> int:
               f"{mem['peak_mb']:.1f}; overruns {mem['overruns']} / {mem['ticks']}, "
               f"missing frames {mem['missing_frames']} ({mem['missing_in_ticks_on_time']}; "
               f"{mem['missing_in_ticks_held_by_both']}) | |")
-    for pair, tick, wake, work, *rest in h["slow_answers"][:10]:
+    slow = list(h["slow_answers"][:10])
+    if mem and mem.get("virtual_rig_timing"):
+        slow += [["the continuous run", *row] for row in
+                 mem["virtual_rig_timing"].get("answers_after_window_ms", [])[:10]]
+    for pair, tick, wake, work, *rest in slow:
         why = rest[-1] if rest and isinstance(rest[-1], str) else ""
         cpu = f"; its thread ran {rest[0]:.3f} ms of it" if rest and rest[0] >= 0 else ""
         op = (f"; longest operation: {rest[2]} {rest[1]:.3f} ms, page faults {rest[3]}, "
               f"context switches {rest[4]}" if len(rest) >= 6 else "")
-        print(f"  late answer: pair {pair}, tick {tick}: the rig woke {wake:.3f} ms after the "
+        where = pair if isinstance(pair, str) else f"pair {pair}"
+        print(f"  late answer: {where}, tick {tick}: the rig woke {wake:.3f} ms after the "
               f"SYNC and took {work:.3f} ms to answer{cpu}{op}" + (f" -> {why}" if why else ""))
     for k, v in crit.items():
         print(f"criterion {k}: " + ("not measured (--memory-run-s)" if v is None else
