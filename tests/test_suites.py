@@ -297,8 +297,9 @@ def test_interrupt_stops_the_runs_at_a_tick_and_exits_130(tmp_path):
         {"run": "slew-rw", "own_expect": False, "duration_s": 300,
          "matrix": {"controller.torque_fraction": [0.5, 0.6]}}]}))
     out = tmp_path / "out"
-    # started with SIGINT ignored, as an earlier test in this session leaves it (a parent
-    # that ignores SIGINT passes that on): `harness test` must still stop on it
+    # started with SIGINT ignored, as a job a non-interactive shell starts with `&` is (bash
+    # ignores SIGINT in its background jobs, and so did this pytest's own parent when the
+    # suite was run that way): `harness test` must still stop on it
     proc = subprocess.Popen([sys.executable, "-m", "harness", "test", str(suite), "--out",
                              str(out)], stderr=subprocess.PIPE, text=True, env=ENV,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))

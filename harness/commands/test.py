@@ -138,8 +138,9 @@ def cmd_test(args: argparse.Namespace) -> int:
     if args.collect_only:
         pargs.append("--collect-only")
     previous = signal.signal(signal.SIGTERM, _terminate)  # SIGTERM stops the suite as Ctrl-C
-    # Ctrl-C stops the suite even when this process was started with SIGINT ignored (a
-    # parent that ignores it passes that on, and Python then installs no handler of its own)
+    # Ctrl-C (or kill -INT) stops the suite even when this process was started with SIGINT
+    # ignored (a background job of a non-interactive shell is; Python then installs no
+    # handler of its own)
     previous_int = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         ret = pytest.main(pargs, plugins=[plugin])
