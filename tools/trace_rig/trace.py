@@ -24,6 +24,7 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent.parent
@@ -31,6 +32,7 @@ EVENTS = ["irq:*", "ipi:*", "sched:sched_switch", "sched:sched_waking", "sched:s
           "timer:hrtimer_start", "timer:hrtimer_expire_entry", "timer:hrtimer_expire_exit"]
 LINE = re.compile(r"^\s*(?P<task>.+?)-(?P<pid>\d+)\s+\[(?P<cpu>\d+)\]\s+\S+\s+"
                   r"(?P<ts>\d+\.\d+):\s+(?P<what>.*)$")
+TICK_JITTER_NS = 50_000  # a tick this early against the grid is on time, not a period late
 TIMER = re.compile(r"hrtimer=(?P<ptr>\w+).*?(?:expires=(?P<expires>\d+)|now=(?P<now>\d+))")
 
 
@@ -89,42 +91,65 @@ def main() -> int:
         lines = (tracefs / "trace").read_text().splitlines()
     _w(tracefs, "set_event", "")
     _w(tracefs, "trace", "")
-    pid = str(found["pid"])
+    result = analyse(lines, found["pid"], found["tick"])
+    print(f"slow answer: tick {found['tick']}, {found['answer_ms']:.3f} ms, longest "
+          f"operation {found['longest_op']} {found['longest_op_ms']:.3f} ms, rig pid "
+          f"{found['pid']} on CPU {result['cpu']}")
+    print(f"events on CPU {result['cpu']} from the answer's start to its end:")
+    for e in result["events"]:
+        print(f"  {e['ts']}  {e['task']}-{e['pid']}: {e['what'][:110]}")
+    if not result["timers"]:
+        print("timers: none fired on this CPU during the answer")
+    for fn, ms in result["timers"]:
+        print(f"timer {fn} fired {ms:.3f} ms after its expiry"
+              + ("  <- the CPU was not running for about that long" if ms > 0.1 else ""))
+    return 0
+
+
+def analyse(lines: list[str], pid: int, tick: int) -> dict[str, Any]:
+    """The rig's answer to ``tick`` (process ``pid``) in an ftrace text: its CPU, every
+    event on that CPU between the answer's markers, and each timer that fired there during
+    it as (function, ms after its expiry). A timer's expiry is the one its last
+    ``hrtimer_start`` set; the periodic scheduler tick, which re-arms itself without one, is
+    due on its grid: the previous tick's time on that CPU plus whole periods (the period is
+    the shortest spacing of consecutive ticks in the trace)."""
     events = [m.groupdict() for m in map(LINE.match, lines) if m]
-    end = max(i for i, e in enumerate(events) if e["pid"] == pid
-              and e["what"].startswith(f"tracing_mark_write: RIG E {found['tick']} "))
-    start = max(i for i in range(end) if events[i]["pid"] == pid
+    p = str(pid)
+    end = max(i for i, e in enumerate(events) if e["pid"] == p
+              and e["what"].startswith(f"tracing_mark_write: RIG E {tick} "))
+    start = max(i for i in range(end) if events[i]["pid"] == p
                 and events[i]["what"].endswith("RIG S"))
     cpu = events[start]["cpu"]
-    on_cpu = [e for e in events[:end + 1] if e["cpu"] == cpu]
     t_s, t_e = float(events[start]["ts"]), float(events[end]["ts"])
-    print(f"slow answer: tick {found['tick']}, {found['answer_ms']:.3f} ms, longest "
-          f"operation {found['longest_op']} {found['longest_op_ms']:.3f} ms, rig pid {pid} "
-          f"on CPU {int(cpu)}")
-    print(f"events on CPU {int(cpu)} from the answer's start to its end:")
-    for e in on_cpu:
-        if t_s <= float(e["ts"]) <= t_e:
-            print(f"  {e['ts']}  {e['task']}-{e['pid']}: {e['what'][:110]}")
-    # each timer that fired on the CPU during the answer, against the expiry it was armed
-    # for (hrtimer_start ... expires=, same clock as the handler's now=)
     expires: dict[str, int] = {}
-    late = []
+    ticks: list[int] = []  # the periodic tick's now= on this CPU, in order
+    timers: list[tuple[str, float]] = []
     for e in events[:end + 1]:
         m = TIMER.search(e["what"])
         if m is None:
             continue
         if e["what"].startswith("hrtimer_start") and m["expires"]:
             expires[m["ptr"]] = int(m["expires"])
-        elif (e["what"].startswith("hrtimer_expire_entry") and m["now"] and e["cpu"] == cpu
-              and t_s <= float(e["ts"]) <= t_e and m["ptr"] in expires):
-            fn = re.search(r"function=(\w+)", e["what"])
-            late.append((fn[1] if fn else "?", (int(m["now"]) - expires[m["ptr"]]) * 1e-6))
-    if not late:
-        print("timers: none fired on this CPU during the answer (or armed before the trace)")
-    for fn, ms in late:
-        print(f"timer {fn} fired {ms:.3f} ms after its expiry"
-              + ("  <- the CPU was not running for about that long" if ms > 0.1 else ""))
-    return 0
+            continue
+        if not (e["what"].startswith("hrtimer_expire_entry") and m["now"]
+                and e["cpu"] == cpu):
+            continue
+        now = int(m["now"])
+        fn = re.search(r"function=(\w+)", e["what"])
+        name = fn[1] if fn else "?"
+        inside = t_s <= float(e["ts"]) <= t_e
+        if name == "tick_nohz_handler":
+            if inside and len(ticks) >= 2:
+                period = min(b - a for a, b in zip(ticks, ticks[1:], strict=False))
+                # whole periods since the last tick, allowing that tick's own jitter
+                k = (now - ticks[-1] + TICK_JITTER_NS) // period
+                timers.append((name, (now - ticks[-1] - k * period) * 1e-6))
+            ticks.append(now)
+            expires.pop(m["ptr"], None)  # forwarded from here on, not started
+        elif inside and m["ptr"] in expires:
+            timers.append((name, (now - expires[m["ptr"]]) * 1e-6))
+    return {"cpu": int(cpu), "start_s": t_s, "end_s": t_e, "timers": timers,
+            "events": [e for e in events[start:end + 1] if e["cpu"] == cpu]}
 
 
 if __name__ == "__main__":
