@@ -86,8 +86,9 @@ def advice(host: HostFacts, floor: FloorResult, verdict: str) -> list[str]:
                    "linux-image-rt) bounds the worst-case lateness")
     if host.hypervisor:
         out.append("this is a virtual machine: the hypervisor schedules its vCPUs, and its "
-                   "pauses show up as lateness no guest setting removes; use bare metal for "
-                   "the lab's real-time runs")
+                   "pauses show up as lateness no guest setting removes (the guest may even "
+                   "count them as the running task's CPU time: tools/trace_rig/trace.py "
+                   "shows one); use bare metal for the lab's real-time runs")
     slow_gov = sorted({g for g in host.governors.values() if g != "performance"})
     if slow_gov:
         out.append(f"CPU frequency governor {', '.join(slow_gov)}: set 'performance' "
