@@ -103,10 +103,10 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
             except Exception as exc:  # the run raised (controller, driver): judged ERROR
                 run_dir = getattr(exc, "run_dir", None)
                 if isinstance(exc, can.CanError):  # the bus failed, not our code: one line
-                    rig_log = Path(run_dir or ".") / "rig.log"
-                    print(f"harness: the run stopped: the bus failed: {exc}"
-                          + (f" (the virtual rig's own log: {rig_log})"
-                             if run_dir is not None and rig_log.exists() else ""),
+                    rig_log = Path(run_dir) / "rig.log" if run_dir is not None else None
+                    seen = f" (the virtual rig's own log: {rig_log})" \
+                        if rig_log is not None and rig_log.exists() else ""
+                    print(f"harness: the run stopped: the bus failed: {exc}{seen}",
                           file=sys.stderr)
                 else:
                     traceback.print_exc()

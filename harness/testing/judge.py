@@ -151,12 +151,15 @@ def read_channels(rrd: Path, wanted: set[str] | None = None
         ts, vs = parts.setdefault(chunk.entity_path, ([], []))
         ts.append(tx[0])
         vs.append(tx[1])
-    out = {}
-    for entity, (ts, vs) in parts.items():
-        t, v = np.concatenate(ts), np.concatenate(vs)
-        order = np.argsort(t, kind="stable")
-        out[entity] = (t[order], v[order])
-    return out
+    return {entity: _in_time_order(ts, vs) for entity, (ts, vs) in parts.items()}
+
+
+def _in_time_order(ts: list[np.ndarray], vs: list[np.ndarray]
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """A channel's chunks joined and sorted by time (stable: equal times keep their order)."""
+    t, v = np.concatenate(ts), np.concatenate(vs)
+    order = np.argsort(t, kind="stable")
+    return t[order], v[order]
 
 
 ENVELOPE_BUCKETS = 4000
@@ -200,11 +203,7 @@ def read_envelopes(rrd: Path, wanted: set[str], t_end_s: float,
         idx = b[starts]
         lo[idx] = np.fmin(lo[idx], np.fmin.reduceat(v, starts))
         hi[idx] = np.fmax(hi[idx], np.fmax.reduceat(v, starts))
-    out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    for name, (ts, vs, _) in raw.items():
-        t, v = np.concatenate(ts), np.concatenate(vs)
-        order = np.argsort(t, kind="stable")
-        out[name] = (t[order], v[order])
+    out = {name: _in_time_order(ts, vs) for name, (ts, vs, _) in raw.items()}
     centres = (np.arange(buckets) + 0.5) * width
     for name, (lo, hi) in env.items():
         keep = np.isfinite(lo)
