@@ -7,6 +7,7 @@ Unknown keys are errors too (a typo must not silently fall back to a default).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -31,7 +32,7 @@ class Field:
     check: Callable[[Any], str | None] | None = field(default=None, compare=False)
 
     def describe(self) -> str:
-        parts = {"number": "a number", "int": "an integer", "str": "a string",
+        parts = {"number": "a finite number", "int": "an integer", "str": "a string",
                  "bool": "true or false", "list[number]": "a list of numbers",
                  "any": "a value"}[self.kind]
         if self.exclusive_minimum is not None:
@@ -50,6 +51,18 @@ class Field:
 Schema = Mapping[str, "Field | Schema"]
 
 
+def _is_number(v: Any) -> bool:
+    """A real, finite number. NaN must never pass: every comparison with NaN is False, so a
+    limit of NaN would switch off the check it configures (a safety abort that never fires);
+    an infinity is no limit either."""
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:  # an int too large for a float
+        return False
+
+
 def _leaf_ok(spec: Field, value: Any) -> bool:
     if spec.kind == "any":
         return True
@@ -58,13 +71,11 @@ def _leaf_ok(spec: Field, value: Any) -> bool:
     if spec.kind == "str":
         return isinstance(value, str)
     if spec.kind == "int":
-        return isinstance(value, int) and not isinstance(value, bool)
+        return isinstance(value, int) and not isinstance(value, bool) and _is_number(value)
     if spec.kind == "number":
-        return isinstance(value, int | float) and not isinstance(value, bool)
+        return _is_number(value)
     if spec.kind == "list[number]":
-        return isinstance(value, list) and all(
-            isinstance(v, int | float) and not isinstance(v, bool) for v in value
-        )
+        return isinstance(value, list) and all(_is_number(v) for v in value)
     raise AssertionError(spec.kind)
 
 
@@ -106,12 +117,12 @@ def validate(data: Any, schema: Schema, source: str, path: str = "") -> dict[str
                 out[key] = spec.default
                 continue
             value = data[key]
-            if spec.kind == "number" and isinstance(value, int) and not isinstance(value, bool):
-                value = float(value)
             if not _leaf_ok(spec, value) or not _range_ok(spec, value):
                 raise ConfigError(
                     f"{source}: {key_path}: expected {spec.describe()}, got {value!r}"
                 )
+            if spec.kind == "number":
+                value = float(value)
             if spec.check is not None:
                 problem = spec.check(value)
                 if problem:

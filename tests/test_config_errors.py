@@ -14,7 +14,8 @@ from rig_models.schema import ConfigError
 def test_rig_value_error_names_key_and_unit():
     data = dict(load_rig("sgsrt").data)
     data["hub"] = dict(data["hub"], inertia_kg_m2="heavy")
-    with pytest.raises(ConfigError, match=r"hub\.inertia_kg_m2: expected a number > 0 \(kg m\^2\)"):
+    with pytest.raises(ConfigError,
+                       match=r"hub\.inertia_kg_m2: expected a finite number > 0 \(kg m\^2\)"):
         rig_from_dict(data, "rig file x.yaml")
 
 
@@ -28,7 +29,8 @@ def test_rig_unknown_key_is_an_error():
 def test_run_controller_error_names_path():
     raw = {"name": "x", "duration_s": 1.0,
            "controller": {"type": "pd_wheel", "angle_deg": "ten"}}
-    with pytest.raises(ConfigError, match=r"controller\.angle_deg: expected a number \(deg\)"):
+    with pytest.raises(ConfigError,
+                       match=r"controller\.angle_deg: expected a finite number \(deg\)"):
         run_from_dict(raw)
 
 
@@ -61,3 +63,33 @@ def test_bus_overload_refused_before_anything_is_sent(tmp_path):
     with pytest.raises(RunRefused, match="bus load"):
         execute_run(run, out_dir=tmp_path, show_progress=False)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf"), 10**400],
+                         ids=["nan", "inf", "-inf", "1e400-int"])
+@pytest.mark.parametrize("key", ["max_angle_deg", "max_rate_deg_s", "max_tip_accel_m_s2",
+                                 "max_wheel_speed_rad_s"])
+def test_safety_limit_that_is_not_a_finite_number_is_refused(key, bad):
+    """A NaN limit compares False with everything, so it would switch its abort off: the
+    run file is refused, naming the key, before anything runs."""
+    raw = {"name": "x", "duration_s": 1.0,
+           "controller": {"type": "pd_wheel", "angle_deg": 10.0}, "limits": {key: bad}}
+    with pytest.raises(ConfigError, match=rf"limits\.{key}: expected a finite number"):
+        run_from_dict(raw)
+
+
+def test_nan_angle_limit_in_yaml_is_refused_and_a_finite_one_aborts(tmp_path):
+    """The issue's case: a 30 deg slew with limits.max_angle_deg .nan ran to 14 deg with the
+    abort off. Now the file is refused; the same run with the limit 10 aborts."""
+    text = ("name: nan-limit\nduration_s: 25.0\n"
+            "controller: {type: pd_wheel, angle_deg: 30.0}\n"
+            "limits: {max_angle_deg: %s}\n")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text % ".nan")
+    with pytest.raises(ConfigError, match=r"limits\.max_angle_deg: expected a finite number"):
+        load_run(str(bad))
+    good = tmp_path / "good.yaml"
+    good.write_text(text % "10.0")
+    result = execute_run(load_run(str(good)), out_dir=tmp_path / "logs", show_progress=False)
+    kinds = [f["kind"] for f in result.summary["faults"]]
+    assert any("angle" in k for k in kinds), kinds

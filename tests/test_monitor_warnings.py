@@ -125,7 +125,7 @@ def test_missing_telemetry_is_a_rate_limited_count():
 
 def test_bad_threshold_is_refused_with_its_key_path():
     with pytest.raises(ConfigError, match=r"slew-rw\.yaml: monitor\.warn_limits_fraction: "
-                                          r"expected a number > 0 <= 1 \(fraction"):
+                                          r"expected a finite number > 0 <= 1 \(fraction"):
         load_run("slew-rw", {"monitor": {"warn_limits_fraction": 1.5}})
     with pytest.raises(ConfigError, match=r"monitor\.warn_torque_saturated_s: .*\(s\)"):
         load_run(str(FIXTURE), {"monitor": {"warn_torque_saturated_s": "long"}})
