@@ -13,6 +13,7 @@ import pkgutil
 import sys
 
 from harness import commands
+from harness.record.output import OutputError, is_output_failure
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -35,7 +36,17 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "func", None) is None:
         parser.print_help(sys.stderr)
         return 2
-    return int(args.func(args) or 0)
+    try:
+        return int(args.func(args) or 0)
+    except OSError as exc:
+        if not is_output_failure(exc):
+            raise
+        # a full, read-only or failing disk: one line naming the file, not a traceback
+        print(f"harness: cannot write {exc.filename or ''}: {exc.strerror}", file=sys.stderr)
+        return 4
+    except OutputError as exc:
+        print(f"harness: {exc}", file=sys.stderr)
+        return 4
 
 
 if __name__ == "__main__":

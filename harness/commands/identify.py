@@ -109,9 +109,12 @@ def write_spectrum_rrd(run_dir: Path, result: MultiWindowResult,
                        cfg: dict[str, Any] | None = None) -> Path:
     """identify.rrd in the run directory (harness.review.spectrum): the spectra over
     frequency in Hz, every mode marked, the modes' table, with the run's own layout."""
+    from harness.record.output import fresh_output_path
     from harness.review.spectrum import write_identify_rrd
 
-    return write_identify_rrd(run_dir / "identify.rrd", run_dir, result, modes, cfg)
+    # never through a link placed in the run folder (Rerun's file sink follows links)
+    return write_identify_rrd(fresh_output_path(run_dir / "identify.rrd"), run_dir, result,
+                              modes, cfg)
 
 
 def _window_arg(text: str) -> tuple[float, float | None]:

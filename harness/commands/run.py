@@ -15,6 +15,7 @@ from harness.bus.rig_process import RigProcessError
 from harness.core.interrupts import StopRequest, stop_on_signals
 from harness.core.runs import load_run
 from harness.core.session import RunRefused, execute_run
+from harness.record.output import OutputError
 from harness.testing import JudgeInputError, format_block, judge_run, write_verdict
 from rig_models.faults import parse_fault
 from rig_models.schema import ConfigError
@@ -102,6 +103,11 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
                 raise
             except Exception as exc:  # the run raised (controller, driver): judged ERROR
                 run_dir = getattr(exc, "run_dir", None)
+                if isinstance(exc, OutputError):  # the disk, not the run: never judged
+                    print(f"harness: the run stopped, the rig left safe: {exc}",
+                          file=sys.stderr)
+                    codes.append(4)
+                    break
                 if isinstance(exc, can.CanError):  # the bus failed, not our code: one line
                     rig_log = Path(run_dir) / "rig.log" if run_dir is not None else None
                     seen = f" (the virtual rig's own log: {rig_log})" \

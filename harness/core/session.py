@@ -34,6 +34,13 @@ from harness.core.periodic import steady_state_amplitude
 from harness.core.runs import RunConfig, build_controller
 from harness.core.streaming import RunningSummary
 from harness.record.can_log import CanLog
+from harness.record.output import (
+    OutputError,
+    SpaceGuard,
+    as_output_error,
+    is_output_failure,
+    write_text_atomic,
+)
 from harness.record.reader import RecordedColumns
 from harness.record.recording import Recorder
 from harness.review.bus import write_bus
@@ -122,8 +129,14 @@ def execute_run(
             f"({load.frames_per_s:.0f} frames/s; largest: {worst[0]} {worst[2] / 1e3:.0f} kbit/s)"
             "; lower rate_hz or raise the devices' sync_divider")
     controller = build_controller(run)
-    run_dir = make_run_dir(out_dir, run.name)
-    (run_dir / "config.yaml").write_text(yaml.safe_dump(run.resolved(), sort_keys=False))
+    SpaceGuard(out_dir).check()  # a folder already (nearly) full: refused, nothing sent
+    try:
+        run_dir = make_run_dir(out_dir, run.name)
+    except OSError as exc:
+        if is_output_failure(exc):
+            raise as_output_error(out_dir, exc) from exc
+        raise
+    write_text_atomic(run_dir / "config.yaml", yaml.safe_dump(run.resolved(), sort_keys=False))
     rig_mode = virtual_rig_mode(run, spec, clock_name, rig_process,
                                 run.faults + list(faults or []))
     with contextlib.ExitStack() as stack:
@@ -169,7 +182,7 @@ def execute_run(
                 timing["answers_after_window_ms"] = split.pop("rig_answers_after_window_ms")
                 result.summary["virtual_rig_timing"] = timing
                 result.summary["frames"].update(split)
-            (run_dir / "summary.json").write_text(json.dumps(result.summary, indent=2))
+            write_text_atomic(run_dir / "summary.json", json.dumps(result.summary, indent=2))
         return result
 
 
@@ -307,6 +320,7 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
     rig_thread: threading.Thread | None = None
     stop_rig = threading.Event()
     can_log = CanLog(run_dir / "can.blf")
+    guard = SpaceGuard(run_dir)
     running = running_summary_for(run)
     plot_stats = PlotStats(CHANNELS)
     recorder = Recorder(run_dir / "run.rrd", CHANNELS, run.n_ticks, f"{run_dir.name}",
@@ -315,10 +329,12 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                         # lockstep outruns the file sink: wait for it every 10 blocks so its
                         # queue stays bounded; real time never waits (the sink keeps up)
                         flush_every_blocks=0 if clock_name == "realtime" else 10,
-                        blueprint=layout_for_run(run.resolved(), CHANNELS))
+                        blueprint=layout_for_run(run.resolved(), CHANNELS), guard=guard)
     pump = None
     stats = LoopStats()
     setup = RealTimeSetup()
+    summary: dict[str, Any] | None = None
+    failure: OutputError | None = None
     try:
         if spec.in_process:
             rig_bus = open_bus(spec)
@@ -371,22 +387,79 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
             summary["dry_run"] = dry_run
             summary["faults"] = [f.to_dict() for f in stats.faults]
             summary["injected_faults"] = [vars(f) for f in (rig.injector.faults if rig else [])]
-            (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
-            _log_end(recorder, stats, summary, dt_s)
-            _final_layout(recorder, run, run_dir, plot_stats)
+            failure = recorder.space_stop or recorder.failed or can_log.failed
+            if failure is None:
+                try:
+                    _write_summary(run_dir, summary)
+                except OutputError as exc:
+                    failure = exc
+                else:
+                    _log_end(recorder, stats, summary, dt_s)
+                    _final_layout(recorder, run, run_dir, plot_stats)
     finally:
         setup.restore()
         stop_rig.set()
         if rig_thread is not None:
             rig_thread.join(timeout=2.0)
-        can_log.close()
-        _log_bus(recorder, can_log.path, dt_s, clock_name == "realtime",
-                 run.rig.data["bus"]["sync_divider"])
-        recorder.close()
+        failure = _close_outputs(recorder, can_log, guard, dt_s, clock_name == "realtime",
+                                 run.rig.data["bus"]["sync_divider"], failure)
         harness_bus.shutdown()
         if rig_bus is not None:
             rig_bus.shutdown()
+        if failure is not None:
+            _report_output_failure(run_dir, summary, stats, failure)
+    if failure is not None:
+        raise failure
     return RunResult(run_dir, summary, stats, recorder, rig)
+
+
+def _write_summary(run_dir: Path, summary: dict[str, Any]) -> None:
+    write_text_atomic(run_dir / "summary.json", json.dumps(summary, indent=2))
+
+
+def _close_outputs(recorder: Recorder, can_log: CanLog, guard: SpaceGuard, dt_s: float,
+                   realtime: bool, dividers: dict[str, int],
+                   failure: OutputError | None = None) -> OutputError | None:
+    """Close the CAN log and the recording (every exit path); the first failure of the
+    output folder, if any (a full or read-only disk), instead of raising it, so that both
+    are closed and what they hold stays readable."""
+    failure = failure or recorder.space_stop or recorder.failed or can_log.failed
+    try:
+        can_log.close()
+    except OutputError as exc:
+        failure = failure or exc
+    if failure is None:
+        try:  # the decoded bus takes about 8 times the CAN log's size (slew-rw)
+            guard.check(need_bytes=10 * can_log.path.stat().st_size)
+        except (OSError, OutputError) as exc:
+            print(f"harness: the CAN log is not decoded into the recording ({exc})",
+                  file=sys.stderr)
+        else:
+            _log_bus(recorder, can_log.path, dt_s, realtime, dividers)
+    try:
+        recorder.close()
+    except OutputError as exc:
+        failure = failure or exc
+    return failure
+
+
+def _report_output_failure(run_dir: Path, summary: dict[str, Any] | None, stats: LoopStats,
+                           failure: OutputError) -> None:
+    """A run whose folder failed never says "completed": its summary.json says why it
+    stopped, or, when even that cannot be written, is removed (``harness logs`` then shows
+    the run as not completed)."""
+    stats.stopped_by = "error"
+    stats.error = str(failure)
+    if summary is None:
+        return
+    summary["stopped_by"] = "error"
+    summary["error"] = str(failure)
+    summary["output_failure"] = failure.reason
+    try:
+        _write_summary(run_dir, summary)
+    except OutputError:
+        with contextlib.suppress(OSError):
+            (run_dir / "summary.json").unlink()
 
 
 def _warning_logger(recorder: Recorder, show: bool) -> Callable[[MonitorWarning], None]:

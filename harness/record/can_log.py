@@ -24,6 +24,8 @@ from pathlib import Path
 import can
 from can.util import channel2int
 
+from harness.record.output import OutputError, as_output_error, is_output_failure
+
 CONTAINER_BYTES = 32 * 1024
 
 
@@ -38,6 +40,7 @@ class CanLog:
         self._closed = False
         self._numbered: dict[object, bool] = {}
         self._pending: list[can.Message] = []
+        self.failed: OutputError | None = None
 
     def log(self, msg: can.Message) -> None:
         """Queue a frame (the message must not be changed afterwards; ours never are)."""
@@ -50,7 +53,21 @@ class CanLog:
         return len(self._pending)
 
     def drain(self) -> int:
-        """Write the queued frames through python-can's BLF writer; returns how many."""
+        """Write the queued frames through python-can's BLF writer; returns how many.
+        Raises ``OutputError`` when the file cannot be written (a full or read-only disk);
+        later calls drop the queue (memory stays bounded) and raise it again."""
+        if self.failed is not None:
+            self._pending.clear()
+            raise self.failed
+        try:
+            return self._drain()
+        except OSError as exc:
+            if not is_output_failure(exc):
+                raise
+            self.failed = as_output_error(self.path.parent, exc)
+            raise self.failed from exc
+
+    def _drain(self) -> int:
         pending, self._pending = self._pending, []
         write = self._writer.on_message_received
         numbered_of = self._numbered
@@ -87,12 +104,27 @@ class CanLog:
         writer.file.flush()
 
     def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            try:
-                self.drain()
-            finally:
-                self._writer.stop()
+        """Drain and finalise the file; after a failed write only close it (its whole
+        containers stay readable: the reader does not use the header's counts)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self.drain()
+        finally:
+            if self.failed is None:
+                try:
+                    self._writer.stop()
+                except OSError as exc:
+                    if not is_output_failure(exc):
+                        raise
+                    self.failed = as_output_error(self.path.parent, exc)
+                    raise self.failed from exc
+            else:
+                try:
+                    self._writer.file.close()
+                except OSError:
+                    pass  # its buffered bytes could not be written either
 
 
 def read_can_log(path: Path) -> list[can.Message]:

@@ -17,15 +17,25 @@ only every ``flush_every_blocks`` blocks when that is set (0, the default: only 
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
+import threading
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from harness.record.output import OutputError, SpaceGuard
+
 APPLICATION_ID = "sgsrt-harness"
+
+FLUSH_TIMEOUT_S = 30.0
+"""A flush waits at most this long: Rerun's flush without a timeout waited forever once its
+file sink's thread had died on a full disk (a run hung with 64 KB free)."""
 
 
 def default_blueprint(extra_views: list[rrb.View] | None = None) -> rrb.Blueprint:
@@ -47,6 +57,30 @@ def default_blueprint(extra_views: list[rrb.View] | None = None) -> rrb.Blueprin
 
 
 BlockObserver = Callable[[np.ndarray, np.ndarray], None]
+
+START_TIMEOUT_S = 20.0
+"""Rerun's ``save`` waited forever when its file sink's first write failed (a disk with
+64 KB free: the sink's thread died and ``set_sink`` waited for its flush). A Rust call cannot
+be interrupted, so past this bound the process ends (exit 4) with one line naming the file;
+nothing has been sent to the rig yet (the recorder exists before the loop starts)."""
+
+
+@contextlib.contextmanager
+def _start_watchdog(path: Path) -> Iterator[None]:
+    started = threading.Event()
+
+    def watch() -> None:
+        if not started.wait(START_TIMEOUT_S):
+            print(f"harness: cannot write to the output folder {path.parent}: the recording "
+                  f"{path.name} did not start in {START_TIMEOUT_S:g} s (a full or failing "
+                  "disk); nothing was sent to the rig", file=sys.stderr, flush=True)
+            os._exit(4)
+
+    threading.Thread(target=watch, name="recording-start-watchdog", daemon=True).start()
+    try:
+        yield
+    finally:
+        started.set()
 
 
 class _Block:
@@ -70,8 +104,12 @@ class Recorder:
                  live_view_url: str | None = None, retain_rows: int = 0,
                  flush_every_blocks: int = 0, max_pending_blocks: int = 30,
                  observers: list[BlockObserver] | None = None,
-                 max_pending_events: int = 100) -> None:
+                 max_pending_events: int = 100, guard: SpaceGuard | None = None) -> None:
         self.path = path
+        # checked once per block: the run stops (OutputError) before the disk is full
+        self.guard = guard
+        self.space_stop: OutputError | None = None  # the guard stopped the run
+        self.failed: OutputError | None = None  # the file sink failed
         self.channels = list(channels)
         self.index = {c: i for i, c in enumerate(self.channels)}
         self.n_rows_hint = n_rows
@@ -99,14 +137,15 @@ class Recorder:
         # no RRD footer: writing one keeps a manifest entry per chunk in memory until the
         # file is closed (measured: ~1.2 MB per 100 000 rows, 0.5 GB for a day); the file
         # stays a valid RRD, read by streaming (harness.record.reader)
-        if live_view_url is None:
-            self.rec.save(str(path), default_blueprint=bp, write_footer=False)
-        else:
-            # the file and a viewer we started bound to 127.0.0.1 (harness.live_view); we
-            # never call serve_grpc, which binds every interface
-            self.rec.set_sinks(rr.FileSink(str(path), write_footer=False),
-                               rr.GrpcSink(live_view_url))
-            self.rec.send_blueprint(bp)
+        with _start_watchdog(path):
+            if live_view_url is None:
+                self.rec.save(str(path), default_blueprint=bp, write_footer=False)
+            else:
+                # the file and a viewer we started bound to 127.0.0.1 (harness.live_view);
+                # we never call serve_grpc, which binds every interface
+                self.rec.set_sinks(rr.FileSink(str(path), write_footer=False),
+                                   rr.GrpcSink(live_view_url))
+                self.rec.send_blueprint(bp)
         self.rec.send_recording_name(recording_name)
         from harness.review.names import log_series_names
 
@@ -140,6 +179,12 @@ class Recorder:
                 self._tail_rows -= len(self._tail.popleft().t)
         for observe in self.observers:
             observe(block.t, block.data)
+        if self.guard is not None and self.space_stop is None:
+            try:
+                self.guard.check()
+            except OutputError as exc:
+                self.space_stop = exc
+                raise
         while len(self._pending) > self.max_pending_blocks:  # never had the time: bound it
             self._send_block_rest(self._pending[0])
 
@@ -177,8 +222,17 @@ class Recorder:
                 self.flush()
 
     def flush(self) -> None:
-        """Hand everything logged so far to the file (blocks until written)."""
-        self.rec.flush()
+        """Hand everything logged so far to the file (blocks until written, at most
+        ``FLUSH_TIMEOUT_S``). Raises ``OutputError`` when the file sink failed (Rerun's
+        writer thread stops at the first failed write: a full or read-only disk)."""
+        if self.failed is not None:
+            raise self.failed
+        try:
+            self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        except Exception as exc:
+            self.failed = OutputError(self.path.parent, f"the recording {self.path.name} "
+                                      f"could not be written ({exc})")
+            raise self.failed from exc
 
     def log_static_text(self, entity: str, text: str) -> None:
         self.rec.log(entity, rr.TextDocument(text, media_type="text/markdown"), static=True)
@@ -243,10 +297,16 @@ class Recorder:
         if self._closed:
             return
         self._closed = True
-        self._complete_block()
-        self.drain()
-        self.rec.flush()
-        self.rec.disconnect()
+        # the guard's reserve takes what is still queued; after it stopped the run it is
+        # not asked again
+        self.guard = None
+        try:
+            if self.failed is None:
+                self._complete_block()
+                self.drain()
+            self.flush()
+        finally:
+            self.rec.disconnect()
 
     def tail_time(self) -> np.ndarray:
         """Times of the retained tail (the last ``retain_rows`` rows at least, when set)."""

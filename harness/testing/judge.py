@@ -440,10 +440,15 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
     import rerun as rr
 
     run_dir = Path(run_dir or v.run_dir or ".")
+    from harness.record.output import OutputError, fresh_output_path, write_text_atomic
+
     out = run_dir / "verdict.json"
-    out.write_text(json.dumps(v.to_dict(), indent=2) + "\n")
+    # atomic: a full disk leaves the old verdict or none, never an empty one; neither file
+    # is written through a link placed in the run folder
+    write_text_atomic(out, json.dumps(v.to_dict(), indent=2) + "\n")
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=run_dir.name)
-    rec.save(str(run_dir / "verdict.rrd"), default_blueprint=_run_layout(run_dir))
+    rec.save(str(fresh_output_path(run_dir / "verdict.rrd")),
+             default_blueprint=_run_layout(run_dir))
     rec.log("/run/verdict", rr.TextDocument(verdict_markdown(v), media_type="text/markdown"),
             static=True)
     events = sorted((t, c) for c in v.criteria for t in c.violations_s)
@@ -452,8 +457,12 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
         rec.log("/events/verdict", rr.TextLog(f"{c.name} {c.verdict}: {c.message}",
                                               level="ERROR" if c.verdict == ERROR else "WARN"))
     _mark_on_plots(rec, run_dir, [(t, f"VERDICT {c.name} {c.verdict}") for t, c in events])
-    rec.flush()
-    rec.disconnect()
+    try:
+        rec.flush(timeout_sec=30.0)  # without a bound it waited forever on a full disk
+    except Exception as exc:
+        raise OutputError(run_dir, f"verdict.rrd could not be written ({exc})") from exc
+    finally:
+        rec.disconnect()
     return out
 
 
