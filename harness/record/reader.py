@@ -2,19 +2,100 @@
 
 from __future__ import annotations
 
+import os
+import struct
+import tempfile
 import warnings
+import weakref
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 from rerun.chunk import RrdReader as _RrdReader
 
+FILE_HEADER_BYTES = 12
+"""An RRD stream starts with ``RRF2``, the encoder's version (4 bytes) and its options (4)."""
+MESSAGE_HEADER_BYTES = 16
+"""Each message: its kind and its payload's length, two little-endian u64, then the payload."""
+MESSAGE_KINDS = (0, 1, 2, 3)
+"""End, SetStoreInfo, ArrowMsg, BlueprintActivationCommand (rerun 0.41's re_log_encoding)."""
+
+
+def complete_length(path: Path) -> int:
+    """Bytes of ``path`` up to the end of its last complete message: the whole file unless
+    it was cut (a full disk, power loss, a SIGKILL mid-write). Reads 16 bytes a message."""
+    path = Path(path)
+    size = path.stat().st_size
+    end = 0
+    with open(path, "rb") as f:
+        pos = 0
+        while pos < size:
+            f.seek(pos)
+            head = f.read(MESSAGE_HEADER_BYTES)
+            if head[:4] == b"RRF2":  # a stream's header (a file may hold several streams)
+                if len(head) < FILE_HEADER_BYTES:
+                    break
+                pos += FILE_HEADER_BYTES
+                end = pos
+                continue
+            if len(head) < MESSAGE_HEADER_BYTES:
+                break
+            kind, length = struct.unpack("<QQ", head)
+            if kind not in MESSAGE_KINDS or pos + MESSAGE_HEADER_BYTES + length > size:
+                break  # cut inside this message (or bytes that are not a message)
+            pos += MESSAGE_HEADER_BYTES + length
+            end = pos
+    return end
+
+
+def _open(path: Path) -> _RrdReader:
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="RRD file has no footer")
+        reader = _RrdReader(path)
+        reader._internal.store_entries()  # Rerun's whole-file scan: raises on a cut file
+    return reader
+
 
 def RrdReader(path: Path) -> _RrdReader:  # noqa: N802 - stands in for the class
     """Rerun's reader, without its warning on files written with no footer (ours are, on
-    purpose: harness.record.recording) or cut short by a SIGKILL; both are read by streaming."""
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="RRD file has no footer")
-        return _RrdReader(path)
+    purpose: harness.record.recording). A file cut at any byte (a full disk, power loss)
+    is read to its last complete message: Rerun refuses such a file as a whole, so its
+    complete part is copied to a temporary file (outside the run folder, removed with the
+    reader)."""
+    path = Path(path)
+    try:
+        return _open(path)
+    except (RuntimeError, ValueError) as exc:
+        if not path.is_file():
+            raise
+        end = complete_length(path)
+        if end >= path.stat().st_size:
+            raise
+        if end <= FILE_HEADER_BYTES:
+            raise ValueError(f"{path}: no complete message (the file was cut at byte "
+                             f"{path.stat().st_size})") from exc
+        return _open_prefix(path, end)
+
+
+def _open_prefix(path: Path, end: int) -> _RrdReader:
+    fd, tmp_name = tempfile.mkstemp(prefix="sgsrt-cut-", suffix=".rrd")
+    tmp = Path(tmp_name)
+    try:
+        with open(path, "rb") as src, os.fdopen(fd, "wb") as dst:
+            left = end
+            while left > 0:  # in pieces: memory stays bounded whatever the file's size
+                piece = src.read(min(left, 1 << 20))
+                if not piece:
+                    break
+                dst.write(piece)
+                left -= len(piece)
+        reader = _open(tmp)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    # Rerun keeps the file open while a stream reads it: removing the name is safe
+    weakref.finalize(reader, tmp.unlink, missing_ok=True)
+    return reader
 
 
 def iter_chunks(rrd: Path, content: list[str] | str | None = None,
@@ -22,14 +103,21 @@ def iter_chunks(rrd: Path, content: list[str] | str | None = None,
     """The recording's chunks one at a time, never the whole file in memory
     (``stream().to_chunks()`` materialises every chunk: a 200 s run's judge took 200 MB
     more than a 20 s run's). ``content``: keep only these entity path filters (an exact
-    path, or ``/a/**`` for a subtree); ``drop``: leave these out."""
-    stream = RrdReader(rrd).stream(store=store) if store is not None \
-        else RrdReader(rrd).stream()
+    path, or ``/a/**`` for a subtree); ``drop``: leave these out. A cut file gives every
+    complete chunk (``RrdReader``)."""
+    reader = RrdReader(rrd)
+    stream = reader.stream(store=store) if store is not None else reader.stream()
     if content is not None:
         stream = stream.filter(content=content)
     if drop is not None:
         stream = stream.drop(content=drop)
-    return iter(stream)
+    return _iterate(reader, stream)
+
+
+def _iterate(reader: _RrdReader, stream: object) -> Iterator[object]:
+    # holds the reader (and a cut file's temporary copy) until the last chunk is read
+    yield from iter(stream)  # type: ignore[call-overload]
+    del reader
 
 
 def read_scalar_channel(rrd: Path, entity: str) -> tuple[np.ndarray, np.ndarray]:
