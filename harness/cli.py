@@ -9,11 +9,81 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import pkgutil
 import sys
+from collections.abc import Callable
 
 from harness import commands
 from harness.record.output import OutputError, is_output_failure
+
+MAX_RATE_HZ = 10_000.0
+"""The fastest loop or SYNC rate any command accepts: a 1 Mbit/s CAN bus carries about
+8000 frames a second, so a faster SYNC rate cannot be served (``harness probe`` hung at
+absurd rates)."""
+
+MAX_SECONDS = 30 * 24 * 3600.0
+"""The longest duration (or time) any option takes: 30 days."""
+
+MAX_COUNT = 100_000
+"""The largest count (workers, grid points, starts, modes) an option takes."""
+
+
+def _range_for(dest: str, kind: type) -> tuple[float, bool, float] | None:
+    """(lowest, lowest allowed?, highest) of a numeric option, from its name's unit; None:
+    any finite number (angles, amplitudes, seeds, ``--cpu -1``)."""
+    if dest.endswith("_hz"):
+        return 0.0, False, MAX_RATE_HZ
+    if dest.endswith(("_s", "_ms", "_us")):
+        scale = {"_s": 1.0, "_ms": 1e3, "_us": 1e6}["_" + dest.rsplit("_", 1)[1]]
+        return 0.0, True, MAX_SECONDS * scale
+    if dest.endswith(("_kg", "_m", "_kg_m2", "_n_m", "_m_s2")) or dest in ("target_ratio",):
+        return 0.0, False, 1e9
+    if dest == "serve_socketcand":
+        return 1, True, 65535
+    if kind is int and dest not in ("seed", "cpu"):
+        return 0, True, MAX_COUNT
+    return None
+
+
+def _checked_number(option: str, dest: str, kind: type) -> Callable[[str], float | int]:
+    """An argparse ``type``: a finite number of the option's kind within its range; the
+    error (exit 2) names the option (argparse prefixes it) and what it expects."""
+    bounds = _range_for(dest, kind)
+
+    def parse(text: str) -> float | int:
+        try:
+            value = kind(text)
+        except (TypeError, ValueError):
+            raise argparse.ArgumentTypeError(
+                f"expected {'an integer' if kind is int else 'a number'}, got {text!r}"
+            ) from None
+        if kind is float and not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+        if bounds is not None:
+            low, low_ok, high = bounds
+            if value < low or (value == low and not low_ok) or value > high:
+                raise argparse.ArgumentTypeError(
+                    f"expected {'>=' if low_ok else '>'} {low:g} and <= {high:g}, got {text!r}")
+        elif kind is int and abs(value) > 2**31:
+            raise argparse.ArgumentTypeError(f"expected an integer of at most 2^31, got {text!r}")
+        return value
+
+    parse.__name__ = kind.__name__  # argparse names the type in its own messages
+    return parse
+
+
+def check_numbers(parser: argparse.ArgumentParser) -> None:
+    """Every ``type=float`` / ``type=int`` option of every command, checked finite and in
+    range before the command runs (``--duration-s nan`` ran into a traceback, ``--rate-hz
+    1e12`` hung ``harness probe``)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                check_numbers(sub)
+        elif action.type in (float, int):
+            option = action.option_strings[-1] if action.option_strings else action.dest
+            action.type = _checked_number(option, action.dest, action.type)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -27,6 +97,7 @@ def build_parser() -> argparse.ArgumentParser:
         register = getattr(module, "register", None)
         if register is not None:
             register(sub)
+    check_numbers(parser)
     return parser
 
 

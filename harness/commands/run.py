@@ -68,9 +68,11 @@ def cmd_run(args: argparse.Namespace) -> int:
 def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> int:
     codes: list[int] = []
     try:
-        overrides = {"duration_s": args.duration_s} if args.duration_s else None
-        if args.view and "127.0.0.1" not in args.view and "localhost" not in args.view:
-            raise ConfigError(f"--view {args.view}: the live view stays on 127.0.0.1")
+        if args.duration_s is not None and not args.duration_s > 0:
+            raise ConfigError(f"--duration-s {args.duration_s:g}: expected a duration > 0 s")
+        overrides = {"duration_s": args.duration_s} if args.duration_s is not None else None
+        if args.view:
+            check_view_url(args.view)
         base = load_run(args.run, overrides)
         faults = [parse_fault(f) for f in args.fault or []]
         variants = base.data["variants"] or {}
@@ -87,7 +89,7 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
             if name is not None:
                 over = dict(variants[name])
                 over["name"] = f"{base.name}-{name}"
-                if args.duration_s:
+                if args.duration_s is not None:
                     over["duration_s"] = args.duration_s
                 run = load_run(args.run, over)
             runs.append((name, run))
@@ -147,6 +149,41 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
     if args.json:
         print(json.dumps(summaries[0] if len(summaries) == 1 else summaries, indent=2))
     return worst_exit(codes)
+
+
+VIEW_SCHEMES = ("rerun+http", "rerun+https", "rerun")
+
+
+def check_view_url(url: str) -> str:
+    """``url`` if it names a Rerun viewer on this machine's loopback; else ``ConfigError``.
+    The URL is parsed, not searched: its host is the one the connection goes to, so a
+    query, path or user part naming 127.0.0.1 does not make another host acceptable."""
+    import ipaddress
+    from urllib.parse import urlsplit
+
+    why = None
+    try:
+        parts = urlsplit(url)
+        host = parts.hostname or ""
+        parts.port  # noqa: B018 - raises ValueError on a port out of range
+    except ValueError as exc:
+        why = f"not a URL ({exc})"
+    else:
+        if parts.scheme.lower() not in VIEW_SCHEMES:
+            why = f"scheme {parts.scheme!r} (expected rerun+http://127.0.0.1:PORT/proxy)"
+        elif parts.username is not None or parts.password is not None:
+            why = "a user part is not accepted"
+        elif host != "localhost":
+            try:
+                loopback = ipaddress.ip_address(host).is_loopback
+            except ValueError:
+                loopback = False
+            if not loopback:
+                why = f"host {host or '(none)'!r} is not this machine's loopback"
+    if why is not None:
+        raise ConfigError(f"--view {url!r}: {why}; the live view stays on 127.0.0.1 "
+                          "(start the viewer with 'rerun --bind 127.0.0.1')")
+    return url
 
 
 EXIT_ORDER = (130, 3, 4, 1, 5, 0)

@@ -25,7 +25,10 @@ ORDER = {"PASS": 0, "MARGINAL": 1, "FAIL": 2, "ERROR": 3}
 def _num(v: Any) -> float | None:
     if isinstance(v, bool) or not isinstance(v, int | float):
         return None
-    return float(v)
+    try:
+        return float(v)
+    except OverflowError:  # a hand-edited int too large for a float: not a number here
+        return None
 
 
 def judge_checks(criteria: Iterable[Criterion], doc: Any) -> list[dict[str, Any]]:

@@ -83,10 +83,17 @@ def _err(source: str, path: str, msg: str) -> ConfigError:
     return ConfigError(f"{source}: {path}: {msg}")
 
 
+def _finite(v: int | float) -> bool:
+    try:
+        return math.isfinite(v)
+    except OverflowError:  # an int too large for a float (YAML reads 1e999 as text)
+        return False
+
+
 def _number(source: str, path: str, v: Any, unit: str, positive: bool = False,
             nonneg: bool = False) -> float:
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-        raise _err(source, path, f"expected a number ({unit}), got {v!r}")
+    if isinstance(v, bool) or not isinstance(v, int | float) or not _finite(v):
+        raise _err(source, path, f"expected a finite number ({unit}), got {v!r}")
     if positive and v <= 0:
         raise _err(source, path, f"expected a number > 0 ({unit}), got {v!r}")
     if nonneg and v < 0:

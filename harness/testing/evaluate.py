@@ -84,6 +84,13 @@ class Facts:
     """The channels block by block (bounded memory); without it, each ``channel`` whole."""
 
 
+def _finite(v: int | float) -> bool:
+    try:
+        return math.isfinite(v)
+    except OverflowError:  # a hand-edited int too large for a float
+        return False
+
+
 def _clean(v: Any) -> Any:
     if isinstance(v, np.generic):
         v = v.item()
@@ -186,7 +193,7 @@ def _judge_value(c: Criterion, value: Any) -> tuple[str, float | None, Any, str]
         margin = float(band_margins(np.array([x]), lim)[0])
         return grade(margin, c.marginal), margin, len(value), ""
     if isinstance(value, bool) or not isinstance(value, int | float) or \
-            not math.isfinite(float(value)):
+            not _finite(value):
         return ERROR, None, value, f"= {_fmt_any(value)} is not a number"
     if "equals" in c.limit:
         ok = math.isclose(float(value), c.limit["equals"], rel_tol=1e-9, abs_tol=1e-12)

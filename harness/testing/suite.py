@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import copy
 import itertools
+import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -160,8 +161,15 @@ def _str(value: Any, where: str, what: str = "a string") -> str:
 
 
 def _number(value: Any, where: str, unit: str = "") -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise _err(where, f"expected a number{f' ({unit})' if unit else ''}, got {value!r}")
+    finite = False
+    if not isinstance(value, bool) and isinstance(value, int | float):
+        try:
+            finite = math.isfinite(value)
+        except OverflowError:  # an int too large for a float
+            finite = False
+    if not finite:
+        raise _err(where, f"expected a finite number{f' ({unit})' if unit else ''}, "
+                   f"got {value!r}")
     return float(value)
 
 
