@@ -10,12 +10,11 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from rig_models.beam import BeamModes, BeamSpec, beam_modes
 from rig_models.flexible_hub import HubBeamModel, build_hub_beam
 from rig_models.piezo import PatchGains, PiezoPatch, patch_gains
 from rig_models.schema import ConfigError, Field, validate
+from rig_models.yaml_file import load_yaml
 
 G0_M_S2 = 9.80665
 RIGS_DIR = Path(__file__).parent / "rigs"
@@ -191,10 +190,7 @@ def load_rig(name_or_path: str | Path = "sgsrt") -> RigConfig:
     if not path.exists():
         builtin = ", ".join(sorted(p.stem for p in RIGS_DIR.glob("*.yaml")))
         raise ConfigError(f"rig file {name_or_path}: not found (built-in rigs: {builtin})")
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"rig file {path}: not valid YAML: {exc}") from exc
+    raw = load_yaml(path, "rig file")
     return rig_from_dict(raw, source=f"rig file {path.name}")
 
 

@@ -19,6 +19,7 @@ from harness.core.monitor import LIMITS_SCHEMA, MONITOR_SCHEMA
 from rig_models.faults import FaultSpec, make_fault
 from rig_models.rig_file import RigConfig, load_rig, rig_from_dict
 from rig_models.schema import ConfigError, Field, validate
+from rig_models.yaml_file import load_yaml
 
 RUNS_DIR = Path(__file__).parent.parent / "runs"
 ACTUATORS = ("reaction_wheel", "thruster_valves", "piezo_amplifier", "disturbance_rotor")
@@ -135,10 +136,7 @@ def load_run(name_or_path: str, overrides: dict[str, Any] | None = None) -> RunC
     if not path.exists():
         names = ", ".join(n for n, _ in list_runs())
         raise ConfigError(f"run {name_or_path}: not found (built-in runs: {names})")
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"run file {path}: not valid YAML: {exc}") from exc
+    raw = load_yaml(path, "run file")
     if overrides:
         raw = _deep_merge(raw or {}, overrides)
     return run_from_dict(raw, source=f"run file {path.name}", base_dir=path.parent)

@@ -19,7 +19,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from harness.testing.criteria import Criterion, apply_overrides, parse_criteria
 from harness.testing.evaluate import (
@@ -328,10 +327,12 @@ def left_safe_problems(blf: Path) -> list[str]:
 
 # ----------------------------------------------------------------------------- judging
 def _load_yaml(path: Path) -> Any:
+    from rig_models.yaml_file import load_yaml
+
     try:
-        return yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise JudgeInputError(f"{path}: cannot read: {exc}") from exc
+        return load_yaml(path, "YAML file")
+    except ConfigError as exc:
+        raise JudgeInputError(str(exc)) from exc
 
 
 def criteria_of(run_dir: Path, cfg: Mapping[str, Any], expect: Any = None

@@ -71,6 +71,7 @@ from harness.core.runs import _deep_merge, load_run, run_path
 from harness.testing.criteria import FORMS, Criterion, _items, parse_criterion
 from harness.testing.measures import path_error, unit_of_path
 from rig_models.schema import ConfigError
+from rig_models.yaml_file import load_yaml
 
 SUITES_DIR = Path(__file__).resolve().parent.parent / "suites"
 TEST_KEYS = {
@@ -299,7 +300,7 @@ def _run_cases(t: dict[str, Any], where: str, suite: str, base_dir: Path, source
         except ConfigError as exc:
             raise _err(f"{where}.run", str(exc)) from exc
     path = path.resolve()
-    raw = yaml.safe_load(path.read_text()) or {}
+    raw = load_yaml(path, "run file") or {}
     if not isinstance(raw, dict):
         raise _err(f"{where}.run", f"{path.name}: expected a mapping of keys")
     name = t.get("name") or raw.get("name") or path.stem
@@ -431,10 +432,7 @@ def load_suite(name_or_path: str) -> Suite:
         names = ", ".join(n for n, _ in list_suites())
         raise ConfigError(f"suite {name_or_path}: not found (built-in suites: {names})")
     src = path.name
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"suite file {path}: not valid YAML: {exc}") from exc
+    raw = load_yaml(path, "suite file")
     if not isinstance(raw, dict):
         raise ConfigError(f"suite file {src}: expected a mapping with name and tests")
     unknown = sorted(set(raw) - {"name", "description", "tests"})

@@ -1,0 +1,79 @@
+"""Reading a YAML file a person wrote (run, suite, rig, criteria files), bounded.
+
+A YAML file of tens of MB, or a small one whose aliases expand to millions of values (each
+``*alias`` repeats a whole subtree: ten levels of ten aliases are 10^10 values), took
+gigabytes and minutes or died with MemoryError, and a recursive alias (``&a [*a]``) never
+ends for code that walks the document. ``load_yaml`` refuses a file over
+``MAX_YAML_BYTES`` before reading it, and a document whose values, counted as expanded,
+exceed ``MAX_YAML_VALUES``, with a ``ConfigError`` naming the file.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from rig_models.schema import ConfigError
+
+MAX_YAML_BYTES = 4 * 1024 * 1024
+"""The largest file: the biggest built-in run, suite or rig file is about 10 KB."""
+
+MAX_YAML_VALUES = 200_000
+"""The most values (mappings, lists and scalars, aliases counted as expanded) a file may
+hold: the biggest built-in file has about a thousand."""
+
+
+def count_values(doc: Any, limit: int = MAX_YAML_VALUES) -> int:
+    """Values of ``doc`` with every shared or recursive reference counted again; stops
+    (returning more than ``limit``) as soon as the count passes ``limit``."""
+    n = 0
+    stack = [doc]
+    while stack:
+        v = stack.pop()
+        n += 1
+        if n > limit:
+            return n
+        if isinstance(v, dict):
+            stack.extend(v.keys())
+            stack.extend(v.values())
+        elif isinstance(v, list | tuple | set):
+            stack.extend(v)
+    return n
+
+
+def check_expansion(doc: Any, source: str) -> Any:
+    if count_values(doc) > MAX_YAML_VALUES:
+        raise ConfigError(f"{source}: more than {MAX_YAML_VALUES} values once its aliases "
+                          "are expanded; a run, suite or rig file needs far fewer")
+    return doc
+
+
+def load_yaml(path: Path, what: str = "file") -> Any:
+    """The document of ``path``; ``ConfigError`` (naming ``what`` and the file) when it is
+    too big, expands too far, is not valid YAML, or cannot be read."""
+    path = Path(path)
+    source = f"{what} {path}"
+    try:
+        size = path.stat().st_size
+        if size > MAX_YAML_BYTES:
+            raise ConfigError(f"{source}: {size / 2**20:.1f} MiB, more than the "
+                              f"{MAX_YAML_BYTES // 2**20} MiB a YAML input may have")
+        with open(path, encoding="utf-8", errors="strict") as f:
+            text = f.read(MAX_YAML_BYTES + 1)
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{source}: not UTF-8 text ({exc.reason} at byte {exc.start})"
+                          ) from None
+    except OSError as exc:
+        raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    if len(text) > MAX_YAML_BYTES:  # it grew since its size was read
+        raise ConfigError(f"{source}: more than the {MAX_YAML_BYTES // 2**20} MiB a YAML "
+                          "input may have")
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source}: not valid YAML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{source}: nested too deeply") from None
+    return check_expansion(doc, source)
