@@ -44,10 +44,35 @@ def count_values(doc: Any, limit: int = MAX_YAML_VALUES) -> int:
 
 
 def check_expansion(doc: Any, source: str) -> Any:
+    """``doc`` if it is small enough once expanded and every string in it (keys too) can be
+    written as UTF-8; else ``ConfigError`` naming ``source`` (and the key)."""
     if count_values(doc) > MAX_YAML_VALUES:
         raise ConfigError(f"{source}: more than {MAX_YAML_VALUES} values once its aliases "
                           "are expanded; a run, suite or rig file needs far fewer")
+    _check_strings(doc, source)
     return doc
+
+
+def _check_strings(doc: Any, source: str) -> None:
+    # a YAML escape such as "\ud800" gives a lone surrogate: no file name, JSON report or
+    # recording can hold it (names of suites and tests ended in UnicodeEncodeError)
+    stack: list[tuple[Any, str]] = [(doc, "")]
+    while stack:
+        v, path = stack.pop()
+        if isinstance(v, str):
+            try:
+                v.encode("utf-8")
+            except UnicodeEncodeError as exc:
+                raise ConfigError(f"{source}: {path or 'value'}: {v!r} holds a character "
+                                  f"that is not text ({v[exc.start]!r}, a lone surrogate)"
+                                  ) from None
+        elif isinstance(v, dict):
+            for k, item in v.items():
+                key = f"{path}.{k}" if path else str(k)
+                stack.append((k, f"{key} (the key)"))
+                stack.append((item, key))
+        elif isinstance(v, list | tuple):
+            stack.extend((item, f"{path}[{i}]") for i, item in enumerate(v))
 
 
 def load_yaml(path: Path, what: str = "file") -> Any:

@@ -32,7 +32,9 @@ RUN_SCHEMA: dict[str, Any] = {
     "bus": Field("str", default="virtual:sgsrt"),
     "clock": Field("str", default="lockstep", choices=("lockstep", "realtime")),
     "rate_hz": Field("number", "Hz", default=500.0, exclusive_minimum=0.0, maximum=2000.0),
-    "duration_s": Field("number", "s", required=True, exclusive_minimum=0.0),
+    # at most 30 days: a duration of 1e308 s overflowed the tick count (a traceback)
+    "duration_s": Field("number", "s", required=True, exclusive_minimum=0.0,
+                        maximum=30 * 24 * 3600.0),
     "heartbeat_hz": Field("number", "Hz", default=20.0, exclusive_minimum=0.0),
     "max_bus_load_percent": Field("number", "%", default=70.0, exclusive_minimum=0.0,
                                   maximum=100.0),
