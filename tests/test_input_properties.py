@@ -209,3 +209,33 @@ def test_view_on_loopback_is_accepted(url):
 def test_view_to_another_host_is_refused_whatever_the_url_says(url):
     with pytest.raises(ConfigError, match="--view"):
         check_view_url(url)
+
+
+# -- a bus that cannot be reached -----------------------------------------------------------
+
+def test_socketcand_with_nothing_listening_is_one_line_in_bounded_time(tmp_path):
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    with socket.socket() as s:  # a free port, closed again: nothing listens there
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    t0 = time.monotonic()
+    proc = subprocess.run([sys.executable, "-m", "harness", "run", "slew-rw", "--bus",
+                           f"socketcand:127.0.0.1:{port}", "--out", str(tmp_path), "--quiet"],
+                          capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr[:2000]
+    assert f"socketcand:127.0.0.1:{port}" in lines[0] and "--serve-socketcand" in lines[0]
+    assert time.monotonic() - t0 < 30
+
+
+def test_socketcand_to_another_host_is_refused():
+    from harness.bus import BusSpecError, parse_bus
+
+    for text in ("socketcand:10.0.0.2:29536", "socketcand:lab-rig.local:29536"):
+        with pytest.raises(BusSpecError, match="loopback only"):
+            parse_bus(text)

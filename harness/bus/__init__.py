@@ -11,7 +11,8 @@ Opening the CAN bus named by ``--bus INTERFACE:CHANNEL`` or a run file.
 
 Accepted: ``virtual:NAME`` (python-can's in-process bus; the default, what CI uses),
 ``socketcan:vcan0`` / ``socketcan:can0`` (Linux lab machines), and
-``socketcand:HOST:PORT`` (a virtual rig in its own process serving socketcand on loopback)
+``socketcand:127.0.0.1:PORT`` (a virtual rig in its own process serving socketcand on
+loopback; any other host is refused: the harness reaches the lab rig through SocketCAN)
 and ``unix:NAME`` (a virtual rig in its own process on a Unix-domain socket of this machine,
 ``harness.bus.unix``).
 python-can's ``udp_multicast`` interface is refused: it sends on the real network.
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import logging
 import queue
+import socket
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -76,7 +78,9 @@ def parse_bus(text: str) -> BusSpec:
         host, _, port = rest.rpartition(":")
         if host not in LOOPBACK_HOSTS or not port.isdigit():
             raise BusSpecError(
-                f"--bus {text!r}: expected socketcand:127.0.0.1:PORT (loopback only)"
+                f"--bus {text!r}: expected socketcand:127.0.0.1:PORT; socketcand is for a "
+                "virtual rig on this machine (loopback only), the lab rig is reached with "
+                "socketcan:can0"
             )
         return BusSpec("socketcand", "can0", host=host, port=int(port))
     raise BusSpecError(
@@ -160,9 +164,48 @@ class _BenignSplitFilter(logging.Filter):
 _SOCKETCAND_LOG = logging.getLogger("can.interfaces.socketcand.socketcand")
 
 
+class _ConnectRetryFilter(logging.Filter):
+    """python-can's socketcand client retries ``connect`` in a busy loop for 10 s, logging a
+    warning each time (about 700 000 lines with nothing listening); ``open_bus`` checks the
+    server first and says it in one line, so these are dropped."""
+
+    PREFIX = "Failed to connect to server"
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.getMessage().startswith(self.PREFIX)
+
+
 def _quiet_socketcand_client() -> None:
-    if not any(isinstance(f, _BenignSplitFilter) for f in _SOCKETCAND_LOG.filters):
-        _SOCKETCAND_LOG.addFilter(_BenignSplitFilter())
+    for kind in (_BenignSplitFilter, _ConnectRetryFilter):
+        if not any(isinstance(f, kind) for f in _SOCKETCAND_LOG.filters):
+            _SOCKETCAND_LOG.addFilter(kind())
+
+
+CONNECT_TIMEOUT_S = 3.0
+"""How long ``open_bus`` tries to reach a socketcand server (a rig process just started
+may take a moment to listen) before it says nothing listens."""
+
+
+def _check_listening(spec: BusSpec, timeout_s: float = CONNECT_TIMEOUT_S) -> None:
+    """A socketcand server listens at ``spec``'s address, or ``BusSpecError`` in one line
+    naming the bus and what to try, within ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    last: OSError | None = None
+    while True:
+        try:
+            with socket.create_connection((spec.host, spec.port),
+                                          timeout=max(0.1, deadline - time.monotonic())):
+                return
+        except OSError as exc:
+            last = exc
+        if time.monotonic() >= deadline:
+            break
+        time.sleep(0.05)
+    raise BusSpecError(
+        f"cannot open bus {spec}: nothing answers at {spec.host}:{spec.port} within "
+        f"{timeout_s:g} s ({last.strerror if last and last.strerror else last}); start the "
+        f"virtual rig with 'harness virtual-rig --serve-socketcand {spec.port}', or check the "
+        "port")
 
 
 def open_bus(spec: BusSpec, receive_own_messages: bool = False) -> can.BusABC:
@@ -178,6 +221,7 @@ def open_bus(spec: BusSpec, receive_own_messages: bool = False) -> can.BusABC:
 
             return UnixCanBus(spec.channel)
         _quiet_socketcand_client()
+        _check_listening(spec)
         return can.Bus(interface="socketcand", channel=spec.channel, host=spec.host,
                        port=spec.port, tcp_tune=True)
     except (OSError, can.CanError, AttributeError) as exc:

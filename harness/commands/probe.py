@@ -41,7 +41,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("probe", help="check that every device answers (never arms the rig)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--bus", default="virtual:sgsrt",
-                   help="INTERFACE:CHANNEL (default virtual:sgsrt, the in-process virtual rig)")
+                   help="INTERFACE:CHANNEL (default virtual:sgsrt, the in-process virtual rig; "
+                   "socketcan:can0 the lab rig; socketcand:127.0.0.1:PORT, loopback only)")
     p.add_argument("--rig", default="sgsrt", help="rig name or YAML path (default sgsrt)")
     p.add_argument("--rate-hz", type=float, default=100.0, help="SYNC rate (default 100 Hz)")
     p.add_argument("--duration-s", type=float, default=2.0, help="how long (default 2 s)")

@@ -55,7 +55,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=Path("logs"),
                    help="parent of the suite's output folder (default ./logs)")
     p.add_argument("--bus", help="run every test on this bus; a real one (socketcan:can0, "
-                   "socketcand:HOST:PORT) means the lab rig: probe first, one test at a time")
+                   "socketcand:127.0.0.1:PORT, loopback only) means the lab rig: probe "
+                   "first, one test at a time")
     p.add_argument("--workers", type=int, help="local processes (default: every core; 1 runs "
                    "in this process)")
     p.add_argument("--cluster", metavar="tcp://HOST:8786",
