@@ -10,12 +10,14 @@ from __future__ import annotations
 import argparse
 import importlib
 import math
+import os
 import pkgutil
 import sys
 from collections.abc import Callable
 
 from harness import commands
 from harness.record.output import OutputError, is_output_failure
+from harness.record.recording import ABANDONED
 
 MAX_RATE_HZ = 10_000.0
 """The fastest loop or SYNC rate any command accepts: a 1 Mbit/s CAN bus carries about
@@ -107,6 +109,18 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "func", None) is None:
         parser.print_help(sys.stderr)
         return 2
+    ABANDONED.clear()
+    code = _run(args)
+    if ABANDONED.is_set():
+        # a Rerun sink stopped answering (a viewer gone, a dead disk): Rerun's own shutdown
+        # at exit would wait for it forever; everything of ours is written and closed
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         return int(args.func(args) or 0)
     except OSError as exc:

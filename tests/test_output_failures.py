@@ -272,3 +272,51 @@ def test_run_on_a_small_filesystem(size, reserve):
                     _rows(rrd)
                 except ValueError as exc:
                     assert "No recording store" in str(exc)
+
+
+# -- the live view ---------------------------------------------------------------------------
+
+def test_view_with_no_viewer_listening_is_refused_before_the_run(tmp_path):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.run([sys.executable, "-m", "harness", "run", "slew-rw", "--duration-s",
+                           "1", "--view", f"rerun+http://127.0.0.1:{port}/proxy", "--out",
+                           str(tmp_path), "--quiet"],
+                          capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert proc.returncode == 2 and "no viewer answers" in proc.stderr, proc.stderr
+    assert not any(tmp_path.iterdir())
+
+
+MUTE_VIEWER = """
+import socket, sys, threading
+import harness.record.recording as r
+r.FLUSH_TIMEOUT_S = 3.0
+server = socket.socket()
+server.bind(("127.0.0.1", 0))
+server.listen(16)
+held = []
+def accept():
+    while True:
+        held.append(server.accept()[0])  # accepts, never answers: a viewer gone mute
+threading.Thread(target=accept, daemon=True).start()
+port = server.getsockname()[1]
+from harness.cli import main
+code = main(["run", "slew-rw", "--duration-s", "1", "--quiet", "--out", sys.argv[1],
+             "--view", f"rerun+http://127.0.0.1:{port}/proxy"])
+sys.exit(code)
+"""
+
+
+def test_view_to_a_mute_viewer_ends_in_bounded_time(tmp_path):
+    """A viewer that accepts and never answers held the end of the run forever (Rerun's
+    flush and disconnect wait for its sink): now the run ends with exit 4 and never says
+    completed."""
+    proc = subprocess.run([sys.executable, "-c", MUTE_VIEWER, str(tmp_path)],
+                          capture_output=True, text=True, timeout=90, cwd=ROOT)
+    assert proc.returncode == 4, proc.stderr
+    assert "Traceback" not in proc.stderr
+    (run_dir,) = tmp_path.iterdir()
+    assert json.loads((run_dir / "summary.json").read_text())["stopped_by"] != "completed"

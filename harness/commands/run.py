@@ -73,7 +73,7 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
             raise ConfigError(f"--duration-s {args.duration_s:g}: expected a duration > 0 s")
         overrides = {"duration_s": args.duration_s} if args.duration_s is not None else None
         if args.view:
-            check_view_url(args.view)
+            check_viewer_listening(check_view_url(args.view))
         base = load_run(args.run, overrides)
         faults = [parse_fault(f) for f in args.fault or []]
         variants = base.data["variants"] or {}
@@ -185,6 +185,23 @@ def check_view_url(url: str) -> str:
         raise ConfigError(f"--view {url!r}: {why}; the live view stays on 127.0.0.1 "
                           "(start the viewer with 'rerun --bind 127.0.0.1')")
     return url
+
+
+def check_viewer_listening(url: str, timeout_s: float = 2.0) -> None:
+    """A viewer answers at ``url``'s host and port, or ``ConfigError`` before the run:
+    Rerun's gRPC sink to an address where nothing listened held the end of the run."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(url)
+    port = parts.port or 9876
+    try:
+        with socket.create_connection((parts.hostname, port), timeout=timeout_s):
+            return
+    except OSError as exc:
+        raise ConfigError(f"--view {url}: no viewer answers at {parts.hostname}:{port} "
+                          f"({exc.strerror or exc}); start one with 'rerun --bind 127.0.0.1' "
+                          "or run without --view") from None
 
 
 EXIT_ORDER = (130, 3, 4, 1, 5, 0)

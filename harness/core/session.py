@@ -525,7 +525,7 @@ def _log_bus(recorder: Recorder, blf: Path, dt_s: float, realtime: bool,
     try:
         if not blf.exists():
             return
-        bus = write_bus(recorder.rec, blf, dt_s, realtime, dividers)
+        bus = write_bus(recorder.bounded_stream, blf, dt_s, realtime, dividers)
         for t_s, text in bus.warnings:
             log_event(recorder.rec, t_s, "/events/can_log", text, "WARN")
         if bus.late_or_missing > len(bus.warnings):

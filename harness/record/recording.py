@@ -34,8 +34,35 @@ from harness.record.output import OutputError, SpaceGuard
 APPLICATION_ID = "sgsrt-harness"
 
 FLUSH_TIMEOUT_S = 30.0
-"""A flush waits at most this long: Rerun's flush without a timeout waited forever once its
-file sink's thread had died on a full disk (a run hung with 64 KB free)."""
+"""A flush waits at most this long: Rerun's flush waited forever once its file sink's thread
+had died on a full disk (a run hung with 64 KB free), and with ``--view`` to an address
+where no viewer listened, its own timeout notwithstanding. The flush runs in a thread the
+caller waits for with this bound (the wait also lets SIGTERM through)."""
+
+ABANDONED = threading.Event()
+"""Set when a flush was given up: Rerun's own shutdown at exit would wait for the same stuck
+sink, so ``harness.cli`` then ends the process with ``os._exit`` once its output is out."""
+
+
+def _bounded(call: Callable[[], object], timeout_s: float) -> None:
+    """``call()`` in a thread, waited for at most ``timeout_s``; ``TimeoutError`` after."""
+    done = threading.Event()
+    errors: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            call()
+        except BaseException as exc:  # handed to the caller
+            errors.append(exc)
+        finally:
+            done.set()
+
+    threading.Thread(target=run, name="recording-flush", daemon=True).start()
+    if not done.wait(timeout_s):
+        ABANDONED.set()
+        raise TimeoutError(f"no answer from Rerun's sinks in {timeout_s:g} s")
+    if errors:
+        raise errors[0]
 
 
 def default_blueprint(extra_views: list[rrb.View] | None = None) -> rrb.Blueprint:
@@ -83,6 +110,19 @@ def _start_watchdog(path: Path) -> Iterator[None]:
         started.set()
 
 
+class _BoundedFlushStream:
+    """A ``RecordingStream`` whose ``flush`` is its recorder's (bounded in time)."""
+
+    def __init__(self, recorder: Recorder) -> None:
+        self._recorder = recorder
+
+    def flush(self, *args: object, **kwargs: object) -> None:
+        self._recorder.flush()
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._recorder.rec, name)
+
+
 class _Block:
     __slots__ = ("t", "data", "next_channel")
 
@@ -106,6 +146,7 @@ class Recorder:
                  observers: list[BlockObserver] | None = None,
                  max_pending_events: int = 100, guard: SpaceGuard | None = None) -> None:
         self.path = path
+        self.live_view_url = live_view_url
         # checked once per block: the run stops (OutputError) before the disk is full
         self.guard = guard
         self.space_stop: OutputError | None = None  # the guard stopped the run
@@ -228,11 +269,21 @@ class Recorder:
         if self.failed is not None:
             raise self.failed
         try:
-            self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+            _bounded(lambda: self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S), FLUSH_TIMEOUT_S + 1)
         except Exception as exc:
+            viewer = f"; or the live viewer at {self.live_view_url} stopped answering" \
+                if self.live_view_url else ""
             self.failed = OutputError(self.path.parent, f"the recording {self.path.name} "
-                                      f"could not be written ({exc})")
+                                      f"could not be written ({exc}{viewer})")
+            if "timed out" in str(exc).lower() or isinstance(exc, TimeoutError):
+                ABANDONED.set()  # the sink still holds data: Rerun's exit would wait for it
             raise self.failed from exc
+
+    @property
+    def bounded_stream(self) -> rr.RecordingStream:
+        """The recording stream for code that logs into it directly (the decoded bus after
+        the run), with its ``flush()`` bounded as ``Recorder.flush``."""
+        return _BoundedFlushStream(self)  # type: ignore[return-value]
 
     def log_static_text(self, entity: str, text: str) -> None:
         self.rec.log(entity, rr.TextDocument(text, media_type="text/markdown"), static=True)
@@ -306,7 +357,8 @@ class Recorder:
                 self.drain()
             self.flush()
         finally:
-            self.rec.disconnect()
+            if self.failed is None:  # a failed or stuck sink would hold disconnect too
+                self.rec.disconnect()
 
     def tail_time(self) -> np.ndarray:
         """Times of the retained tail (the last ``retain_rows`` rows at least, when set)."""
