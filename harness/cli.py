@@ -41,8 +41,8 @@ def _range_for(dest: str, kind: type) -> tuple[float, bool, float] | None:
         return 0.0, True, MAX_SECONDS * scale
     if dest.endswith(("_kg", "_m", "_kg_m2", "_n_m", "_m_s2")) or dest in ("target_ratio",):
         return 0.0, False, 1e9
-    if dest == "serve_socketcand":
-        return 1, True, 65535
+    if dest == "serve_socketcand":  # 0: any free port (the rig process's own choice)
+        return 0, True, 65535
     if kind is int and dest not in ("seed", "cpu"):
         return 0, True, MAX_COUNT
     return None

@@ -320,3 +320,51 @@ def test_view_to_a_mute_viewer_ends_in_bounded_time(tmp_path):
     assert "Traceback" not in proc.stderr
     (run_dir,) = tmp_path.iterdir()
     assert json.loads((run_dir / "summary.json").read_text())["stopped_by"] != "completed"
+
+
+# -- a child process dies with its parent ----------------------------------------------------
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc").exists(), reason="needs Linux /proc")
+def test_rig_process_dies_with_a_sigkilled_harness(tmp_path):
+    import signal
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "harness", "run", "slew-rw", "--clock",
+                             "realtime", "--duration-s", "60", "--quiet", "--rig-process", "--out",
+                             str(tmp_path)], cwd=ROOT, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        rigs: list[int] = []
+        while time.monotonic() < deadline and not rigs:
+            rigs = [c for c in _children(proc.pid)
+                    if b"virtual-rig" in Path(f"/proc/{c}/cmdline").read_bytes()]
+            time.sleep(0.2)
+        assert rigs, "the rig process did not start"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and Path(f"/proc/{rigs[0]}").exists():
+            state = (Path(f"/proc/{rigs[0]}/stat").read_text().rsplit(")", 1)[1].split()[0]
+                     if Path(f"/proc/{rigs[0]}/stat").exists() else "X")
+            if state == "Z":
+                break
+            time.sleep(0.1)
+        alive = Path(f"/proc/{rigs[0]}/stat").exists() and \
+            Path(f"/proc/{rigs[0]}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+        assert not alive, "the rig process outlived the harness"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
