@@ -368,3 +368,23 @@ def test_rig_process_dies_with_a_sigkilled_harness(tmp_path):
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+# -- signals ---------------------------------------------------------------------------------
+
+def test_second_signal_aborts_a_loop_but_not_the_closing():
+    import signal
+    import sys as _sys
+
+    from harness.core.interrupts import StopRequest
+
+    req = StopRequest()
+    req._handler(signal.SIGTERM, _sys._getframe())
+    assert req() == "SIGTERM"
+    # after the loop (closing and judging the run): noted, never a KeyboardInterrupt
+    req._handler(signal.SIGTERM, _sys._getframe())
+    # inside a ticking loop: at once
+    scope = {"__name__": "harness.core.loop", "req": req, "signal": signal, "_sys": _sys}
+    exec("def run_loop():\n    req._handler(signal.SIGTERM, _sys._getframe())\n", scope)
+    with pytest.raises(KeyboardInterrupt):
+        scope["run_loop"]()
