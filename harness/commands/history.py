@@ -136,8 +136,9 @@ def cmd_history(args: argparse.Namespace) -> int:
         filters = _filters(args) if args.history_command != "import" else None
         if args.db is None and not (args.logs / "history.sqlite").exists() \
                 and args.history_command != "import":
-            from harness.history.db import ENV_URL
             import os
+
+            from harness.history.db import ENV_URL
 
             if not os.environ.get(ENV_URL):
                 raise ValueError(f"{args.logs}: no history.sqlite (no result recorded there; "

@@ -174,7 +174,7 @@ def _f(v: Any, fmt: str) -> str:
     return f"{'-':>{width}}" if v is None else format(v, fmt)
 
 
-def plot_png(series: Series, path: Path) -> Path:
+def plot_png(series: Series, path: Path | io.BytesIO) -> Path | io.BytesIO:
     """Values over the runs: a mode with its 1-sigma error bars (the model's value
     dashed); a criterion with its limits (red) and marginal band (shaded); alarms ringed."""
     import matplotlib
@@ -225,9 +225,10 @@ def plot_png(series: Series, path: Path) -> Path:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="best")
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    if not isinstance(path, io.BytesIO):
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, format="png")
     plt.close(fig)
     return path
 
@@ -235,10 +236,7 @@ def plot_png(series: Series, path: Path) -> Path:
 def page_html(series: Series, path: Path) -> Path:
     """A self-contained page: the plot, the alarms and the table."""
     png = io.BytesIO()
-    tmp = Path(path).with_suffix(".png")
-    plot_png(series, tmp)
-    png.write(tmp.read_bytes())
-    tmp.unlink()
+    plot_png(series, png)
     img = base64.b64encode(png.getvalue()).decode()
     alarms = "".join(f"<li><b>{html.escape(a.kind)}</b>: {html.escape(a.message)}</li>"
                      for a in series.alarms) or "<li>no alarm</li>"
