@@ -12,6 +12,7 @@ from typing import Any
 
 import yaml
 
+from drivers.binding import BindingError, RigBinding, absolutize, build_binding
 from rig_models.beam import BeamModes, BeamSpec, beam_modes
 from rig_models.flexible_hub import HubBeamModel, build_hub_beam
 from rig_models.piezo import PatchGains, PiezoPatch, patch_gains
@@ -88,7 +89,16 @@ RIG_SCHEMA: dict[str, Any] = {
                 ("thruster_valves", 5), ("piezo_amplifier", 1), ("disturbance_rotor", 5),
             )
         },
+        # the harness's SYNC and heartbeat frames: sgsrt's (default), or a DBC's
+        # {dbc, message, signal} / {dbc, message, counter, armed}, or canopen
+        "sync": Field("any", default=None),
+        "heartbeat": Field("any", default=None),
+        # CANopen: the harness's own node id (its heartbeat's COB-ID 0x700 + id)
+        "master_node_id": Field("int", default=127, minimum=1, maximum=127),
     },
+    # how each device speaks on the bus (drivers/binding): sgsrt (default), dbc, canopen or
+    # none, checked by drivers.binding.build_binding (errors name the key)
+    "devices": Field("any", default=None),
     "watchdog": {
         "heartbeat_timeout_s": Field("number", "s", default=0.25, **POSITIVE),
     },
@@ -104,6 +114,15 @@ class RigConfig:
 
     source: str
     data: dict[str, Any]
+    base_dir: Path | None = None  # the rig file's folder: DBC/EDS paths are relative to it
+
+    @cached_property
+    def binding(self) -> RigBinding:
+        """How each device speaks on the bus (``drivers.binding``)."""
+        try:
+            return build_binding(self.data, self.base_dir)
+        except BindingError as exc:
+            raise ConfigError(f"{self.source}: {exc}") from exc
 
     def section(self, name: str) -> dict[str, Any]:
         return self.data[name]
@@ -195,8 +214,13 @@ def load_rig(name_or_path: str | Path = "sgsrt") -> RigConfig:
         raw = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise ConfigError(f"rig file {path}: not valid YAML: {exc}") from exc
-    return rig_from_dict(raw, source=f"rig file {path.name}")
+    return rig_from_dict(raw, source=f"rig file {path.name}", base_dir=path.resolve().parent)
 
 
-def rig_from_dict(raw: Any, source: str = "rig") -> RigConfig:
-    return RigConfig(source=source, data=validate(raw, RIG_SCHEMA, source))
+def rig_from_dict(raw: Any, source: str = "rig", base_dir: Path | None = None) -> RigConfig:
+    """A validated rig; its device binding is built here too, so a bad binding is refused
+    before anything opens a bus."""
+    data = validate(raw, RIG_SCHEMA, source)
+    cfg = RigConfig(source=source, data=absolutize(data, base_dir), base_dir=base_dir)
+    cfg.binding  # noqa: B018 (built to be checked)
+    return cfg

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import can
 import numpy as np
 
+from drivers.binding.frames import CommandMap
 from drivers.dbc import FrameError, load_protocol
 from rig_models.devices import (
     Accelerometer,
@@ -221,18 +222,19 @@ class VirtualRig:
         self.longest_op_s = 0.0
         self.longest_op = ""
         self._hooks: list[Callable[[VirtualRig], None]] = []
-        p = self.protocol
-        self._handlers: dict[int, Callable[[bytes], None]] = {
-            p["SYNC"].frame_id: self._on_sync,
-            p["HEARTBEAT"].frame_id: self._on_heartbeat,
-            p["WHEEL_CMD"].frame_id: self._on_wheel_cmd,
-            p["VALVE_CMD"].frame_id: self._on_valve_cmd,
-            p["PIEZO_CMD"].frame_id: self._on_piezo_cmd,
-            p["ROTOR_CMD"].frame_id: self._on_rotor_cmd,
-        }
-        self._codec_by_id = p.by_id
-        self._tlm = {name: p[name] for name in
-                     ("HUB_TLM", "ACCEL_TLM", "WHEEL_TLM", "VALVE_TLM", "PIEZO_TLM", "ROTOR_TLM")}
+        # the devices speak the rig file's binding (sgsrt, any DBC, CANopen): the same maps
+        # the harness uses, in the other direction
+        b = self.binding = rig.binding
+        self._handlers: dict[tuple[int, bool], Callable[[bytes], None]] = {
+            b.sync.key: self._on_sync}
+        if b.heartbeat is not None:
+            self._handlers[b.heartbeat.key] = self._on_heartbeat
+        apply = {"reaction_wheel": self._wheel_cmd, "thruster_valves": self._valve_cmd,
+                 "piezo_amplifier": self._piezo_cmd, "disturbance_rotor": self._rotor_cmd}
+        for key, cmaps in b.commands_by_key().items():
+            self._handlers[key] = self._command_handler(cmaps, apply)
+        self._tlm = {d: maps for d, maps in b.telemetry.items() if maps}
+        self.protocol_kinds = b.kinds
 
     # ------------------------------------------------------------------ bus side
     def service(self) -> int:
@@ -250,7 +252,7 @@ class VirtualRig:
         self.counters.frames_in += 1
         if msg.is_error_frame or msg.is_remote_frame:
             return
-        handler = self._handlers.get(msg.arbitration_id)
+        handler = self._handlers.get((msg.arbitration_id, msg.is_extended_id))
         if handler is None:
             self.counters.unknown += 1
             return
@@ -267,7 +269,7 @@ class VirtualRig:
         collector disabled (``gc.disable()`` by the caller), generations 0-1 are collected
         right after a SYNC's answer about once a second, in the slack before the next one,
         so a collection never delays an answer and cyclic garbage cannot pile up."""
-        sync_id = self.protocol["SYNC"].frame_id
+        sync_key = self.binding.sync.key
         collect = not gc.isenabled()
         next_collect = time.monotonic() + 1.0
         clock, cpu = time.time, time.thread_time
@@ -275,7 +277,8 @@ class VirtualRig:
         while not stop():
             msg = self.bus.recv(poll_s)
             if msg is not None:
-                if msg.arbitration_id == sync_id and not msg.is_error_frame:
+                if ((msg.arbitration_id, msg.is_extended_id) == sync_key
+                        and not msg.is_error_frame):
                     woke, ran = clock(), cpu()
                     if timing is None:
                         self.handle(msg)
@@ -301,18 +304,23 @@ class VirtualRig:
                 # state once, unprompted, so the trip is seen on the bus without a SYNC
                 self._sample_and_send(max(self.tick, 0))
 
-    def _send(self, name: str, values: dict[str, float], device: str = "") -> None:
-        t0 = time.perf_counter() if self.time_ops else 0.0
-        codec = self._tlm[name]
-        data = codec.encode(values)
-        payloads = [data] if not self.injector.faults else self.injector.telemetry(
-            self.time_s, self.tick, device, data)
-        for payload in payloads:
-            self.bus.send(can.Message(arbitration_id=codec.frame_id, data=payload,
-                                      is_extended_id=False))
-            self.counters.frames_out += 1
-        if self.time_ops:
-            self._note_op(name, time.perf_counter() - t0)
+    def _send(self, device: str, values: dict[str, float]) -> None:
+        """The device's telemetry frames (one, or several pages) from its quantities."""
+        maps = self._tlm.get(device)
+        if maps is None:  # the rig has no such device (binding none)
+            return
+        for tmap in maps:
+            t0 = time.perf_counter() if self.time_ops else 0.0
+            data = tmap.encode(values)
+            payloads = [data] if not self.injector.faults else self.injector.telemetry(
+                self.time_s, self.tick, device, data)
+            key = tmap.key
+            for payload in payloads:
+                self.bus.send(can.Message(arbitration_id=key[0], data=payload,
+                                          is_extended_id=key[1]))
+                self.counters.frames_out += 1
+            if self.time_ops:
+                self._note_op(tmap.codec.name, time.perf_counter() - t0)
 
     def _note_op(self, name: str, seconds: float) -> None:
         if seconds > self.longest_op_s:
@@ -347,39 +355,40 @@ class VirtualRig:
             self.piezo.make_safe()
 
     # ------------------------------------------------------------------ commands
-    def _decode(self, name: str, data: bytes) -> dict[str, float]:
-        return self.protocol[name].decode(data)
-
     def _on_heartbeat(self, data: bytes) -> None:
-        v = self._decode("HEARTBEAT", data)
+        armed = self.binding.heartbeat.decode_armed(data)  # type: ignore[union-attr]
         self.last_heartbeat_s = self.time_s
         self.last_heartbeat_wall = time.monotonic()
-        self.armed = bool(v["armed"])
+        self.armed = armed
         self.safe = False
         if not self.armed:
             self.make_safe()
             self.safe = False
 
-    def _on_wheel_cmd(self, data: bytes) -> None:
-        v = self._decode("WHEEL_CMD", data)
-        if self.armed:
-            self.wheel.command(v["torque_cmd"], bool(v["enable"]))
+    def _command_handler(self, cmaps: tuple[CommandMap, ...],
+                         apply: dict[str, Callable[[dict[str, float]], None]]
+                         ) -> Callable[[bytes], None]:
+        def handler(data: bytes) -> None:
+            for cmap in cmaps:
+                values = cmap.decode(data)
+                if values is not None:
+                    if self.armed:
+                        apply[cmap.device](values)
+                    return
+        return handler
 
-    def _on_valve_cmd(self, data: bytes) -> None:
-        v = self._decode("VALVE_CMD", data)
-        if self.armed:
-            pos, neg = int(v["valve_pos"]), int(v["valve_neg"])
-            self.valves.command(0 if pos and neg else pos - neg)
+    def _wheel_cmd(self, v: dict[str, float]) -> None:
+        self.wheel.command(v.get("torque_cmd", 0.0), bool(v.get("enable", 1)))
 
-    def _on_piezo_cmd(self, data: bytes) -> None:
-        v = self._decode("PIEZO_CMD", data)
-        if self.armed:
-            self.piezo.command(v["voltage_ch1"], v["voltage_ch2"])
+    def _valve_cmd(self, v: dict[str, float]) -> None:
+        pos, neg = int(v.get("valve_pos", 0)), int(v.get("valve_neg", 0))
+        self.valves.command(0 if pos and neg else pos - neg)
 
-    def _on_rotor_cmd(self, data: bytes) -> None:
-        v = self._decode("ROTOR_CMD", data)
-        if self.armed:
-            self.rotor.command(v["speed_cmd"], bool(v["enable"]))
+    def _piezo_cmd(self, v: dict[str, float]) -> None:
+        self.piezo.command(v.get("voltage_ch1", 0.0), v.get("voltage_ch2", 0.0))
+
+    def _rotor_cmd(self, v: dict[str, float]) -> None:
+        self.rotor.command(v.get("speed_cmd", 0.0), bool(v.get("enable", 1)))
 
     def make_safe(self, watchdog: bool = False) -> None:
         self.wheel.make_safe()
@@ -415,7 +424,7 @@ class VirtualRig:
             hook(self)
 
     def _on_sync(self, data: bytes) -> None:
-        tick = int(self._decode("SYNC", data)["tick"])
+        tick = self.binding.sync.decode(data)
         if self.tick >= 0:
             steps = tick - self.tick
             if steps <= 0 or steps > 10_000:
@@ -445,39 +454,37 @@ class VirtualRig:
         div = self.divider
         if tick % div["hub_sensor"] == 0:
             angle, rate = self.hub_sensor.sample(y[0], y[1])
-            self._send("HUB_TLM", {"angle": angle, "rate": rate}, "hub_sensor")
+            self._send("hub_sensor", {"angle": angle, "rate": rate})
         if tick % div["accelerometer"] == 0:
             extra = 0.0
             if self.injector.faults:
                 f = self.injector.active(self.time_s, "accel_saturation")
                 extra = 0.0 if f is None else (f.value if f.value is not None else 30.0)
             a = self.accel.sample(y[2] + extra)
-            self._send("ACCEL_TLM", {"accel": a, "sample_counter": self.accel.counter,
-                                     "saturated": int(self.accel.saturated)},
-                       "accelerometer")
+            self._send("accelerometer", {"accel": a, "sample_counter": self.accel.counter,
+                                         "saturated": int(self.accel.saturated)})
         w = self.wheel
         if tick % div["reaction_wheel"] == 0:
             self.wheel_counter = (self.wheel_counter + 1) & 0xFF
-            self._send("WHEEL_TLM", {
+            self._send("reaction_wheel", {
                 "speed": w.speed_rad_s, "torque": w.torque_n_m, "enabled": int(w.enabled),
                 "fault": int(w.fault), "speed_limited": int(w.speed_limited),
-                "torque_limited": int(w.torque_limited), "counter": self.wheel_counter},
-                "reaction_wheel")
+                "torque_limited": int(w.torque_limited), "counter": self.wheel_counter})
         if tick % div["thruster_valves"] == 0:
             v = self.valves
-            self._send("VALVE_TLM", {
+            self._send("thruster_valves", {
                 "valve_pos_open": int(v.state > 0), "valve_neg_open": int(v.state < 0),
                 "fault": int(v.fault), "firings": v.firings & 0xFFFF, "on_time": v.on_time_s,
-                "counter": tick & 0xFF}, "thruster_valves")
+                "counter": tick & 0xFF})
         if tick % div["piezo_amplifier"] == 0:
             sensed = [float(g.sensor @ self.x[1 : 1 + n])
                       + self.piezo_noise_v * self.noise.normal() for g in self.piezo_gains]
             sensed += [0.0, 0.0]
-            self._send("PIEZO_TLM", {"sensor_ch1": sensed[0], "sensor_ch2": sensed[1],
-                                     "overcurrent": int(self.piezo.overcurrent),
-                                     "counter": tick & 0xFF}, "piezo_amplifier")
+            self._send("piezo_amplifier", {"sensor_ch1": sensed[0], "sensor_ch2": sensed[1],
+                                           "overcurrent": int(self.piezo.overcurrent),
+                                           "counter": tick & 0xFF})
         if tick % div["disturbance_rotor"] == 0:
             r = self.rotor
-            self._send("ROTOR_TLM", {"angle": r.angle_rad % (2 * math.pi), "speed": r.speed_rad_s,
-                                     "enabled": int(r.enabled), "counter": tick & 0xFF},
-                       "disturbance_rotor")
+            self._send("disturbance_rotor", {
+                "angle": r.angle_rad % (2 * math.pi), "speed": r.speed_rad_s,
+                "enabled": int(r.enabled), "counter": tick & 0xFF})
