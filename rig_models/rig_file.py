@@ -210,11 +210,42 @@ def load_rig(name_or_path: str | Path = "sgsrt") -> RigConfig:
     if not path.exists():
         builtin = ", ".join(sorted(p.stem for p in RIGS_DIR.glob("*.yaml")))
         raise ConfigError(f"rig file {name_or_path}: not found (built-in rigs: {builtin})")
+    raw = _read_rig_yaml(path, ())
+    return rig_from_dict(raw, source=f"rig file {path.name}", base_dir=path.resolve().parent)
+
+
+def _read_rig_yaml(path: Path, seen: tuple[Path, ...]) -> Any:
+    """A rig file's data; ``extends: NAME`` takes another rig file's data as the base and
+    overrides it key by key (a rig that differs only in its device binding names the
+    physics once)."""
     try:
         raw = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise ConfigError(f"rig file {path}: not valid YAML: {exc}") from exc
-    return rig_from_dict(raw, source=f"rig file {path.name}", base_dir=path.resolve().parent)
+    except OSError as exc:
+        raise ConfigError(f"rig file {path}: cannot read: {exc}") from exc
+    if not isinstance(raw, dict) or "extends" not in raw:
+        return raw
+    base_name = raw.pop("extends")
+    if not isinstance(base_name, str):
+        raise ConfigError(f"rig file {path.name}: extends: expected a rig name or path, got "
+                          f"{base_name!r}")
+    base = rig_path(base_name)
+    if not base.is_absolute() and not base.exists() and (path.parent / base_name).exists():
+        base = path.parent / base_name
+    if not base.exists():
+        raise ConfigError(f"rig file {path.name}: extends: {base_name}: not found")
+    if base.resolve() in seen or base.resolve() == path.resolve():
+        raise ConfigError(f"rig file {path.name}: extends: {base_name}: a circle of extends")
+    return _merge(_read_rig_yaml(base, seen + (path.resolve(),)) or {}, raw)
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k),
+                                                                          dict) else v
+    return out
 
 
 def rig_from_dict(raw: Any, source: str = "rig", base_dir: Path | None = None) -> RigConfig:

@@ -82,12 +82,13 @@ class RigBinding:
     """Every device's frames, both directions, built from a rig file."""
 
     kinds: dict[str, str]
-    sync: SyncMap
-    heartbeat: HeartbeatMap | None
+    sync: Any  # SyncMap, or canopen.CanopenSync
+    heartbeat: Any  # HeartbeatMap, canopen.CanopenHeartbeat, or None
     telemetry: dict[str, tuple[TelemetryMap, ...]]
     commands: dict[str, tuple[CommandMap, ...]]
     sequence: dict[str, tuple[str, int]] = field(default_factory=dict)
     files: dict[str, str] = field(default_factory=dict)  # device -> DBC/EDS path
+    canopen: Any = None  # drivers.binding.canopen.CanopenBus when a device binds canopen
 
     @property
     def bound(self) -> tuple[str, ...]:
@@ -387,6 +388,7 @@ def build_binding(data: Mapping[str, Any], base_dir: Path | None = None) -> RigB
     commands: dict[str, tuple[CommandMap, ...]] = {}
     sequence: dict[str, tuple[str, int]] = {}
     files: dict[str, str] = {}
+    co_cfgs: dict[str, Mapping[str, Any]] = {}
     for device in DEVICES:
         key = f"devices.{device}"
         cfg = devices.get(device)
@@ -417,18 +419,39 @@ def build_binding(data: Mapping[str, Any], base_dir: Path | None = None) -> RigB
                 sequence[device] = seq
             files[device] = path
         else:
-            from drivers.binding.canopen import canopen_device  # EDS parsing: only if used
-
-            tlm, cmds, seq, path = canopen_device(device, cfg, key, base_dir)
-            telemetry[device], commands[device] = tlm, cmds
-            files[device] = path
+            co_cfgs[device] = cfg
     bus = _mapping(data.get("bus"), "bus")
-    sync, heartbeat, sgsrt_sync = _sync_and_heartbeat(bus, base_dir, sgsrt)
+    canopen_bus = None
+    if co_cfgs:
+        from drivers.binding.canopen import (  # EDS parsing: only when a device binds it
+            CanopenHeartbeat,
+            CanopenSync,
+            build_canopen,
+        )
+
+        canopen_bus, tlm_maps, cmd_maps, co_files = build_canopen(
+            co_cfgs, bus.get("sync_divider") or {}, int(bus.get("master_node_id", 127)),
+            base_dir)
+        telemetry.update(tlm_maps)
+        commands.update(cmd_maps)
+        files.update(co_files)
+        if bus.get("sync") not in (None, "canopen"):
+            raise BindingError("bus.sync: CANopen devices answer the CiA 301 SYNC: drop "
+                               "bus.sync (or say canopen)")
+        sync: Any = CanopenSync()
+        heartbeat: Any = CanopenHeartbeat(canopen_bus.master_id)
+        sgsrt_sync = False
+    else:
+        if bus.get("sync") == "canopen":
+            raise BindingError("bus.sync: canopen, but no device binds canopen")
+        sync, heartbeat, sgsrt_sync = _sync_and_heartbeat(bus, base_dir, sgsrt)
     sg = [d for d, k in kinds.items() if k == "sgsrt"]
     if sg and not sgsrt_sync:
         raise BindingError(f"bus.sync: {', '.join(sg)} bind sgsrt, whose devices answer the "
-                           "sgsrt SYNC only: drop bus.sync or bind them to the DBC")
-    binding = RigBinding(kinds, sync, heartbeat, telemetry, commands, sequence, files)
+                           "sgsrt SYNC only: bind them to the DBC or to CANopen too (or "
+                           "none)")
+    binding = RigBinding(kinds, sync, heartbeat, telemetry, commands, sequence, files,
+                         canopen_bus)
     _check_distinct(binding)
     return binding
 

@@ -41,7 +41,7 @@ REQUIRED_TELEMETRY: dict[str, tuple[str, ...]] = {
     "reaction_wheel": ("speed", "torque"),
     "thruster_valves": ("valve_pos_open", "valve_neg_open"),
     "piezo_amplifier": ("sensor_ch1", "sensor_ch2"),
-    "disturbance_rotor": ("angle", "speed"),
+    "disturbance_rotor": ("speed",),  # its angle is recorded, not used to control
 }
 REQUIRED_COMMANDS: dict[str, tuple[str, ...]] = {
     "reaction_wheel": ("torque_cmd",),

@@ -92,6 +92,12 @@ class RigInterface:
         self._fast = {k[0]: v[0] for k, v in self._by_key.items()
                       if len(v) == 1 and not k[1] and v[0][0].identity}
         self._commands = b.commands
+        # CANopen: the nodes' heartbeats, boot-ups and EMCYs are watched here (the frames
+        # are not telemetry); a fault among them waits in protocol_events for the monitor
+        self.co = b.canopen
+        self.protocol_events: list[tuple[str, str, str]] = []
+        self._hb_tick: dict[int, int] = {}
+        self._hb_timeout_ticks: dict[int, int] = {}
         self._counter = 0
         self._hb_counter = 0
         self.state = RigState()
@@ -164,6 +170,12 @@ class RigInterface:
         for device, values in safe.items():
             if device in self.drivers:
                 self._send_command(device, values, c)
+        if self.co is not None:
+            # CANopen: drives disabled and outputs 0 by the PDOs above, then every node to
+            # pre-operational (no PDO accepted any more)
+            from drivers.binding.canopen_master import NMT_PREOP, nmt_frame
+
+            self._send_key((0, False), nmt_frame(NMT_PREOP, 0).data)
 
     # ------------------------------------------------------------------ receiving
     def expected_frames(self, tick: int) -> int:
@@ -215,6 +227,9 @@ class RigInterface:
                 return True
         maps = self._by_key.get((msg.arbitration_id, msg.is_extended_id))
         if maps is None:
+            if self.co is not None and not msg.is_extended_id and self._canopen_service(
+                    msg, tick):
+                return False
             self.counters.unknown += 1
             self.counters.last_unknown_id = msg.arbitration_id
             return False
@@ -230,6 +245,64 @@ class RigInterface:
         self.counters.unknown += 1  # a multiplexed page no device is bound to
         self.counters.last_unknown_id = msg.arbitration_id
         return False
+
+    # ------------------------------------------------------------------ CANopen
+    def watch_heartbeats(self, dt_s: float, start_tick: int = 0) -> None:
+        """From ``start_tick`` on, each node must send its heartbeat within 3 of its periods
+        (at least 2 ticks): a node silent for longer is a fault (``protocol_fault``)."""
+        if self.co is None:
+            return
+        for nid, node in self.co.nodes.items():
+            self._hb_tick.setdefault(nid, start_tick)
+            self._hb_timeout_ticks[nid] = max(2, round(3 * node.heartbeat_ms * 1e-3 / dt_s))
+
+    def _canopen_service(self, msg: can.Message, tick: int) -> bool:
+        """A CANopen service frame of a node (heartbeat, boot-up, EMCY, SDO): True if it is
+        one. Boot-up mid-run, a node not operational, and an EMCY are faults."""
+        from drivers.binding.canopen import EMCY_BASE, emcy_meaning
+        from drivers.binding.canopen_master import heartbeat_state
+
+        cid, data = msg.arbitration_id, bytes(msg.data)
+        co = self.co
+        nid = cid & 0x7F
+        if nid not in co.nodes:
+            return cid in (0x000, 0x080)  # NMT, SYNC: the master's own
+        fn = cid & 0x780
+        device = co.device_of_node(nid)
+        if fn == 0x700:
+            self._hb_tick[nid] = tick
+            state = data[0] & 0x7F if data else -1
+            if state == 0:
+                self.protocol_events.append((device, "node rebooted", (
+                    f"node {nid} sent a boot-up frame: it reset mid-run (its outputs and "
+                    "set-up are lost)")))
+            elif state != 0x05:
+                self.protocol_events.append((device, "NMT state", (
+                    f"node {nid} reports NMT state {heartbeat_state(data)}, not "
+                    "OPERATIONAL")))
+            return True
+        if fn == EMCY_BASE and cid != EMCY_BASE:
+            if len(data) >= 3:
+                code, reg = int.from_bytes(data[:2], "little"), data[2]
+                if code != 0:  # 0x0000: error reset
+                    self.protocol_events.append((device, "EMCY", (
+                        f"node {nid}: {emcy_meaning(code, reg)}")))
+            return True
+        return fn in (0x580, 0x600)
+
+    def protocol_fault(self, tick: int) -> tuple[str, str, str] | None:
+        """The first protocol fault so far (CANopen): an EMCY, a boot-up, a node not
+        operational, or a heartbeat missing past its consumer time."""
+        if self.protocol_events:
+            return self.protocol_events[0]
+        for nid, last in self._hb_tick.items():
+            limit = self._hb_timeout_ticks.get(nid)
+            if limit is not None and tick - last > limit:
+                node = self.co.nodes[nid]
+                return (self.co.device_of_node(nid), "heartbeat lost", (
+                    f"node {nid}: no heartbeat for {tick - last} ticks (its period is "
+                    f"{node.heartbeat_ms} ms; the consumer time is 3 periods)"))
+        return None
 
     def snapshot(self, tick: int, time_s: float) -> RigState:
         s = self.state

@@ -284,12 +284,23 @@ class FaultMonitor:
             return None
         if self.warnings_on:
             self._warnings(tick, state, sent)
-        for check in (self._bus, self._silent_and_lost, self._accelerometer, self._hub,
+        for check in (self._protocol, self._bus, self._silent_and_lost, self._accelerometer,
+                      self._hub,
                       self._wheel, self._valves, self._piezo, self._limits):
             event = check(tick, state, sent)
             if event is not None:
                 return event
         return None
+
+    def _protocol(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
+        """The bus protocol's own fault reports (CANopen: EMCY, boot-up, NMT state,
+        heartbeat lost), by node and device."""
+        get = getattr(self.iface, "protocol_fault", None)
+        found = get(tick) if get is not None else None
+        if found is None:
+            return None
+        device, kind, message = found
+        return self._event(tick, device, kind, message)
 
     def _event(self, tick: int, device: str, kind: str, message: str) -> FaultEvent:
         return FaultEvent(tick, tick * self.dt_s, device, kind, message)
