@@ -231,10 +231,26 @@ class VirtualRig:
             self._handlers[b.heartbeat.key] = self._on_heartbeat
         apply = {"reaction_wheel": self._wheel_cmd, "thruster_valves": self._valve_cmd,
                  "piezo_amplifier": self._piezo_cmd, "disturbance_rotor": self._rotor_cmd}
+        self._apply = apply
         for key, cmaps in b.commands_by_key().items():
-            self._handlers[key] = self._command_handler(cmaps, apply)
-        self._tlm = {d: maps for d, maps in b.telemetry.items() if maps}
+            if b.kinds[cmaps[0].device] != "canopen":  # a CANopen node takes its own RPDOs
+                self._handlers[key] = self._command_handler(cmaps, apply)
+        self._tlm = {d: maps for d, maps in b.telemetry.items()
+                     if maps and b.kinds[d] != "canopen"}
         self.protocol_kinds = b.kinds
+        # CANopen devices: a node per the rig file's binding, from the same EDS files
+        self.co_devices = None
+        self.wall_clock = False  # own process: the nodes' heartbeat timers on the wall clock
+        if b.canopen is not None:
+            from rig_models.canopen.rig_devices import CanopenDevices
+
+            self.co_devices = CanopenDevices(b.canopen, self._send_raw)
+            self._co_actuators = tuple(d for d in apply if b.kinds[d] == "canopen")
+            self._co_sensors = frozenset(d for d, k in b.kinds.items() if k == "canopen")
+            if all(k in ("canopen", "none") for k in b.kinds.values()):
+                # the nodes' own heartbeat consumers and error behaviour make them safe
+                self.watchdog_timeout_s = float("inf")
+            self.co_devices.boot(self.time_s)
 
     # ------------------------------------------------------------------ bus side
     def service(self) -> int:
@@ -248,11 +264,26 @@ class VirtualRig:
             self.handle(msg)
             n += 1
 
+    def _send_raw(self, can_id: int, data: bytes) -> None:
+        self.bus.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
+        self.counters.frames_out += 1
+
+    def co_now(self) -> float:
+        """The CANopen nodes' time: the rig's in lockstep, the wall clock in its own
+        process (a harness that stops sending SYNC must still time out as a consumer)."""
+        return time.monotonic() if self.wall_clock else self.time_s
+
     def handle(self, msg: can.Message) -> None:
         self.counters.frames_in += 1
         if msg.is_error_frame or msg.is_remote_frame:
             return
-        handler = self._handlers.get((msg.arbitration_id, msg.is_extended_id))
+        key = (msg.arbitration_id, msg.is_extended_id)
+        handler = self._handlers.get(key)
+        co = self.co_devices
+        if co is not None and not msg.is_extended_id and key != self.binding.sync.key:
+            co.handle(msg.arbitration_id, bytes(msg.data), self.co_now())
+            if handler is None:
+                return
         if handler is None:
             self.counters.unknown += 1
             return
@@ -274,6 +305,7 @@ class VirtualRig:
         next_collect = time.monotonic() + 1.0
         clock, cpu = time.time, time.thread_time
         self.time_ops = timing is not None
+        self.wall_clock = True
         while not stop():
             msg = self.bus.recv(poll_s)
             if msg is not None:
@@ -297,6 +329,8 @@ class VirtualRig:
                         next_collect = time.monotonic() + 1.0
                 else:
                     self.handle(msg)
+            if self.co_devices is not None:
+                self.co_devices.poll(self.co_now())
             if (not self.safe and
                     time.monotonic() - self.last_heartbeat_wall > self.watchdog_timeout_s):
                 self.make_safe(watchdog=True)
@@ -307,7 +341,9 @@ class VirtualRig:
     def _send(self, device: str, values: dict[str, float]) -> None:
         """The device's telemetry frames (one, or several pages) from its quantities."""
         maps = self._tlm.get(device)
-        if maps is None:  # the rig has no such device (binding none)
+        if maps is None:  # a CANopen device (its node sends), or none
+            if self.co_devices is not None and device in self._co_sensors:
+                self.co_devices.write_telemetry(device, values)
             return
         for tmap in maps:
             t0 = time.perf_counter() if self.time_ops else 0.0
@@ -407,6 +443,12 @@ class VirtualRig:
 
     def step(self) -> None:
         """Advance the physics by one step with the actuators' current commands."""
+        if self.co_devices is not None and not self.safe:
+            co = self.co_devices
+            for device in self._co_actuators:
+                values = co.commands(device)
+                if values is not None:
+                    self._apply[device](values)
         hub_torque = self.wheel.step() + self.valves.step() + self.rotor.step()
         self.u[0] = hub_torque
         if self.piezo_gains:
@@ -443,6 +485,11 @@ class VirtualRig:
             self._apply_device_faults()
             self._send_fault_frames()
         self._sample_and_send(tick)
+        if self.co_devices is not None:
+            now = self.co_now()
+            self.co_devices.poll(now)
+            # the nodes count this SYNC and send their TPDOs of the values just written
+            self.co_devices.handle(self.binding.sync.key[0], data, now)
 
     def _sample_and_send(self, tick: int) -> None:
         y = self.plant.c @ self.x + self.plant.d @ self.u

@@ -553,6 +553,10 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
     for node in nodes.values():
         n_tpdo = 0
         for d, qrefs in node.telemetry.items():
+            if SYNC_COUNTER_OVERFLOW % int(dividers.get(d, 1)):
+                raise BindingError(f"bus.sync_divider.{d}: a CANopen device's divider must "
+                                   f"divide the SYNC counter's {SYNC_COUNTER_OVERFLOW} (1, 2, 3, "
+                                   "4, 5, 6, 8, 10, ...) so its phase holds across the wrap")
             refs: list[ObjRef] = []
             for qr in qrefs:
                 if qr.ref not in refs:

@@ -146,7 +146,8 @@ class CanopenMaster:
         if index not in spec.od:
             return False
         obj = spec.od[index]
-        return hasattr(obj, "data_type") or sub in obj
+        # an ODArray's ``in`` makes up sub-indices: ask what the EDS declares
+        return (sub == 0) if hasattr(obj, "data_type") else sub in obj.subindices
 
     def _configure(self, rn: Any, spec: NodeSpec) -> dict[str, Any]:
         u32 = struct.Struct("<I")
@@ -189,9 +190,12 @@ class CanopenMaster:
                           bytes((len(p.codec.entries),)))
                 self._sdo(rn, spec, comm, 2, "PDO transmission type", bytes((p.trans_type,)))
                 if comm_base == 0x1800 and self._has(spec, comm, 6):
-                    # SYNC start value 1: the first TPDO goes with the SYNC counter 1 (tick
-                    # 0), so every n-th SYNC is the harness's tick % n == 0
-                    self._sdo(rn, spec, comm, 6, "SYNC start value", b"\x01")
+                    # the phase of every-n-th-SYNC: the SYNC with counter s is the first
+                    # counted, so the PDO goes at counters s + n - 1, s + 2n - 1, ...; the
+                    # harness's counter is tick % 240 + 1, so s = 2 sends at tick % n == 0
+                    # (n = 1: every SYNC, no start value needed)
+                    start = 0 if p.trans_type == 1 else 2
+                    self._sdo(rn, spec, comm, 6, "SYNC start value", bytes((start,)))
                 self._sdo(rn, spec, comm, 1, "PDO enable", u32.pack(p.cob_id))
         if self._has(spec, 0x1019):
             pass  # the SYNC counter overflow is the master's (0x1019 on the SYNC producer)

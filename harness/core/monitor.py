@@ -357,7 +357,9 @@ class FaultMonitor:
         if abs(v.get("accel", 0.0)) > self.accel_range + 0.01:
             return self._event(tick, "accelerometer", "implausible",
                                f"{v['accel']:+.3f} m/s^2 beyond its range")
-        counter = int(v.get("sample_counter", 0))
+        if "sample_counter" not in v:
+            return None  # its binding carries no sample counter (a CANopen analog input)
+        counter = int(v["sample_counter"])
         if self._accel_last is not None and counter == self._accel_last[0]:
             self._accel_same += 1
             if self._accel_same >= 2:
