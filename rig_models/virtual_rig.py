@@ -244,6 +244,8 @@ class VirtualRig:
         if b.canopen is not None:
             from rig_models.canopen.rig_devices import CanopenDevices
 
+            self._co_tpdo_device = {m.key[0]: d for d, maps in b.telemetry.items()
+                                    if b.kinds[d] == "canopen" for m in maps}
             self.co_devices = CanopenDevices(b.canopen, self._send_raw)
             self._co_actuators = tuple(d for d in apply if b.kinds[d] == "canopen")
             self._co_sensors = frozenset(d for d, k in b.kinds.items() if k == "canopen")
@@ -265,8 +267,17 @@ class VirtualRig:
             n += 1
 
     def _send_raw(self, can_id: int, data: bytes) -> None:
-        self.bus.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
-        self.counters.frames_out += 1
+        """A CANopen node's frame onto the bus; a TPDO through the frame faults of its
+        device, as the sgsrt devices' telemetry goes."""
+        payloads = [data]
+        if self.injector.faults:
+            device = self._co_tpdo_device.get(can_id)
+            if device is not None:
+                payloads = self.injector.telemetry(self.time_s, self.tick, device, data)
+        for payload in payloads:
+            self.bus.send(can.Message(arbitration_id=can_id, data=payload,
+                                      is_extended_id=False))
+            self.counters.frames_out += 1
 
     def co_now(self) -> float:
         """The CANopen nodes' time: the rig's in lockstep, the wall clock in its own
