@@ -253,6 +253,12 @@ class VirtualRig:
                 # the nodes' own heartbeat consumers and error behaviour make them safe
                 self.watchdog_timeout_s = float("inf")
             self.co_devices.boot(self.time_s)
+            self._co_faults_done: set[int] = set()
+            for f in self.injector.faults:  # set-up faults: armed before the master asks
+                node = self.co_devices.node_of(f.device)
+                if f.kind == "sdo_abort" and node is not None:
+                    node.sdo_abort_next(int(f.value) if f.value is not None else 0x1017,
+                                        0x08000020)
 
     # ------------------------------------------------------------------ bus side
     def service(self) -> int:
@@ -389,7 +395,38 @@ class VirtualRig:
             self.bus.send(can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True,
                                       data=bytes(8), is_extended_id=False))
 
+    def _apply_canopen_faults(self) -> None:
+        """Faults CANopen's way, once each at its time, on the device's node."""
+        from rig_models.canopen.node import NmtState
+        from rig_models.faults import CANOPEN_FAULTS
+
+        co = self.co_devices
+        done = self._co_faults_done
+        for i, f in enumerate(self.injector.faults):
+            if f.kind not in CANOPEN_FAULTS or f.kind == "sdo_abort" or i in done:
+                continue
+            if not f.active(self.time_s):
+                continue
+            done.add(i)
+            node = co.node_of(f.device) if co is not None else None
+            if node is None:
+                continue  # not a CANopen device: nothing of this kind to inject
+            if f.kind == "node_heartbeat_lost":
+                node.stop_heartbeat()
+            elif f.kind == "node_emcy":
+                node.emcy(int(f.value) if f.value is not None else 0x5000)
+            elif f.kind == "drive_fault":
+                drive = co.drive(f.device)
+                if drive is not None:
+                    drive.inject_fault(0x2310)
+            elif f.kind == "node_reboot":
+                node.reboot()
+            elif f.kind == "node_stopped":
+                node.force_nmt(NmtState.STOPPED)
+
     def _apply_device_faults(self) -> None:
+        if self.co_devices is not None:
+            self._apply_canopen_faults()
         inj, t = self.injector, self.time_s
         if inj.active(t, "wheel_fault") and not self.wheel.fault:
             self.wheel.fault = True
