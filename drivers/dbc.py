@@ -119,14 +119,15 @@ class FrameCodec:
         self.multiplexer: str | None = mux.name if mux is not None else None
         self.multiplexer_ids: tuple[int, ...] = ()
         if mux is not None:
-            m = message.get_signal_by_name(mux.name)
-            if mux.scale != 1 or mux.offset != 0 or mux.is_float:
+            choices = message.get_signal_by_name(mux.name).conversion.choices or {}
+            ids = {i for s in signals if s.multiplexer_ids for i in s.multiplexer_ids}
+            ids.update(int(k) for k in choices)  # cantools counts named values as ids too
+            self.multiplexer_ids = tuple(sorted(ids))
+            if not ids:  # nothing to select: a plain signal (as cantools decodes it)
+                self.multiplexer = None
+            elif mux.scale != 1 or mux.offset != 0 or mux.is_float:
                 raise ValueError(f"{message.name}.{mux.name}: a multiplexer signal must be an "
                                  f"integer with scale 1 and offset 0")
-            ids = {i for s in signals if s.multiplexer_ids for i in s.multiplexer_ids}
-            if m.conversion.choices:
-                ids.update(int(k) for k in m.conversion.choices)
-            self.multiplexer_ids = tuple(sorted(ids))
         self.source = self._generate()
         namespace: dict[str, object] = {"FrameError": FrameError, "_F32": _F32, "_F64": _F64,
                                         "_encode_error": self._encode_error}
@@ -253,7 +254,8 @@ class FrameCodec:
                 for s in sigs:
                     if s.name == mux:  # the value selected this branch: no clamp, no scale
                         word = "wb" if s.byte_order == "big_endian" else "wl"
-                        enc.append(f"            {word} |= {(i & s.mask) << s.shift(n)}")
+                        enc.append(f"            {word} |= {(i & s.mask) << s.shift(n)}"
+                                   if i & s.mask else "            pass")
                     else:
                         enc += self._encode_lines(s, "            ")
             enc += ["        else:",
