@@ -352,3 +352,21 @@ def test_encode_clamps_to_what_the_field_holds():
     codec = FrameCodec(db.messages[0])
     assert codec.decode(codec.encode({"x": 50}))["x"] == 7
     assert codec.decode(codec.encode({"x": -50}))["x"] == -8
+    # 64-bit raw integers stay exact (no float on the way): the largest, not 0 by wrapping
+    db = cantools.database.load_string(
+        HEADER + 'BO_ 100 W: 8 A\n SG_ x : 7|64@0+ (1,0) [0|0] "" A\n', "dbc")
+    codec = FrameCodec(db.messages[0])
+    assert codec.encode({"x": 2**64 + 5}) == b"\xff" * 8
+    assert codec.encode({"x": 2**64 - 2}) == b"\xff" * 7 + b"\xfe"
+
+
+def test_a_named_multiplexer_value_without_signals_decodes():
+    # cantools counts a multiplexer's named values (VAL_) as valid ids even with no signal
+    db = cantools.database.load_string(
+        HEADER + 'BO_ 100 N: 2 A\n SG_ sel M : 0|8@1+ (1,0) [0|0] "" A\n'
+        ' SG_ a m0 : 8|8@1+ (1,0) [0|0] "" A\nVAL_ 100 sel 0 "A" 2 "Idle" ;\n', "dbc")
+    codec = FrameCodec(db.messages[0])
+    assert codec.decode(b"\x02\x07") == {"sel": 2.0}
+    assert codec.encode({"sel": 2, "a": 5}) == b"\x02\x00"
+    with pytest.raises(FrameError, match="sel = 1"):
+        codec.decode(b"\x01\x07")
