@@ -59,6 +59,7 @@ def simulate(rig_data: dict[str, Any], dt_s: float, n: int,
     quiet["hub_sensor"]["angle_noise_rms_rad"] = 0.0
     quiet["hub_sensor"]["rate_noise_rms_rad_s"] = 0.0
     quiet["piezo_amplifier"]["sensor_noise_rms_v"] = 0.0
+    quiet["devices"] = None  # the physics only: no device speaks on a bus here
     rig = VirtualRig(rig_from_dict(quiet, source="twin rig"), bus=None, dt_s=dt_s)  # type: ignore[arg-type]
     rig.armed, rig.safe = True, True  # no heartbeat here: the watchdog stays out of it
     zeros = np.zeros(n)
