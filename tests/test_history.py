@@ -370,3 +370,23 @@ def test_postgresql_many_writers_and_series(pg_url):
         assert [a.index for a in s.alarms if a.kind == "control"] == [5, 5]  # value, margin
     code, out = cli("history", "show", "pg", "--criterion", "c", "--db", pg_url)
     assert code == 1 and "ALARM (control, run 5)" in out
+
+
+def test_a_mode_leaving_the_calibrated_band_says_to_calibrate_again(tmp_path):
+    from harness.history.record import design_bands
+    from harness.history.series import Series
+
+    rec = tmp_path / "recommended.yaml"
+    rec.write_text(yaml.safe_dump({"controller": {"type": "shaped_wheel_slew", "modes": [
+        {"omega_rad_s": 2.9, "damping_ratio": 0.05, "sigma_omega_rad_s": 0.01,
+         "sigma_damping": 0.004}]}}))
+    bands = design_bands(rec)
+    # the band is +-max(3 sigma, 5 %): 5 % of 2.9 rad/s here
+    assert math.isclose(bands[0]["omega_hi_rad_s"], 2.9 * 1.05)
+    rows = [{"time_utc": f"d{i}", "value": w, "sigma": 0.01, "source": ""}
+            for i, w in enumerate([2.9, 3.0, 3.1])]
+    s = analyse(Series("mode", "identify[x]", "mode 1", "rad/s", rows), bands=bands,
+                designed_by=str(rec))
+    band = [a for a in s.alarms if a.kind == "band"]
+    assert [a.index for a in band] == [2]  # 3.0 is inside 3.045, 3.1 is not
+    assert "run `harness calibrate` again" in band[0].message
