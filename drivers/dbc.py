@@ -101,6 +101,7 @@ class FrameCodec:
     """Encode/decode one DBC message (see the module docstring for what is supported)."""
 
     def __init__(self, message: cantools.database.Message) -> None:
+        self._message = message
         self.name: str = message.name
         self.frame_id: int = message.frame_id
         self.length: int = message.length
@@ -135,6 +136,10 @@ class FrameCodec:
         # instance attributes, not methods: one call level less on the hot path
         self.encode: Callable[[dict[str, float]], bytes] = namespace["encode"]  # type: ignore[assignment]
         self.decode: Callable[[bytes | bytearray], dict[str, float]] = namespace["decode"]  # type: ignore[assignment]
+
+    def __reduce__(self) -> tuple[type[FrameCodec], tuple[cantools.database.Message]]:
+        # generated functions do not pickle: a process receiving a codec regenerates it
+        return FrameCodec, (self._message,)
 
     @staticmethod
     def _signal(message: cantools.database.Message, s: cantools.database.Signal) -> SignalCodec:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import pickle
 
 import cantools
 import pytest
@@ -370,3 +371,11 @@ def test_a_named_multiplexer_value_without_signals_decodes():
     assert codec.encode({"sel": 2, "a": 5}) == b"\x02\x00"
     with pytest.raises(FrameError, match="sel = 1"):
         codec.decode(b"\x01\x07")
+
+
+def test_a_protocol_pickles_for_another_process():
+    copy = pickle.loads(pickle.dumps(P2))
+    codec = copy["AUX_STATUS"]
+    values = {"AuxMux": 1, "ROT_Spd_rpm": 12.5}
+    assert codec.encode(values) == P2["AUX_STATUS"].encode(values)
+    assert copy.get(0x18FF2210, True) is codec
