@@ -245,10 +245,11 @@ def _signal_map(quantity: str, spec: Any, key: str, protocol: Protocol, path: Pa
             raise BindingError(f"{key}.mux: {codec.name} is not multiplexed")
         if isinstance(mux, bool) or not isinstance(mux, int):
             raise BindingError(f"{key}.mux: expected an integer, got {mux!r}")
-        ids = getattr(codec, "mux_signals", {})
-        if ids and signal not in ids.get(mux, ()) and signal != mux_signal:
-            raise BindingError(f"{key}: signal {signal} is not in {codec.name}'s page "
-                               f"mux = {mux}")
+        sig = next(s for s in codec.signals if s.name == signal)
+        pages = getattr(sig, "multiplexer_ids", None)
+        if pages is not None and mux not in pages:
+            raise BindingError(f"{key}: signal {signal} is not on {codec.name}'s page "
+                               f"{mux_signal} = {mux} (it is on {list(pages)})")
     elif mux_signal is not None:
         raise BindingError(f"{key}.mux: {codec.name} is multiplexed by {mux_signal}: say "
                            "which page (mux value) carries this quantity")
@@ -283,6 +284,9 @@ def _dbc_device(device: str, cfg: Mapping[str, Any], key: str, base_dir: Path | 
             raise BindingError(f"{qkey}: unknown quantity of {device} (expected one of: "
                                f"{', '.join(TELEMETRY[device])})")
         codec, sm, mux, modulus = _signal_map(q, spec, qkey, protocol, path)
+        if q in ("counter", "sample_counter"):  # a counter wraps at its signal's width
+            sm = SignalMap(sm.quantity, sm.signal, sm.scale, sm.offset,
+                           modulus or 1 << _signal_length(codec, sm.signal))
         codecs[codec.name] = codec
         groups.setdefault((codec.name, mux), []).append(sm)
         if q == "counter" and modulus is not None:
@@ -431,7 +435,7 @@ def build_binding(data: Mapping[str, Any], base_dir: Path | None = None) -> RigB
 
         canopen_bus, tlm_maps, cmd_maps, co_files = build_canopen(
             co_cfgs, bus.get("sync_divider") or {}, int(bus.get("master_node_id", 127)),
-            base_dir)
+            base_dir, int(bus.get("heartbeat_consumer_ms", 200)))
         telemetry.update(tlm_maps)
         commands.update(cmd_maps)
         files.update(co_files)

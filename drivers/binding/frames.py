@@ -23,10 +23,12 @@ class SignalMap:
     signal: str
     scale: float = 1.0  # SI per DBC unit
     offset: float = 0.0  # SI at a DBC value of 0
+    modulus: int = 0  # a counter: sent modulo this (its signal's width)
 
     @property
     def identity(self) -> bool:
-        return self.scale == 1.0 and self.offset == 0.0 and self.quantity == self.signal
+        return (self.scale == 1.0 and self.offset == 0.0 and self.quantity == self.signal
+                and not self.modulus)
 
 
 def _mux_signal(codec: FrameCodec) -> str | None:
@@ -37,7 +39,7 @@ class TelemetryMap:
     """One telemetry frame of one device (a multiplexed message: one mux value of it)."""
 
     __slots__ = ("device", "codec", "mux", "mux_signal", "fields", "identity", "_dec", "_enc",
-                 "key")
+                 "key", "_wrap")
 
     def __init__(self, device: str, codec: FrameCodec, fields: tuple[SignalMap, ...],
                  mux: int | None = None) -> None:
@@ -53,6 +55,7 @@ class TelemetryMap:
                          and {f.signal for f in fields} == set(codec.signal_names))
         self._dec = tuple((f.quantity, f.signal, f.scale, f.offset) for f in fields)
         self._enc = tuple((f.quantity, f.signal, 1.0 / f.scale, f.offset) for f in fields)
+        self._wrap = tuple((f.quantity, f.modulus) for f in fields if f.modulus)
 
     def decode(self, data: bytes | bytearray) -> dict[str, float] | None:
         """Payload -> quantities; None when it is another mux page of the message. Raises
@@ -67,6 +70,8 @@ class TelemetryMap:
     def encode(self, quantities: dict[str, float]) -> bytes:
         if self.identity:
             return self.codec.encode(quantities)
+        if self._wrap:
+            quantities = {**quantities, **{q: quantities.get(q, 0) % m for q, m in self._wrap}}
         values = {s: (quantities.get(q, 0.0) - b) * inv for q, s, inv, b in self._enc}
         if self.mux is not None:
             values[self.mux_signal] = self.mux  # type: ignore[index]
