@@ -34,6 +34,11 @@ SENSORS = ("/attitude/angle_deg", "/attitude/rate_deg_s", "/tip/accel_m_s2",
            "/piezo/sensor_ch2_v")
 
 
+WAIT_TICKS = 20_000
+"""How far the channels read may run ahead of one not yet seen before it is taken as
+absent (bounds the memory of a recording that lacks a channel)."""
+
+
 class TwinError(Exception):
     """The run cannot be replayed through the twin (no recording, no config, bad rig)."""
 
@@ -47,63 +52,115 @@ def _noise_of(rig: dict[str, Any]) -> dict[str, float]:
             "/piezo/sensor_ch2_v": rig["piezo_amplifier"]["sensor_noise_rms_v"]}
 
 
+class TwinModel:
+    """The noise-free twin of a rig file, advanced one tick at a time."""
+
+    def __init__(self, rig_data: dict[str, Any], dt_s: float) -> None:
+        from rig_models.rig_file import rig_from_dict
+        from rig_models.virtual_rig import VirtualRig
+
+        quiet = copy.deepcopy(rig_data)
+        quiet["accelerometer"]["noise_rms_m_s2"] = 0.0
+        quiet["hub_sensor"]["angle_noise_rms_rad"] = 0.0
+        quiet["hub_sensor"]["rate_noise_rms_rad_s"] = 0.0
+        quiet["piezo_amplifier"]["sensor_noise_rms_v"] = 0.0
+        quiet["devices"] = None  # the physics only: no device speaks on a bus here
+        self.rig = VirtualRig(rig_from_dict(quiet, source="twin rig"), bus=None,  # type: ignore[arg-type]
+                              dt_s=dt_s)
+        self.rig.armed, self.rig.safe = True, True  # no heartbeat: the watchdog stays out
+        self.k = 0
+
+    def tick(self, torque_n_m: float, valve: float, ch1_v: float, ch2_v: float
+             ) -> tuple[float, ...]:
+        """The sensors at this tick (in ``SENSORS`` order), then the harness's command
+        sent after them, held over the next step."""
+        rig = self.rig
+        if self.k:
+            rig.step()
+        self.k += 1
+        y = rig.plant.c @ rig.x + rig.plant.d @ rig.u
+        angle, rate = rig.hub_sensor.sample(y[0], y[1])
+        modal = rig.x[1:1 + rig.n_modes]
+        gains = rig.piezo_gains
+        out = (math.degrees(angle), math.degrees(rate), rig.accel.sample(y[2]),
+               rig.wheel.speed_rad_s, rig.wheel.torque_n_m,
+               float(gains[0].sensor @ modal) if gains else 0.0,
+               float(gains[1].sensor @ modal) if len(gains) > 1 else 0.0)
+        rig.wheel.command(torque_n_m, True)
+        rig.valves.command(int(round(valve)))
+        rig.piezo.command(ch1_v, ch2_v)
+        return out
+
+
 def simulate(rig_data: dict[str, Any], dt_s: float, n: int,
              commands: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """The noise-free twin's sensor channels over ``n`` ticks, driven by ``commands``
     (arrays of ``n`` samples by channel name; missing ones are 0)."""
-    from rig_models.rig_file import rig_from_dict
-    from rig_models.virtual_rig import VirtualRig
-
-    quiet = copy.deepcopy(rig_data)
-    quiet["accelerometer"]["noise_rms_m_s2"] = 0.0
-    quiet["hub_sensor"]["angle_noise_rms_rad"] = 0.0
-    quiet["hub_sensor"]["rate_noise_rms_rad_s"] = 0.0
-    quiet["piezo_amplifier"]["sensor_noise_rms_v"] = 0.0
-    quiet["devices"] = None  # the physics only: no device speaks on a bus here
-    rig = VirtualRig(rig_from_dict(quiet, source="twin rig"), bus=None, dt_s=dt_s)  # type: ignore[arg-type]
-    rig.armed, rig.safe = True, True  # no heartbeat here: the watchdog stays out of it
+    twin = TwinModel(rig_data, dt_s)
     zeros = np.zeros(n)
-    torque = commands.get("/wheel/torque_cmd_n_m", zeros)
-    valve = commands.get("/thrusters/valve_cmd", zeros)
-    p1 = commands.get("/piezo/cmd_ch1_v", zeros)
-    p2 = commands.get("/piezo/cmd_ch2_v", zeros)
-    out = {name: np.empty(n) for name in SENSORS}
-    plant, nm = rig.plant, rig.n_modes
-    gains = rig.piezo_gains
-    for k in range(n):
-        if k:
-            rig.step()
-        y = plant.c @ rig.x + plant.d @ rig.u
-        angle, rate = rig.hub_sensor.sample(y[0], y[1])
-        out["/attitude/angle_deg"][k] = math.degrees(angle)
-        out["/attitude/rate_deg_s"][k] = math.degrees(rate)
-        out["/tip/accel_m_s2"][k] = rig.accel.sample(y[2])
-        out["/wheel/speed_rad_s"][k] = rig.wheel.speed_rad_s
-        out["/wheel/torque_n_m"][k] = rig.wheel.torque_n_m
-        modal = rig.x[1:1 + nm]
-        out["/piezo/sensor_ch1_v"][k] = float(gains[0].sensor @ modal) if gains else 0.0
-        out["/piezo/sensor_ch2_v"][k] = float(gains[1].sensor @ modal) if len(gains) > 1 \
-            else 0.0
-        # the harness's command after sample k, held over the next step
-        rig.wheel.command(float(torque[k]), True)
-        rig.valves.command(int(round(float(valve[k]))))
-        rig.piezo.command(float(p1[k]), float(p2[k]))
-    return out
+    cmd = [commands.get(name, zeros) for name in COMMANDS[:4]]
+    rows = [twin.tick(*(float(c[k]) for c in cmd)) for k in range(n)]
+    arr = np.array(rows, dtype=float).reshape(n, len(SENSORS))
+    return {name: arr[:, i] for i, name in enumerate(SENSORS)}
 
 
-def _on_ticks(t: np.ndarray, v: np.ndarray, dt_s: float, n: int) -> np.ndarray:
-    """A recorded channel on the tick grid (a channel's row k holds tick k's value)."""
-    out = np.full(n, np.nan)
-    idx = np.rint(t / dt_s).astype(np.int64)
-    ok = (idx >= 0) & (idx < n)
-    out[idx[ok]] = v[ok]
-    return out
+class _Pending:
+    """A channel's samples read but not yet compared, by tick (bounded by the recording's
+    interleaving: the loop writes every channel's block for the same rows together)."""
+
+    def __init__(self) -> None:
+        self.ticks: list[np.ndarray] = []
+        self.vals: list[np.ndarray] = []
+        self.last = -1
+
+    def add(self, ticks: np.ndarray, vals: np.ndarray) -> None:
+        self.ticks.append(ticks)
+        self.vals.append(vals)
+        if ticks.size:
+            self.last = max(self.last, int(ticks.max()))
+
+    def take(self, k0: int, k1: int) -> np.ndarray:
+        """Values of ticks k0..k1 (NaN where none), dropping them and anything older."""
+        out = np.full(k1 - k0 + 1, np.nan)
+        if not self.ticks:
+            return out
+        t, v = np.concatenate(self.ticks), np.concatenate(self.vals)
+        sel = (t >= k0) & (t <= k1)
+        out[t[sel] - k0] = v[sel]
+        keep = t > k1
+        self.ticks, self.vals = ([t[keep]], [v[keep]]) if keep.any() else ([], [])
+        return out
+
+
+class _Residual:
+    """A channel's residual statistics, streaming."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.sumsq = 0.0
+        self.rec_sumsq = 0.0
+        self.worst = 0.0
+        self.worst_t = 0.0
+
+    def add(self, rec: np.ndarray, twin: np.ndarray, t: np.ndarray) -> None:
+        ok = np.isfinite(rec)
+        if not ok.any():
+            return
+        r = rec[ok] - twin[ok]
+        self.n += int(ok.sum())
+        self.sumsq += float(np.sum(r ** 2))
+        self.rec_sumsq += float(np.sum(rec[ok] ** 2))
+        i = int(np.argmax(np.abs(r)))
+        if abs(r[i]) >= abs(self.worst):
+            self.worst, self.worst_t = float(r[i]), float(t[ok][i])
 
 
 def twin_residual(run_dir: Path, rig: str | None = None) -> dict[str, Any]:
     """The twin's residual of a recorded run (see the module docstring). ``rig``: the rig
-    file the twin is built from (default: the run's own, from its config.yaml)."""
-    from harness.testing.judge import read_channels
+    file the twin is built from (default: the run's own, from its config.yaml). One
+    streaming pass over run.rrd: memory does not grow with the run's length."""
+    from harness.testing.evaluate import MissingData
+    from harness.testing.judge import ChannelSource
 
     run_dir = Path(run_dir)
     rrd = run_dir / "run.rrd"
@@ -119,75 +176,83 @@ def twin_residual(run_dir: Path, rig: str | None = None) -> dict[str, Any]:
     from rig_models.schema import ConfigError
 
     try:
-        rig_cfg = load_rig(rig) if rig is not None else rig_from_dict(
-            cfg.get("rig"), source=f"{run_dir / 'config.yaml'} rig")
-    except ConfigError as exc:
-        raise TwinError(str(exc)) from exc
-    try:
         rate = float(cfg["run"]["rate_hz"])
     except (KeyError, TypeError, ValueError) as exc:
         raise TwinError(f"{run_dir}: config.yaml run.rate_hz missing") from exc
     dt_s = 1.0 / rate
     try:
-        channels = read_channels(rrd, set(COMMANDS) | set(SENSORS))
-    except Exception as exc:  # noqa: BLE001 - an unreadable recording is bad input
-        raise TwinError(f"{rrd}: unreadable ({type(exc).__name__}: {exc})") from exc
-    if "/tip/accel_m_s2" not in channels:
+        rig_cfg = load_rig(rig) if rig is not None else rig_from_dict(
+            cfg.get("rig"), source=f"{run_dir / 'config.yaml'} rig")
+        model = TwinModel(rig_cfg.data, dt_s)
+    except ConfigError as exc:
+        raise TwinError(str(exc)) from exc
+    pending = {name: _Pending() for name in (*COMMANDS, *SENSORS)}
+    stats = {name: _Residual() for name in SENSORS}
+    held = [0.0, 0.0, 0.0, 0.0]  # a tick without a recorded command keeps the last one
+    rotor_turned = False
+    seen: set[str] = set()
+    k_next = 0
+
+    def advance(k_end: int) -> None:
+        nonlocal k_next, rotor_turned
+        if k_end < k_next:
+            return
+        cmds = [pending[name].take(k_next, k_end) for name in COMMANDS[:4]]
+        rotor = pending["/rotor/speed_rad_s"].take(k_next, k_end)
+        rotor_turned = rotor_turned or bool(np.nanmax(np.abs(rotor), initial=0.0) > 0)
+        rows = []
+        for j in range(k_end - k_next + 1):
+            for i, c in enumerate(cmds):
+                if np.isfinite(c[j]):
+                    held[i] = float(c[j])
+            rows.append(model.tick(*held))
+        twin = np.array(rows, dtype=float).reshape(-1, len(SENSORS))
+        t = np.arange(k_next, k_end + 1) * dt_s
+        for i, name in enumerate(SENSORS):
+            stats[name].add(pending[name].take(k_next, k_end), twin[:, i], t)
+        k_next = k_end + 1
+
+    try:
+        for entity, t, v in ChannelSource(rrd).blocks([*COMMANDS, *SENSORS]):
+            seen.add(entity)
+            pending[entity].add(np.rint(t / dt_s).astype(np.int64), v)
+            # the loop writes every channel for the same rows: compare up to the tick all
+            # have, once all were seen (a channel missing from the recording: once the
+            # others have run WAIT_TICKS ahead, it is taken as absent)
+            if len(seen) == len(pending) or \
+                    max(pending[e].last for e in seen) - k_next > WAIT_TICKS:
+                advance(min(pending[e].last for e in seen))
+    except MissingData as exc:
+        raise TwinError(str(exc)) from exc
+    if "/tip/accel_m_s2" not in seen:
         raise TwinError(f"{rrd}: no /tip/accel_m_s2 channel")
-    t_end = max(float(t[-1]) for t, _ in channels.values() if len(t))
-    n = int(round(t_end / dt_s)) + 1
-    cmds = {}
+    advance(max(pending[e].last for e in seen))
     notes = []
-    for name in COMMANDS[:4]:
-        if name in channels:
-            c = _on_ticks(*channels[name], dt_s, n)
-            # a tick without a recorded command keeps the last one (zero-order hold)
-            c = _hold(c)
-            cmds[name] = c
-    rotor = channels.get("/rotor/speed_rad_s")
-    if rotor is not None and np.nanmax(np.abs(rotor[1])) > 0:
+    if rotor_turned:
         notes.append("the disturbance rotor turned (its command is not recorded): the twin "
                      "runs without it, so its vibration is in the residual")
-    twin = simulate(rig_cfg.data, dt_s, n, cmds)
     noise = _noise_of(rig_cfg.data)
     rows = []
     for name in SENSORS:
-        if name not in channels or (name.startswith("/piezo/sensor")
-                                    and not rig_cfg.data.get("piezo_patches")):
+        st = stats[name]
+        if st.n == 0 or (name.startswith("/piezo/sensor")
+                         and not rig_cfg.data.get("piezo_patches")):
             continue
-        rec = _on_ticks(*channels[name], dt_s, n)
-        ok = np.isfinite(rec)
-        if not ok.any():
-            continue
-        r = rec[ok] - twin[name][ok]
-        t = np.arange(n)[ok] * dt_s
-        i = int(np.argmax(np.abs(r)))
-        rms = float(np.sqrt(np.mean(r ** 2)))
+        rms = math.sqrt(st.sumsq / st.n)
         nz = noise.get(name)
-        rows.append({"channel": name, "samples": int(ok.sum()), "rms": rms,
-                     "worst": float(r[i]), "worst_time_s": float(t[i]),
-                     "recorded_rms": float(np.sqrt(np.mean(rec[ok] ** 2))),
+        rows.append({"channel": name, "samples": st.n, "rms": rms, "worst": st.worst,
+                     "worst_time_s": st.worst_t,
+                     "recorded_rms": math.sqrt(st.rec_sumsq / st.n),
                      "noise_rms": nz, "rms_over_noise": rms / nz if nz else None})
     wn, zeta = rig_cfg.plant.hub_free_modal_damping()
-    model = [{"mode": i + 1, "omega_rad_s": float(w), "damping_ratio": float(z)}
+    modes = [{"mode": i + 1, "omega_rad_s": float(w), "damping_ratio": float(z)}
              for i, (w, z) in enumerate(zip(wn, zeta, strict=True))]
     worst = max((r for r in rows if r["rms_over_noise"] is not None),
                 key=lambda r: r["rms_over_noise"], default=None)
-    return {"run_dir": str(run_dir), "rig": rig_cfg.source, "rate_hz": rate, "ticks": n,
+    return {"run_dir": str(run_dir), "rig": rig_cfg.source, "rate_hz": rate, "ticks": k_next,
             "channels": rows, "worst_channel": None if worst is None else worst["channel"],
-            "model_modes": model, "identified_modes": _identified(run_dir, cfg, model),
+            "model_modes": modes, "identified_modes": _identified(run_dir, cfg, modes),
             "notes": notes}
-
-
-def _hold(c: np.ndarray) -> np.ndarray:
-    ok = np.isfinite(c)
-    if not ok.any():
-        return np.zeros_like(c)
-    idx = np.where(ok, np.arange(c.size), 0)
-    np.maximum.accumulate(idx, out=idx)
-    out = c[idx]
-    out[: int(np.argmax(ok))] = 0.0
-    return out
 
 
 def _identified(run_dir: Path, cfg: dict[str, Any], model: list[dict[str, Any]]
