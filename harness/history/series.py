@@ -125,8 +125,12 @@ def analyse(series: Series, k: float = drift.DEFAULT_K, n_ref: int = drift.DEFAU
                     a = drift.band_alarm(p, i, series.label, bands[mode - 1], designed_by)
                     if a is not None:
                         alarms.append(a)
+        t = drift.trend_alarm(pts, series.label, series.unit, k, n_trend)
+        if t is not None:
+            alarms.append(t)
     else:
-        alarms += drift.control_alarms(pts, series.label, series.unit, k, n_ref, spread)
+        # the chart is the margin's (the distance to the limit, whatever side it is on;
+        # the value's own would repeat it while the limit stays)
         margins = [drift.Point(r["time_utc"], float(r["margin"]), None, r.get("source") or "")
                    for r in series.rows if r.get("margin") is not None]
         alarms += drift.control_alarms(margins, f"{series.label} margin", series.unit, k,
@@ -135,9 +139,6 @@ def analyse(series: Series, k: float = drift.DEFAULT_K, n_ref: int = drift.DEFAU
         if t is not None and t.change < 0:  # only a shrinking margin is a warning
             alarms.append(t)
         series.flaky = flaky(series)
-    t = drift.trend_alarm(pts, series.label, series.unit, k, n_trend)
-    if t is not None:
-        alarms.append(t)
     series.alarms = sorted(alarms, key=lambda a: (a.index, a.kind))
     return series
 
@@ -212,10 +213,18 @@ def plot_png(series: Series, path: Path | io.BytesIO) -> Path | io.BytesIO:
                           else math.nan for v, m in zip(y, marg, strict=True)]
                     ax.fill_between(idx, lo, hi, step="mid", color="#bf8700", alpha=0.2,
                                     label="marginal band")
-    for a in series.alarms:
-        ax.plot([a.index], [a.value], "o", ms=14, mfc="none", mec="#cf222e", mew=2)
-        ax.annotate(a.kind, (a.index, a.value), textcoords="offset points", xytext=(6, 8),
-                    color="#cf222e", fontsize=8)
+                    if key == "max_abs":
+                        ax.fill_between(idx, [-v for v in hi], [-v for v in lo], step="mid",
+                                        color="#bf8700", alpha=0.2)
+    ringed: set[int] = set()
+    for a in series.alarms:  # ringed on the plotted value (a margin's alarm too)
+        if a.index in ringed or not 0 <= a.index < len(vals):
+            continue
+        ringed.add(a.index)
+        kinds = "+".join(sorted({b.kind for b in series.alarms if b.index == a.index}))
+        ax.plot([a.index], [vals[a.index]], "o", ms=14, mfc="none", mec="#cf222e", mew=2)
+        ax.annotate(kinds, (a.index, vals[a.index]), textcoords="offset points",
+                    xytext=(6, 8), color="#cf222e", fontsize=8)
     ax.set_xticks(idx)
     ax.set_xticklabels([r["time_utc"][5:16].replace("T", "\n") for r in series.rows],
                        fontsize=7)
