@@ -30,7 +30,7 @@ from harness.history.db import Filters, HistoryDB, Record, open_db
 from harness.history.record import record_identify
 from harness.history.series import analyse, criterion_series, flaky
 from harness.testing.work import private_channel
-from rig_models.rig_file import RIGS_DIR
+from rig_models.rig_file import RIGS_DIR, load_rig
 
 ENV = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
 NOMINAL = yaml.safe_load((RIGS_DIR / "sgsrt.yaml").read_text())
@@ -234,6 +234,10 @@ def test_a_failure_from_raised_noise_is_beyond_the_predicted_scatter(tmp_path):
         # the rig at rest (a zero-torque pulse): the tip sees its accelerometer's noise
         d = run(decay_run_file(tmp_path, rig, "quiet", expect, duration_s=2.0, rate_hz=100,
                                torque_n_m=0.0), logs)
+        # a run on the real rig records the rig file it was configured with, not the truth
+        cfg = yaml.safe_load((d / "config.yaml").read_text())
+        cfg["rig"] = load_rig(str(model)).data
+        (d / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
         assert main(["judge", str(d)]) in (0, 1, 5)
         dirs[rig.stem] = d
     verdict = json.loads((dirs["real-noisy"] / "verdict.json").read_text())
@@ -256,6 +260,10 @@ def test_a_failure_from_raised_noise_is_beyond_the_predicted_scatter(tmp_path):
     row = next(r for r in doc["criteria"] if r["name"] == "tip_noise")
     assert row["scatter"] == "within" and abs(row["z"]) <= 3
     assert "predicting" not in out  # the second call read the cache
+    # the series shows the failure beyond the scatter (the judge recorded both runs)
+    code, out = cli("history", "show", "quiet", "--criterion", "tip_noise", "--logs", str(logs))
+    assert "FAIL" in out and "(beyond the predicted scatter)" in out, out
+    assert out.count("predicted scatter") == 1  # a passing run is not marked
 
 
 # ----------------------------------------------------------------------------- twin

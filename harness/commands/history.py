@@ -215,7 +215,21 @@ def _analysed(db: Any, args: argparse.Namespace, filters: Any, what: str, test: 
         return hs.analyse(s, args.k, args.n_ref, args.n_trend, reference, bands=bands,
                           designed_by=by)
     s = hs.criterion_series(db, test, str(name), filters)
+    _mark_scatter(args, s)
     return hs.analyse(s, args.k, args.n_ref, args.n_trend, spread=_spread(args, s))
+
+
+def _mark_scatter(args: argparse.Namespace, series: Any) -> None:
+    """A failed or marginal run whose configuration's scatter was predicted (harness
+    history scatter) is marked within or beyond it."""
+    from harness.history.scatter import cached_prediction, within
+
+    for r in series.rows:
+        if r.get("verdict") in ("FAIL", "MARGINAL") and r.get("value") is not None \
+                and r.get("source"):
+            p = cached_prediction(args.logs, Path(r["source"]), series.name)
+            if p is not None:
+                r["scatter"] = "within" if within(r["value"], p, args.k) else "beyond"
 
 
 def _show(db: Any, args: argparse.Namespace, filters: Any) -> int:

@@ -133,9 +133,9 @@ def predict_for_run(run_dir: Path, logs: Path, seeds: int = 5, model_rig: str | 
     return predict(cfg["run"], rig, path, seeds, progress)
 
 
-def cached_spread(logs: Path, run_dir: Path, criterion: str) -> float | None:
-    """A criterion's predicted std from the cache for ``run_dir``'s configuration (any
-    number of seeds), or None (nothing is run here)."""
+def cached_prediction(logs: Path, run_dir: Path, criterion: str) -> dict[str, Any] | None:
+    """A criterion's predicted mean and std from the cache for ``run_dir``'s configuration
+    (any number of seeds), or None (nothing is run here)."""
     try:
         cfg = _config(Path(run_dir))
     except ScatterError:
@@ -144,11 +144,20 @@ def cached_spread(logs: Path, run_dir: Path, criterion: str) -> float | None:
     for path in sorted((Path(logs) / CACHE_DIR).glob(f"{stem}-n*.json")):
         try:
             c = json.loads(path.read_text())["criteria"].get(criterion)
-        except (OSError, ValueError, KeyError):
+        except (OSError, ValueError, KeyError, AttributeError):
             continue
         if c and c["std"] > 0:
-            return float(c["std"])
+            return c
     return None
+
+
+def cached_spread(logs: Path, run_dir: Path, criterion: str) -> float | None:
+    c = cached_prediction(logs, run_dir, criterion)
+    return None if c is None else float(c["std"])
+
+
+def within(value: float, prediction: dict[str, Any], k: float = 3.0) -> bool:
+    return abs(value - prediction["mean"]) <= k * prediction["std"]
 
 
 def classify(run_dir: Path, prediction: dict[str, Any], k: float = 3.0

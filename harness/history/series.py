@@ -159,8 +159,9 @@ def table(series: Series) -> str:
                      f"{'verdict':<8} limits")
         for i, r in enumerate(series.rows):
             lim = ", ".join(f"{k} {v:g}" for k, v in r["limits"].items())
+            sc = f" ({r['scatter']} the predicted scatter)" if r.get("scatter") else ""
             lines.append(f"{i:>3} {r['time_utc']:<20} {_f(r['value'], '11.5g')} "
-                         f"{_f(r['margin'], '11.4g')} {r['verdict'] or '-':<8} {lim}")
+                         f"{_f(r['margin'], '11.4g')} {r['verdict'] or '-':<8} {lim}{sc}")
     for a in series.alarms:
         lines.append(f"ALARM ({a.kind}, run {a.index}): {a.message}")
     for f in series.flaky:
@@ -226,8 +227,10 @@ def plot_png(series: Series, path: Path | io.BytesIO) -> Path | io.BytesIO:
         ax.annotate(kinds, (a.index, vals[a.index]), textcoords="offset points",
                     xytext=(6, 8), color="#cf222e", fontsize=8)
     ax.set_xticks(idx)
-    ax.set_xticklabels([r["time_utc"][5:16].replace("T", "\n") for r in series.rows],
-                       fontsize=7)
+    labels = [r["time_utc"][5:16].replace("T", "\n") for r in series.rows]
+    if len(set(labels)) < len(labels):  # runs within a minute: their seconds too
+        labels = [r["time_utc"][5:19].replace("T", "\n") for r in series.rows]
+    ax.set_xticklabels(labels, fontsize=7)
     ax.set_xlabel("run (UTC)")
     ax.set_ylabel(f"{series.name} ({series.unit})" if series.unit else series.name)
     ax.set_title(series.label)
