@@ -17,6 +17,7 @@ import yaml
 from drivers.binding import BindingError, build_binding
 from drivers.binding.canopen import PdoCodec
 from harness.core.runs import run_from_dict
+from harness.record.reader import read_scalar_channel
 from harness.core.session import RunRefused, execute_run
 from harness.testing.judge import left_safe_problems
 from rig_models.faults import FaultSpec
@@ -222,6 +223,19 @@ def test_canopen_run_completes_and_is_left_safe(tmp_path):
     assert result.summary["frames"]["unknown"] == 0
     assert abs(result.summary["final_angle_error_deg"]) < 0.05
     _assert_left_safe(result)
+    # the recording's bus view decoded the PDOs through the binding, by quantity, in SI,
+    # and every node's heartbeat state
+    rrd = result.run_dir / "run.rrd"
+    t_cmd, torque = read_scalar_channel(rrd, "/bus/reaction_wheel/cmd/torque_cmd_n_m")
+    t_loop, sent = read_scalar_channel(rrd, "/wheel/torque_cmd_n_m")
+    assert len(t_cmd) >= len(t_loop)
+    assert abs(torque.max() - sent.max()) <= 6.5e-5  # one count of the per-mille torque
+    _, speed = read_scalar_channel(rrd, "/bus/reaction_wheel/tlm/speed_rad_s")
+    _, loop_speed = read_scalar_channel(rrd, "/wheel/speed_rad_s")
+    assert speed[-1] == pytest.approx(loop_speed[-1], abs=1e-9)
+    for nid in (2, 3, 4, 5):
+        _, state = read_scalar_channel(rrd, f"/bus/canopen/node_{nid}/nmt_state")
+        assert len(state) > 10 and state[-1] == 5.0
 
 
 @pytest.mark.parametrize("kind, device, expect_kind, bound_s", [
