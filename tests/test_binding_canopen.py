@@ -17,8 +17,8 @@ import yaml
 from drivers.binding import BindingError, build_binding
 from drivers.binding.canopen import PdoCodec
 from harness.core.runs import run_from_dict
-from harness.record.reader import read_scalar_channel
 from harness.core.session import RunRefused, execute_run
+from harness.record.reader import read_scalar_channel
 from harness.testing.judge import left_safe_problems
 from rig_models.faults import FaultSpec
 from rig_models.rig_file import RIGS_DIR, load_rig, rig_from_dict
