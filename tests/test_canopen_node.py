@@ -164,7 +164,8 @@ class Recorder(can.Listener):
 
     def on_message_received(self, msg: can.Message) -> None:
         with self.lock:
-            self.frames.append((time.monotonic(), msg.arbitration_id, bytes(msg.data)))
+            # the send time (python-can's virtual bus stamps it), not when this thread woke
+            self.frames.append((msg.timestamp, msg.arbitration_id, bytes(msg.data)))
 
     def mark(self) -> int:
         with self.lock:
@@ -303,11 +304,13 @@ def test_heartbeat_period_and_silence(rig):
     time.sleep(0.8)
     beats = rig.rec.since(mark, 0x700 + WHEEL)
     assert all(b[2] == bytes((NmtState.PRE_OPERATIONAL,)) for b in beats)
-    gaps = [b[0] - a[0] for a, b in itertools.pairwise(beats)]
-    assert len(beats) >= 12
-    mean = sum(gaps) / len(gaps)
-    assert abs(mean - period_ms / 1000) < 0.005, gaps
-    assert min(gaps) > 0.6 * period_ms / 1000, gaps
+    gaps = sorted(b[0] - a[0] for a, b in itertools.pairwise(beats))
+    assert len(beats) >= 10
+    # the median: a stall of this test's pump thread on a loaded host delays one beat (the
+    # node then resumes one period later, never in a burst), the schedule itself is exact
+    # (test_heartbeat_schedule_in_rig_time)
+    assert abs(gaps[len(gaps) // 2] - period_ms / 1000) < 0.1 * period_ms / 1000, gaps
+    assert gaps[0] > 0.5 * period_ms / 1000, gaps
     rig.nmt(0x02, WHEEL)
     mark = rig.rec.mark()
     beats = rig.rec.wait_for(mark, 0x700 + WHEEL, timeout=0.5)
@@ -602,3 +605,44 @@ def test_rotor_csv_and_encoder_wrap(rig):
         Cia402Drive(rig.nodes[IO], "cst")
     with pytest.raises(ValueError, match="mode: 10 is not supported"):
         Cia402Drive(rig.nodes[ROTOR], "cst")
+
+
+def test_bad_eds_and_node_id_are_named(tmp_path):
+    def send(_can_id: int, _data: bytes) -> None:
+        pass
+
+    with pytest.raises(ValueError, match="node_id: 0 is not a CANopen node id"):
+        VirtualNode(0, EDS / FILES[WHEEL], send)
+    with pytest.raises(FileNotFoundError, match="eds_path: no EDS file"):
+        VirtualNode(5, tmp_path / "missing.eds", send)
+    broken = tmp_path / "broken.eds"
+    broken.write_text("[1000]\nParameterName=Device type\n")
+    with pytest.raises(ValueError, match="broken.eds: not a loadable EDS"):
+        VirtualNode(5, broken, send)
+    text = (EDS / FILES[ENC]).read_text()
+    bad_map = tmp_path / "bad_map.eds"
+    bad_map.write_text(text.replace("DefaultValue=0x60040020", "DefaultValue=0x70040020"))
+    with pytest.raises(ValueError, match=r"bad_map.eds: 0x1A00:01 maps 0x7004:00"):
+        VirtualNode(5, bad_map, send)
+
+
+def test_heartbeat_schedule_in_rig_time():
+    """Pumped in lockstep (rig time, no thread): beats exactly at the 0x1017 period, and
+    a stalled pump gets one beat, not a burst."""
+    sent: list[tuple[float, int, bytes]] = []
+    now = 0.0
+    node = VirtualNode(ENC, EDS / FILES[ENC], lambda c, d: sent.append((now, c, d)))
+    node.poll(now)
+    assert sent == [(0.0, 0x700 + ENC, b"\x00")]
+    node.handle(0x600 + ENC, struct.pack("<BHBH2x", 0x2B, 0x1017, 0, 25), now)
+    for k in range(1, 201):  # 1 ms steps
+        now = k / 1000
+        node.poll(now)
+    beats = [t for t, c, d in sent if c == 0x700 + ENC and d == b"\x7f"]
+    assert beats == pytest.approx([0.025 * k for k in range(1, 9)])
+    now = 0.5  # the pump stalled for 300 ms
+    node.poll(now)
+    now = 0.501
+    node.poll(now)
+    assert [t for t, c, d in sent if c == 0x700 + ENC][-1] == 0.5
+    assert len([t for t, c, d in sent if c == 0x700 + ENC and t > 0.2]) == 1

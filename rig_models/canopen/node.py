@@ -150,7 +150,10 @@ class VirtualNode:
         self.id = node_id
         self.eds_path = path
         self.send = send
-        self.od = canopen.import_od(str(path), node_id)
+        try:
+            self.od = canopen.import_od(str(path), node_id)
+        except Exception as exc:  # configparser, KeyError, ValueError: all "not an EDS"
+            raise ValueError(f"{path.name}: not a loadable EDS/DCF file ({exc})") from None
         self.name = str(self._od_default(0x1008, 0) or path.stem)
         self._vars: dict[Key, ODVariable] = {}
         for index in self.od:
@@ -184,6 +187,14 @@ class VirtualNode:
         self.sync_count = 0
         self.emcy_sent = 0
         self._load_defaults(0x0000, 0xFFFF)
+        for index, sub in self._vars:
+            mapping = 0x1600 <= index <= 0x17FF or 0x1A00 <= index <= 0x1BFF
+            if mapping and 0 < sub <= self.values.get((index, 0), 0):
+                word = self.values[(index, sub)]
+                if (word >> 16, (word >> 8) & 0xFF) not in self._vars:
+                    raise ValueError(f"{path.name}: 0x{index:04X}:{sub:02X} maps "
+                                     f"0x{word >> 16:04X}:{(word >> 8) & 0xFF:02X}, which the "
+                                     "file does not define")
         self._reconfigure()
 
     # ---------------------------------------------------------------- object dictionary
@@ -322,7 +333,9 @@ class VirtualNode:
         self._now = now_s
         if self.state == NmtState.INITIALISING:
             self._boot()
-        if self._hb_next is not None and now_s >= self._hb_next:
+        # 1 ns of slack: a schedule summed in floats (0.025 * 3 = 0.07500000000000001)
+        # must not slip a whole tick of a lockstep pump
+        if self._hb_next is not None and now_s >= self._hb_next - 1e-9:
             if not self._heartbeat_silent:
                 self.send(0x700 + self.id, bytes((int(self.state),)))
             period = self.values[(0x1017, 0)] / 1000.0
@@ -345,6 +358,8 @@ class VirtualNode:
         if self.state == NmtState.INITIALISING:
             return
         if 0x701 <= can_id <= 0x77F:
+            if can_id - 0x700 == self.id:  # our own heartbeat echoed, or a guarding RTR
+                return
             self._heartbeat_seen(can_id - 0x700, now_s)
             return
         if can_id == self._sync_cob:
