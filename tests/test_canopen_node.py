@@ -513,6 +513,15 @@ def test_heartbeat_loss_sets_cia401_outputs_to_error_values(rig):
     emcy = rig.rec.wait_for(mark, 0x80 + IO, timeout=1.0)
     task.stop()
     assert emcy and emcy[0][2] == b"\x00" * 8
+    # NMT stop of an operational module: the outputs go to their error values too
+    rig.nmt(0x01, IO)
+    rig.net.send_message(0x200 + IO, b"\x01")
+    rig.sync()
+    with rig.lock:
+        assert rig.io.digital_outputs() == 0x01
+    rig.nmt(0x02, IO)
+    with rig.lock:
+        assert rig.io.digital_outputs() == 0x04
 
 
 def test_heartbeat_loss_stops_the_drive_by_its_own_error_behaviour(rig):
@@ -589,6 +598,22 @@ def test_cia402_state_machine_and_fault(rig):
     assert status() & 0x4F == 0x40
     assert rig.rec.wait_for(mark, 0x80 + WHEEL)[0][2][:3] == b"\x00\x00\x00"
     assert remote.sdo[0x603F].raw == 0
+
+
+def test_reset_communication_aborts_an_enabled_drives_connection(rig):
+    remote = rig.remote[ROTOR]
+    remote.sdo[0x6007].raw = 3  # quick stop
+    for cw in (0x06, 0x07, 0x0F):
+        remote.sdo[0x6040].raw = cw
+    remote.sdo[0x60FF].raw = 20000
+    rig.nmt(0x82, ROTOR)
+    with rig.lock:
+        assert rig.rotor.state == DriveState.QUICK_STOP_ACTIVE
+        assert rig.rotor.target_velocity_raw() == 0
+    rig.nmt(0x81, ROTOR)  # reset node: the application restarts disabled
+    with rig.lock:
+        assert rig.rotor.state == DriveState.SWITCH_ON_DISABLED
+        assert rig.nodes[ROTOR].get(0x6007) == 1
 
 
 def test_rotor_csv_and_encoder_wrap(rig):
