@@ -20,7 +20,7 @@ from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.objectdictionary import datatypes as dt
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-from drivers.canopen_pdo import PdoCodec, PdoEntry, PdoMappingError
+from drivers.canopen_pdo import PdoCodec, PdoEntry, PdoMappingError, compile_mapping
 from drivers.dbc import FrameError
 from rig_models.canopen.node import NmtState, VirtualNode
 from rig_models.canopen.profiles import Cia401Io, Cia402Drive, Cia406Encoder, DriveState
@@ -154,6 +154,11 @@ def test_pdo_codec_refuses_bad_mappings_and_payloads():
     with pytest.raises(ValueError, match="0x6401:01 = 2048 does not fit 12 bits"):
         bits.encode([1, 2048])
     assert bits.decode(bits.encode([15, -2048])) == (15, -2048)
+    od = canopen.import_od(str(EDS / FILES[IO]), IO)
+    codec = compile_mapping("TPDO1 of node 32", od, [0x64010110, 0x64010310, 0x60000108])
+    assert codec.decode(struct.pack("<hhB", -2, 3, 0x81)) == (-2, 3, 0x81)
+    with pytest.raises(PdoMappingError, match="TPDO1 of node 32: maps 0x6401:09"):
+        compile_mapping("TPDO1 of node 32", od, [0x64010910])  # array has 3 inputs
 
 
 # ------------------------------------------------------------------ the rig on a virtual bus
@@ -647,7 +652,7 @@ def test_bad_eds_and_node_id_are_named(tmp_path):
     text = (EDS / FILES[ENC]).read_text()
     bad_map = tmp_path / "bad_map.eds"
     bad_map.write_text(text.replace("DefaultValue=0x60040020", "DefaultValue=0x70040020"))
-    with pytest.raises(ValueError, match=r"bad_map.eds: 0x1A00:01 maps 0x7004:00"):
+    with pytest.raises(ValueError, match=r"bad_map.eds: TPDO1 of node 5: maps 0x7004:00"):
         VirtualNode(5, bad_map, send)
 
 

@@ -29,7 +29,7 @@ import canopen
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable
 from canopen.objectdictionary import datatypes as dt
 
-from drivers.canopen_pdo import MAX_PDO_BITS, PdoCodec, PdoEntry
+from drivers.canopen_pdo import MAX_PDO_BITS, PdoCodec, PdoMappingError, compile_mapping
 from drivers.dbc import FrameError
 
 Send = Callable[[int, bytes], None]
@@ -187,15 +187,10 @@ class VirtualNode:
         self.sync_count = 0
         self.emcy_sent = 0
         self._load_defaults(0x0000, 0xFFFF)
-        for index, sub in self._vars:
-            mapping = 0x1600 <= index <= 0x17FF or 0x1A00 <= index <= 0x1BFF
-            if mapping and 0 < sub <= self.values.get((index, 0), 0):
-                word = self.values[(index, sub)]
-                if (word >> 16, (word >> 8) & 0xFF) not in self._vars:
-                    raise ValueError(f"{path.name}: 0x{index:04X}:{sub:02X} maps "
-                                     f"0x{word >> 16:04X}:{(word >> 8) & 0xFF:02X}, which the "
-                                     "file does not define")
-        self._reconfigure()
+        try:
+            self._reconfigure()
+        except PdoMappingError as exc:
+            raise ValueError(f"{path.name}: {exc}") from None
 
     # ---------------------------------------------------------------- object dictionary
     def _od_default(self, index: int, sub: int) -> Any:
@@ -493,10 +488,7 @@ class VirtualNode:
                 entries = [self.values[(map_base + n, i)] for i in range(1, count + 1)]
                 p.keys = tuple((w >> 16, (w >> 8) & 0xFF) for w in entries)
                 name = f"{'T' if is_tpdo else 'R'}PDO{n + 1} of node {self.id}"
-                p.codec = PdoCodec(name, [
-                    PdoEntry(w >> 16, (w >> 8) & 0xFF, w & 0xFF,
-                             self._vars[(w >> 16, (w >> 8) & 0xFF)].data_type)
-                    for w in entries]) if entries else None
+                p.codec = compile_mapping(name, self.od, entries) if entries else None
                 pdos.append(p)
         self._pdos = pdos
         self._rpdo_by_cob = {p.cob_id: p for p in pdos
