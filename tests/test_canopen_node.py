@@ -511,7 +511,10 @@ def test_heartbeat_loss_sets_cia401_outputs_to_error_values(rig):
         assert rig.io.analog_outputs() == [1234, 0]
         assert rig.nodes[IO].state == NmtState.PRE_OPERATIONAL  # 0x1029:1 = 0
     assert remote.sdo[0x1001].raw & 0x10
-    assert remote.sdo[0x1003][1].raw == 0x8130
+    assert remote.sdo[0x1003][0].raw == 1 and remote.sdo[0x1003][1].raw == 0x8130
+    remote.sdo[0x1003][0].raw = 0  # the master clears the error history
+    assert remote.sdo[0x1003][0].raw == 0 and remote.sdo[0x1003][1].raw == 0
+    assert _abort(lambda: setattr(remote.sdo[0x1003][0], "raw", 2)) == 0x06090030
     # the master's heartbeat comes back: EMCY error reset, register clear
     mark = rig.rec.mark()
     task = _heartbeat_from_master(rig)

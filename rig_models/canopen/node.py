@@ -659,6 +659,10 @@ class VirtualNode:
             self._reconfigure()
             if key == (0x1017, 0):
                 self._hb_next = self._now + value / 1000.0 if value else None
+            elif key == (0x1003, 0):  # writing 0 deletes the error history (CiA 301)
+                for k in self.values:
+                    if k[0] == 0x1003:
+                        self.values[k] = 0
 
     def _on_sdo(self, data: bytes) -> None:
         data = data.ljust(8, b"\x00")
