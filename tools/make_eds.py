@@ -129,10 +129,18 @@ def comm_objects(device_type: int, name: str, product: int, serial: int, error_b
             # TPDOs answer no RTR (bit 30); a disabled PDO carries bit 31 (not valid)
             cob = cob_base + 0x100 * n + (0x40000000 if direction == "TPDO" else 0) \
                 + (0 if enabled else 0x80000000)
+            subs = [Var("COB-ID", UNSIGNED32, "rw", f"$NODEID+0x{cob:X}"),
+                    Var("Transmission type", UNSIGNED8, "rw", 1)]
+            if direction == "TPDO":
+                # CiA 301 sub 3..6: inhibit time, reserved, event timer, SYNC start value (the
+                # SYNC whose counter equals it is the first counted: the master aligns the
+                # every-n-th-SYNC phase with it)
+                subs += [Var("Inhibit time", UNSIGNED16, "rw", 0),
+                         Var("Compatibility entry", UNSIGNED8, "rw", 0),
+                         Var("Event timer", UNSIGNED16, "rw", 0),
+                         Var("SYNC start value", UNSIGNED8, "rw", 0)]
             objs.append(Obj(base_com + n, f"{direction}{n + 1} communication parameter",
-                            "record", subs=[
-                                Var("COB-ID", UNSIGNED32, "rw", f"$NODEID+0x{cob:X}"),
-                                Var("Transmission type", UNSIGNED8, "rw", 1)]))
+                            "record", subs=subs))
             mapping = [Var(f"Mapped object {i}", UNSIGNED32, "rw",
                            entries[i - 1] if i <= len(entries) else 0) for i in range(1, 9)]
             objs.append(Obj(base_map + n, f"{direction}{n + 1} mapping parameter", "record",

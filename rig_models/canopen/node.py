@@ -115,6 +115,7 @@ class _Pdo:
     keys: tuple[Key, ...] = ()
     codec: PdoCodec | None = None
     sync_count: int = 0
+    started: bool = True  # False: waiting for the SYNC whose counter is the start value
     pending: tuple[Any, ...] | None = None
     last_payload: bytes | None = None
 
@@ -269,6 +270,7 @@ class VirtualNode:
         elif old != NmtState.OPERATIONAL:
             for p in self._pdos:
                 p.sync_count = 0
+                p.started = False
                 p.last_payload = None
         if old != new:
             for fn in self._nmt_listeners:
@@ -362,7 +364,7 @@ class VirtualNode:
                 if len(data) > 1:
                     self.emcy(EMCY_SYNC_LENGTH)
                     return
-                self._on_sync(now_s)
+                self._on_sync(now_s, data[0] if len(data) == 1 else None)
             return
         if can_id == 0x600 + self.id:
             if self.state != NmtState.STOPPED:
@@ -553,7 +555,11 @@ class VirtualNode:
                 self._check_mapping_entry(p, value)
 
     # ---------------------------------------------------------------- SYNC and PDOs
-    def _on_sync(self, now_s: float) -> None:
+    def _on_sync(self, now_s: float, counter: int | None = None) -> None:
+        """``counter``: the SYNC's counter byte, if it has one. A TPDO with a SYNC start
+        value (0x18xx sub 6, 1..240) starts counting at the SYNC whose counter equals it
+        (CiA 301: that SYNC is the first received); without a counter, or with start value
+        0, it counts from the first SYNC in operational."""
         self.sync_count += 1
         for p in self._pdos:
             if p.pending is not None:
@@ -574,6 +580,11 @@ class VirtualNode:
                     p.last_payload = payload
                     self.send(p.cob_id, payload)
                 continue
+            if not p.started:
+                start = values.get((p.com_index, 6), 0)
+                if start and counter is not None and counter != start:
+                    continue
+                p.started, p.sync_count = True, 0
             p.sync_count += 1
             if p.sync_count >= p.trans_type:
                 p.sync_count = 0
