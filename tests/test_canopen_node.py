@@ -696,3 +696,30 @@ def test_heartbeat_schedule_in_rig_time():
     node.poll(now)
     assert [t for t, c, d in sent if c == 0x700 + ENC][-1] == 0.5
     assert len([t for t, c, d in sent if c == 0x700 + ENC and t > 0.2]) == 1
+
+
+def test_sync_start_value_sets_the_tpdo_phase():
+    """TPDO type 3 with SYNC start value 2: counted from the SYNC whose counter is 2, so it
+    goes out at counters 4, 7, 10 (lockstep, no thread)."""
+    sent: list[tuple[int, bytes]] = []
+    node = VirtualNode(ENC, EDS / FILES[ENC], lambda c, d: sent.append((c, d)))
+    node.poll(0.0)
+
+    def sdo_write(index: int, sub: int, fmt: str, value: int) -> bytes:
+        size = struct.calcsize("<" + fmt)
+        node.handle(0x600 + ENC, struct.pack("<BHB", 0x23 | (4 - size) << 2, index, sub)
+                    + struct.pack("<" + fmt, value).ljust(4, b"\0"), 0.0)
+        return sent[-1][1]
+
+    assert sdo_write(0x1800, 2, "B", 3)[0] == 0x60
+    assert sdo_write(0x1800, 6, "B", 2)[0] == 0x60
+    answer = sdo_write(0x1800, 6, "B", 241)
+    assert answer[0] == 0x80 and struct.unpack_from("<I", answer, 4)[0] == 0x06090031
+    node.handle(0, bytes((0x01, ENC)), 0.0)
+    tx = []
+    sent.clear()
+    for counter in range(1, 12):
+        node.handle(0x80, bytes((counter,)), counter * 0.002)
+        tx += [counter for c, _ in sent if c == 0x180 + ENC]
+        sent.clear()
+    assert tx == [4, 7, 10]

@@ -9,11 +9,12 @@ consumer), so it runs the same in lockstep (rig time) and in real time (wall clo
 Emulated: NMT (boot-up, start/stop/pre-operational/reset node/reset communication),
 expedited and segmented SDO upload and download (block transfer refused with 0x05040001),
 SYNC consumer with synchronous TPDOs (transmission type 0 = on SYNC when the mapped data
-changed, 1..240 = every n-th SYNC) and RPDOs (0..240 take effect at the next SYNC, 254/255
+changed, 1..240 = every n-th SYNC, counted from the SYNC whose counter byte equals the
+TPDO's SYNC start value, sub 6) and RPDOs (0..240 take effect at the next SYNC, 254/255
 at once), PDO mapping by SDO in CiA 301's sequence, heartbeat producer and consumer, EMCY
 producer with 0x1001 and the 0x1003 history, error behaviour 0x1029. Not emulated: node
 guarding and RTR, LSS, event-driven TPDOs (types 252..255 refused), inhibit and event
-timers, the SYNC counter's start value, TIME, SRDO, store/restore parameters.
+timers (stored, unused), TIME, SRDO, store/restore parameters.
 """
 
 from __future__ import annotations
@@ -537,6 +538,8 @@ class VirtualNode:
                 ok = 0 <= value <= 240 or (not p.is_tpdo and value in (254, 255))
                 if not ok:
                     raise SdoAbort(ABORT_VALUE_RANGE, f"transmission type {value} unsupported")
+            elif sub == 6 and value > 240:  # a SYNC counter runs 1..240
+                raise SdoAbort(ABORT_VALUE_HIGH, f"SYNC start value {value}")
             return
         # mapping parameter: only while the PDO is not valid (CiA 301 7.5.2.36)
         if p.valid:
