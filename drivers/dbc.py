@@ -32,6 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
+from typing import cast
 
 import cantools
 
@@ -101,6 +102,7 @@ class FrameCodec:
     """Encode/decode one DBC message (see the module docstring for what is supported)."""
 
     def __init__(self, message: cantools.database.Message) -> None:
+        self._message = message
         self.name: str = message.name
         self.frame_id: int = message.frame_id
         self.length: int = message.length
@@ -133,8 +135,12 @@ class FrameCodec:
                                         "_encode_error": self._encode_error}
         exec(compile(self.source, f"<codec {self.name}>", "exec"), namespace)  # noqa: S102
         # instance attributes, not methods: one call level less on the hot path
-        self.encode: Callable[[dict[str, float]], bytes] = namespace["encode"]  # type: ignore[assignment]
-        self.decode: Callable[[bytes | bytearray], dict[str, float]] = namespace["decode"]  # type: ignore[assignment]
+        self.encode = cast(Callable[[dict[str, float]], bytes], namespace["encode"])
+        self.decode = cast(Callable[[bytes | bytearray], dict[str, float]], namespace["decode"])
+
+    def __reduce__(self) -> tuple[type[FrameCodec], tuple[cantools.database.Message]]:
+        # generated functions do not pickle: a process receiving a codec regenerates it
+        return FrameCodec, (self._message,)
 
     @staticmethod
     def _signal(message: cantools.database.Message, s: cantools.database.Signal) -> SignalCodec:
@@ -245,6 +251,8 @@ class FrameCodec:
         if mux is None:
             for s in self.signals:
                 enc += self._encode_lines(s, "        ")
+            if not self.signals:  # a frame with no signal (a bare request) is all zeros
+                enc.append("        pass")
         else:
             enc += [f"        m = values.get({mux!r})",
                     "        if m is None:",
@@ -302,7 +310,7 @@ class FrameCodec:
         """The first signal whose value cannot be encoded, named."""
         for s in self.signals:
             v = values.get(s.name, 0.0)
-            if isinstance(v, bool) or not isinstance(v, int | float) or math.isnan(v):
+            if not isinstance(v, int | float) or math.isnan(v):
                 return ValueError(f"{self.name}.{s.name}: cannot encode {v!r} {s.unit}".rstrip())
             if s.is_float and s.length == 32 and abs(v) > 3.4e38:
                 return ValueError(f"{self.name}.{s.name}: {v!r} does not fit a 32-bit float")

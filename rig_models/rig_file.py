@@ -95,6 +95,9 @@ RIG_SCHEMA: dict[str, Any] = {
         "heartbeat": Field("any", default=None),
         # CANopen: the harness's own node id (its heartbeat's COB-ID 0x700 + id)
         "master_node_id": Field("int", default=127, minimum=1, maximum=127),
+        # CANopen: how long each node waits for the harness's heartbeat before its error
+        # behaviour makes it safe (its 0x1016 consumer time)
+        "heartbeat_consumer_ms": Field("int", "ms", default=200, minimum=1, maximum=65535),
     },
     # how each device speaks on the bus (drivers/binding): sgsrt (default), dbc, canopen or
     # none, checked by drivers.binding.build_binding (errors name the key)

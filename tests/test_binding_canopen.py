@@ -163,9 +163,12 @@ def test_independent_master_scans_the_virtual_canopen_rig():
     try:
         for nid, spec in CO_RIG.binding.canopen.nodes.items():
             node = canopen.RemoteNode(nid, spec.eds)
+            node.sdo.RESPONSE_TIMEOUT = 5.0  # a loaded machine: no time is asserted here
             net.add_node(node)
+            booted = threading.Event()
+            node.nmt.add_heartbeat_callback(lambda s, ev=booted: s == 0 and ev.set())
             node.nmt.send_command(0x81)  # reset node: boot-up frame, pre-operational
-            node.nmt.wait_for_bootup(2.0)
+            assert booted.wait(10.0), f"node {nid}: no boot-up"
             assert node.nmt.state == "PRE-OPERATIONAL"
             device_type = node.sdo.upload(0x1000, 0)
             assert int.from_bytes(device_type, "little") == spec.od[0x1000].default
@@ -180,9 +183,9 @@ def test_independent_master_scans_the_virtual_canopen_rig():
             states = []
             node.nmt.add_heartbeat_callback(states.append)
             t0 = time.monotonic()
-            while len(states) < 3 and time.monotonic() - t0 < 2.0:
+            while len(states) < 3 and time.monotonic() - t0 < 10.0:
                 time.sleep(0.005)
-            assert len(states) >= 3 and all(s == 0x7F for s in states), states
+            assert len(states) >= 3 and all(s == 0x7F for s in states[1:]), states
     finally:
         stop.set()
         t.join(2.0)

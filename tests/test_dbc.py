@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import pickle
 
 import cantools
 import pytest
@@ -303,11 +304,13 @@ def test_multiplexed_frame_carries_only_its_mux_values_signals():
 def test_standard_and_extended_ids_of_equal_value_are_two_frames(tmp_path):
     path = tmp_path / "two.dbc"
     path.write_text(HEADER + 'BO_ 256 STD: 1 A\n SG_ a : 0|8@1+ (1,0) [0|255] "" A\n'
-                    f'BO_ {0x100 | 0x80000000} EXT: 2 A\n SG_ b : 7|16@0+ (1,0) [0|65535] "" A\n')
+                    f'BO_ {0x100 | 0x80000000} EXT: 2 A\n SG_ b : 7|16@0+ (1,0) [0|65535] "" A\n'
+                    'BO_ 1 BARE: 0 A\n')
     p = load_protocol(path)
-    assert p.by_id == {0x100: p["STD"]}
+    assert p.by_id == {0x100: p["STD"], 1: p["BARE"]}
+    assert p["BARE"].encode({}) == b"" and p["BARE"].decode(b"") == {}
     assert p.get(0x100) is p["STD"] and p.get(0x100, is_extended=True) is p["EXT"]
-    assert p.by_key == {(0x100, False): p["STD"], (0x100, True): p["EXT"]}
+    assert p.by_key == {(0x100, False): p["STD"], (0x100, True): p["EXT"], (1, False): p["BARE"]}
 
 
 def test_extended_multiplexing_is_refused_naming_the_message(tmp_path):
@@ -370,3 +373,11 @@ def test_a_named_multiplexer_value_without_signals_decodes():
     assert codec.encode({"sel": 2, "a": 5}) == b"\x02\x00"
     with pytest.raises(FrameError, match="sel = 1"):
         codec.decode(b"\x01\x07")
+
+
+def test_a_protocol_pickles_for_another_process():
+    copy = pickle.loads(pickle.dumps(P2))
+    codec = copy["AUX_STATUS"]
+    values = {"AuxMux": 1, "ROT_Spd_rpm": 12.5}
+    assert codec.encode(values) == P2["AUX_STATUS"].encode(values)
+    assert copy.get(0x18FF2210, True) is codec

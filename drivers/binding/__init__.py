@@ -435,7 +435,7 @@ def build_binding(data: Mapping[str, Any], base_dir: Path | None = None) -> RigB
 
         canopen_bus, tlm_maps, cmd_maps, co_files = build_canopen(
             co_cfgs, bus.get("sync_divider") or {}, int(bus.get("master_node_id", 127)),
-            base_dir)
+            base_dir, int(bus.get("heartbeat_consumer_ms", 200)))
         telemetry.update(tlm_maps)
         commands.update(cmd_maps)
         files.update(co_files)

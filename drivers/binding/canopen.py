@@ -454,7 +454,7 @@ def _pack(name: str, refs: list[ObjRef], base: tuple[int, ...], node_id: int, tr
 
 
 def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[str, int],
-                  master_id: int, base_dir: Path | None
+                  master_id: int, base_dir: Path | None, consumer_ms: int = 200
                   ) -> tuple[CanopenBus, dict[str, tuple[Any, ...]], dict[str, tuple[Any, ...]],
                              dict[str, str]]:
     """The CANopen part of a binding: (the nodes, device -> telemetry maps, device ->
@@ -592,7 +592,7 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
             for pdo in packed:
                 fields = tuple(qr for qr in qrefs if qr.ref in pdo.codec.entries)
                 cmd_maps[d].append(PdoCommandMap(d, pdo.codec, fields))
-    bus = CanopenBus(master_id, nodes, node_of=node_of)
+    bus = CanopenBus(master_id, nodes, consumer_timeout_ms=consumer_ms, node_of=node_of)
     return (bus, {d: tuple(v) for d, v in tlm_maps.items()},
             {d: tuple(v) for d, v in cmd_maps.items()}, files)
 

@@ -247,14 +247,16 @@ class RigInterface:
         return False
 
     # ------------------------------------------------------------------ CANopen
-    def watch_heartbeats(self, dt_s: float, start_tick: int = 0) -> None:
+    def watch_heartbeats(self, dt_s: float, start_tick: int = 0, grace_ticks: int = 0) -> None:
         """From ``start_tick`` on, each node must send its heartbeat within 3 of its periods
-        (at least 2 ticks): a node silent for longer is a fault (``protocol_fault``)."""
+        (at least 2 ticks, and at least ``grace_ticks``: the monitor's real-time grace on a
+        slow host): a node silent for longer is a fault (``protocol_fault``)."""
         if self.co is None:
             return
         for nid, node in self.co.nodes.items():
             self._hb_tick.setdefault(nid, start_tick)
-            self._hb_timeout_ticks[nid] = max(2, round(3 * node.heartbeat_ms * 1e-3 / dt_s))
+            self._hb_timeout_ticks[nid] = max(2, grace_ticks,
+                                              round(3 * node.heartbeat_ms * 1e-3 / dt_s))
 
     def _canopen_service(self, msg: can.Message, tick: int) -> bool:
         """A CANopen service frame of a node (heartbeat, boot-up, EMCY, SDO): True if it is

@@ -345,11 +345,11 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
             loop_clock = LockstepClock(dt_s)
         interface = RigInterface(harness_bus, protocol, run.rig, can_log, run.actuators,
                                  dry_run=dry_run)
-        if interface.co is not None:
-            canopen_setup(interface, pump, can_log, dry_run, show_progress)
-            interface.watch_heartbeats(dt_s)
         heartbeat_every = max(1, round(run.data["rate_hz"] / run.data["heartbeat_hz"]))
         monitor = make_monitor(run, interface, realtime=clock_name == "realtime")
+        if interface.co is not None:
+            canopen_setup(interface, pump, can_log, dry_run, show_progress)
+            interface.watch_heartbeats(dt_s, grace_ticks=monitor.realtime_grace)
         monitor.on_warning = _warning_logger(recorder, show_progress)
         reference = getattr(controller, "reference", None)
         recorder.log_static_text("/run/config", "```yaml\n" + yaml.safe_dump(
