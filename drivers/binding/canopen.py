@@ -12,7 +12,6 @@ is CiA 301 itself (COB-IDs, the SYNC counter, NMT, EMCY meanings).
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cache
@@ -21,7 +20,6 @@ from typing import Any
 
 from drivers.binding.frames import BindingError
 from drivers.binding.quantities import COMMANDS, REQUIRED_COMMANDS, REQUIRED_TELEMETRY, TELEMETRY
-from drivers.dbc import FrameError
 
 PROFILES = ("cia401", "cia402", "cia406")
 SYNC_COB_ID = 0x080
@@ -96,6 +94,7 @@ class ObjRef:
     signed: bool
     code: str  # struct format character
     name: str
+    data_type: int = 0  # CiA 301 data type
 
     @property
     def label(self) -> str:
@@ -130,37 +129,35 @@ def object_ref(od: Any, index: Any, sub: Any, key: str, eds: str) -> ObjRef:
     if getattr(var, "pdo_mappable", True) is False:
         raise BindingError(f"{key}.object: 0x{index:04X}.{sub} ({var.name}) is not PDO "
                            f"mappable in {Path(eds).name}")
-    return ObjRef(index, sub, t[0], t[1], t[2], var.name)
+    return ObjRef(index, sub, t[0], t[1], t[2], var.name, var.data_type)
 
 
 # ----------------------------------------------------------------------------- codecs
 class PdoCodec:
-    """One PDO's payload: mapped objects packed little-endian in order (CiA 301)."""
+    """One PDO of the binding: its COB-ID, mapped objects and labels; the payload is packed
+    by ``drivers.canopen_pdo.PdoCodec``, the codec the virtual nodes use too."""
 
-    __slots__ = ("name", "frame_id", "is_extended", "length", "entries", "_struct",
-                 "signal_names", "signals")
+    __slots__ = ("name", "frame_id", "is_extended", "length", "entries", "_codec",
+                 "signal_names", "signals", "decode_raw", "encode_raw")
 
     def __init__(self, name: str, cob_id: int, entries: tuple[ObjRef, ...]) -> None:
         bits = sum(e.bits for e in entries)
         if bits > 64:
             raise BindingError(f"{name}: mapping of {bits} bits (a PDO carries 64 at most)")
+        from drivers.canopen_pdo import PdoCodec as Packer
+
         self.name = name
         self.frame_id = cob_id
         self.is_extended = False
         self.entries = entries
-        self._struct = struct.Struct("<" + "".join(e.code for e in entries))
-        self.length = self._struct.size
+        self._codec = Packer(f"{name} (0x{cob_id:03X})",
+                             [(e.index, e.sub, e.bits, e.data_type) for e in entries])
+        self.length = self._codec.length
         self.signal_names = tuple(e.label for e in entries)
         self.signals = ()
-
-    def decode_raw(self, data: bytes | bytearray) -> tuple[Any, ...]:
-        if len(data) != self.length:
-            raise FrameError(f"{self.name} (0x{self.frame_id:03X}): expected {self.length} "
-                             f"data bytes, got {len(data)}")
-        return self._struct.unpack(data)
-
-    def encode_raw(self, raw: list[Any] | tuple[Any, ...]) -> bytes:
-        return self._struct.pack(*raw)
+        # the hot path calls the packer's own methods (one attribute lookup, no wrapper)
+        self.decode_raw = self._codec.decode
+        self.encode_raw = self._codec.encode
 
     def decode(self, data: bytes | bytearray) -> dict[str, float]:
         """By object label ("0x6077.0"), raw values (review, replay)."""
@@ -437,20 +434,23 @@ def _quantity(q: str, spec: Any, key: str, od: Any, eds: str, command: bool) -> 
 
 
 def _pack(name: str, refs: list[ObjRef], base: tuple[int, ...], node_id: int, trans: int,
-          key: str) -> list[PdoSpec]:
-    """Objects into PDOs of at most 64 bits, in order; at most four."""
+          key: str, first: int = 1) -> list[PdoSpec]:
+    """Objects into PDOs of at most 64 bits, in order, numbered from ``first`` (of four)."""
     pdos: list[list[ObjRef]] = []
     for r in refs:
         if pdos and sum(e.bits for e in pdos[-1]) + r.bits <= 64:
             pdos[-1].append(r)
         else:
             pdos.append([r])
-    if len(pdos) > len(base):
+    if first - 1 + len(pdos) > len(base):
         raise BindingError(f"{key}: its objects need {len(pdos)} more {name}s of 64 bits; the "
-                           f"node has {len(base)} left of 4")
-    return [PdoSpec(i + 1, base[i] + node_id, trans,
-                    PdoCodec(f"{name}{i + 1} node {node_id}", base[i] + node_id, tuple(p)))
-            for i, p in enumerate(pdos)]
+                           f"node has {len(base) - first + 1} left of {len(base)}")
+    out = []
+    for i, p in enumerate(pdos):
+        n = first + i
+        cob = base[n - 1] + node_id
+        out.append(PdoSpec(n, cob, trans, PdoCodec(f"{name}{n} node {node_id}", cob, tuple(p))))
+    return out
 
 
 def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[str, int],
@@ -561,11 +561,8 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
             for qr in qrefs:
                 if qr.ref not in refs:
                     refs.append(qr.ref)
-            packed = _pack("TPDO", refs, TPDO_BASE[n_tpdo:], node.node_id,
-                           int(dividers.get(d, 1)), f"devices.{d}.telemetry")
-            for p in packed:
-                p.number += n_tpdo
-                p.codec.name = f"TPDO{p.number} node {node.node_id}"
+            packed = _pack("TPDO", refs, TPDO_BASE, node.node_id, int(dividers.get(d, 1)),
+                           f"devices.{d}.telemetry", first=n_tpdo + 1)
             n_tpdo += len(packed)
             node.tpdos.extend(packed)
             for pdo in packed:
@@ -582,11 +579,8 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
             # event-driven RPDOs (type 255): a command applies on receipt, and so over the
             # next physics step, as the sgsrt devices' do; the safe command at the end of a
             # run needs no further SYNC to take effect
-            packed = _pack("RPDO", crefs, RPDO_BASE[n_rpdo:], node.node_id, 255,
-                           f"devices.{d}.commands")
-            for p in packed:
-                p.number += n_rpdo
-                p.codec.name = f"RPDO{p.number} node {node.node_id}"
+            packed = _pack("RPDO", crefs, RPDO_BASE, node.node_id, 255,
+                           f"devices.{d}.commands", first=n_rpdo + 1)
             n_rpdo += len(packed)
             node.rpdos.extend(packed)
             for pdo in packed:
@@ -607,4 +601,4 @@ def _param_ref(od: Any, p: Mapping[str, Any], key: str, eds: str) -> ObjRef:
     except (KeyError, IndexError):
         raise BindingError(f"{key}.sub: 0x{index:04X} has no sub-index {sub}") from None
     t = _TYPES.get(var.data_type, (32, False, "I"))
-    return ObjRef(index, sub, t[0], t[1], t[2], var.name)
+    return ObjRef(index, sub, t[0], t[1], t[2], var.name, var.data_type)
