@@ -362,3 +362,18 @@ def test_a_device_whose_mapping_differs_from_its_dcf_stops_the_setup(tmp_path):
     finally:
         for b in buses:
             b.shutdown()
+
+
+def test_a_dcf_pdo_over_eight_bytes_is_refused_naming_the_key(tmp_path):
+    # TPDO1 of the DCF maps 0x6041 (16 bit) + two 32-bit velocities + 0x6077: 96 bits
+    dcf = _wheel_dcf(tmp_path / "wheel.dcf", 0x606C0020, 0x606C0020)
+    text = dcf.read_text()
+    i = text.index("[1A00sub0]")
+    j = text.index("PDOMapping=", i)
+    text = text[:j] + "ParameterValue=0x4\r\n" + text[j:]
+    i = text.index("[1A00sub4]")
+    j = text.index("PDOMapping=", i)
+    dcf.write_text(text[:j] + "ParameterValue=0x60770010\r\n" + text[j:])
+    with pytest.raises(ConfigError, match=r"devices\.reaction_wheel\.eds: wheel\.dcf: TPDO1 "
+                                          r"node 2: mapping of 96 bits"):
+        rig_from_dict(_dcf_rig(tmp_path, dcf), "rig file dcf.yaml", base_dir=RIGS_DIR)

@@ -623,8 +623,11 @@ def dcf_pdos(od: Any, node_id: int, comm_base: int, map_base: int, name: str,
             refs.append(object_ref(od, word >> 16, word >> 8 & 0xFF,
                                    f"{Path(eds).name}: {name}{n} mapped object {i}", eds))
         trans = _od_value(od, comm_base + n - 1, 2)
-        out.append(PdoSpec(n, cob & 0x7FF, 255 if trans is None else trans,
-                           PdoCodec(f"{name}{n} node {node_id}", cob & 0x7FF, tuple(refs))))
+        try:
+            codec = PdoCodec(f"{name}{n} node {node_id}", cob & 0x7FF, tuple(refs))
+        except BindingError as exc:  # a DCF mapping more than 8 bytes
+            raise BindingError(f"{Path(eds).name}: {exc}") from None
+        out.append(PdoSpec(n, cob & 0x7FF, 255 if trans is None else trans, codec))
     return out
 
 
@@ -632,8 +635,12 @@ def _dcf_maps(node: NodeSpec, dividers: Mapping[str, int], tlm_maps: dict[str, l
               cmd_maps: dict[str, list[Any]]) -> None:
     """A DCF's node: its PDOs are the DCF's (the harness verifies them on the device during
     set-up instead of writing them); each quantity must be in one of them."""
-    node.tpdos = dcf_pdos(node.od, node.node_id, 0x1800, 0x1A00, "TPDO", node.eds)
-    node.rpdos = dcf_pdos(node.od, node.node_id, 0x1400, 0x1600, "RPDO", node.eds)
+    key = f"devices.{node.devices[-1]}.eds"
+    try:
+        node.tpdos = dcf_pdos(node.od, node.node_id, 0x1800, 0x1A00, "TPDO", node.eds)
+        node.rpdos = dcf_pdos(node.od, node.node_id, 0x1400, 0x1600, "RPDO", node.eds)
+    except BindingError as exc:
+        raise BindingError(f"{key}: {exc}") from None
     for d, qrefs in node.telemetry.items():
         for qr in qrefs:
             pdo = next((p for p in node.tpdos if qr.ref in p.codec.entries), None)
