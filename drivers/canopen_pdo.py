@@ -15,6 +15,7 @@ import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.objectdictionary import datatypes as dt
 
 from drivers.dbc import FrameError
@@ -146,3 +147,20 @@ def entry_from_mapping_word(word: int, data_type: int) -> PdoEntry:
     """A mapping object's 32-bit entry (index << 16 | sub << 8 | bits) with the object's
     data type (from the object dictionary) -> PdoEntry."""
     return PdoEntry(word >> 16, (word >> 8) & 0xFF, word & 0xFF, data_type)
+
+
+def compile_mapping(name: str, od: ObjectDictionary, words: Sequence[int]) -> PdoCodec:
+    """The codec of a PDO from its mapping entries (the 32-bit words of 0x1600.. / 0x1A00..,
+    as read by SDO or from an EDS/DCF), the data types coming from the object dictionary."""
+    entries = []
+    for word in words:
+        index, sub = word >> 16, (word >> 8) & 0xFF
+        obj = od.indices.get(index)
+        # not od.get_variable: an ODArray makes up any sub-index from its first entry
+        var = (obj if sub == 0 else None) if isinstance(obj, ODVariable) else \
+            None if obj is None else obj.subindices.get(sub)
+        if var is None or var.data_type is None:
+            raise PdoMappingError(f"{name}: maps 0x{index:04X}:{sub:02X}, which the object "
+                                  "dictionary does not define")
+        entries.append(entry_from_mapping_word(word, var.data_type))
+    return PdoCodec(name, entries)

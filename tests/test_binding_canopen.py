@@ -18,6 +18,7 @@ from drivers.binding import BindingError, build_binding
 from drivers.binding.canopen import PdoCodec
 from harness.core.runs import run_from_dict
 from harness.core.session import RunRefused, execute_run
+from harness.record.reader import read_scalar_channel
 from harness.testing.judge import left_safe_problems
 from rig_models.faults import FaultSpec
 from rig_models.rig_file import RIGS_DIR, load_rig, rig_from_dict
@@ -163,9 +164,12 @@ def test_independent_master_scans_the_virtual_canopen_rig():
     try:
         for nid, spec in CO_RIG.binding.canopen.nodes.items():
             node = canopen.RemoteNode(nid, spec.eds)
+            node.sdo.RESPONSE_TIMEOUT = 5.0  # a loaded machine: no time is asserted here
             net.add_node(node)
+            booted = threading.Event()
+            node.nmt.add_heartbeat_callback(lambda s, ev=booted: s == 0 and ev.set())
             node.nmt.send_command(0x81)  # reset node: boot-up frame, pre-operational
-            node.nmt.wait_for_bootup(2.0)
+            assert booted.wait(10.0), f"node {nid}: no boot-up"
             assert node.nmt.state == "PRE-OPERATIONAL"
             device_type = node.sdo.upload(0x1000, 0)
             assert int.from_bytes(device_type, "little") == spec.od[0x1000].default
@@ -180,9 +184,9 @@ def test_independent_master_scans_the_virtual_canopen_rig():
             states = []
             node.nmt.add_heartbeat_callback(states.append)
             t0 = time.monotonic()
-            while len(states) < 3 and time.monotonic() - t0 < 2.0:
+            while len(states) < 3 and time.monotonic() - t0 < 10.0:
                 time.sleep(0.005)
-            assert len(states) >= 3 and all(s == 0x7F for s in states), states
+            assert len(states) >= 3 and all(s == 0x7F for s in states[1:]), states
     finally:
         stop.set()
         t.join(2.0)
@@ -219,6 +223,19 @@ def test_canopen_run_completes_and_is_left_safe(tmp_path):
     assert result.summary["frames"]["unknown"] == 0
     assert abs(result.summary["final_angle_error_deg"]) < 0.05
     _assert_left_safe(result)
+    # the recording's bus view decoded the PDOs through the binding, by quantity, in SI,
+    # and every node's heartbeat state
+    rrd = result.run_dir / "run.rrd"
+    t_cmd, torque = read_scalar_channel(rrd, "/bus/reaction_wheel/cmd/torque_cmd_n_m")
+    t_loop, sent = read_scalar_channel(rrd, "/wheel/torque_cmd_n_m")
+    assert len(t_cmd) >= len(t_loop)
+    assert abs(torque.max() - sent.max()) <= 6.5e-5  # one count of the per-mille torque
+    _, speed = read_scalar_channel(rrd, "/bus/reaction_wheel/tlm/speed_rad_s")
+    _, loop_speed = read_scalar_channel(rrd, "/wheel/speed_rad_s")
+    assert speed[-1] == pytest.approx(loop_speed[-1], abs=1e-9)
+    for nid in (2, 3, 4, 5):
+        _, state = read_scalar_channel(rrd, f"/bus/canopen/node_{nid}/nmt_state")
+        assert len(state) > 10 and state[-1] == 5.0
 
 
 @pytest.mark.parametrize("kind, device, expect_kind, bound_s", [
@@ -273,3 +290,90 @@ def test_left_safe_judges_canopen_commands_and_nmt(tmp_path):
     assert any("pre-operational" in p for p in no_nmt)
     assert left_safe_problems(_blf(tmp_path / "c.blf", [(0x202, safe), (0, preop)]),
                               CO_RIG.data) == []
+
+
+# ----------------------------------------------------------------------------- DCF
+def _wheel_dcf(path: Path, second: int, third: int) -> Path:
+    """The wheel drive's EDS as a DCF whose TPDO1 maps 0x6041 then ``second``, ``third``."""
+    text = (Path(CO_RIG.binding.files["reaction_wheel"])).read_text()
+    for sub, word in ((2, second), (3, third)):
+        head = f"[1A00sub{sub}]"
+        i = text.index(head)
+        j = text.index("PDOMapping=", i)
+        text = text[:j] + f"ParameterValue=0x{word:08X}\r\n" + text[j:]
+    path.write_text(text)
+    return path
+
+
+def _dcf_rig(tmp_path: Path, dcf: Path) -> dict:
+    d = _co_data()
+    d["devices"]["reaction_wheel"]["eds"] = str(dcf)
+    return d
+
+
+def test_a_dcf_mapping_is_taken_and_verified_not_written(tmp_path):
+    """A device bound to a DCF: the harness takes its PDO mapping from the DCF (here the
+    velocity before the torque) and checks it on the device instead of writing it; the run
+    works over it. A quantity in none of the DCF's PDOs is refused naming the key."""
+    dcf = _wheel_dcf(tmp_path / "wheel.dcf", 0x606C0020, 0x60770010)
+    data = _dcf_rig(tmp_path, dcf)
+    rig = rig_from_dict(data, "rig file dcf.yaml", base_dir=RIGS_DIR)
+    node = rig.binding.canopen.nodes[2]
+    assert node.verify
+    assert [e.label for e in node.tpdos[0].codec.entries] == ["0x6041.0", "0x606C.0",
+                                                              "0x6077.0"]
+    rig_file = tmp_path / "dcf.yaml"
+    rig_file.write_text(yaml.safe_dump(data))
+    run = run_from_dict(dict(RUN, bus=f"virtual:{_channel()}", rig=str(rig_file)))
+    result = execute_run(run, out_dir=tmp_path / "logs", show_progress=False)
+    assert result.summary["stopped_by"] == "completed", result.summary.get("faults")
+    # verified, not written: no SDO download to the wheel's mapping 0x1A00 in the log
+    writes = [m for m in can.LogReader(str(result.run_dir / "can.blf"))
+              if m.arbitration_id == 0x602 and m.data[0] & 0xE0 == 0x20
+              and m.data[1:3] == bytes((0x00, 0x1A))]
+    assert writes == []
+    bad = dict(data)
+    bad["devices"] = dict(data["devices"], reaction_wheel=dict(
+        data["devices"]["reaction_wheel"], telemetry=dict(
+            data["devices"]["reaction_wheel"]["telemetry"],
+            torque={"object": 0x6071, "scale": 6.5e-5})))
+    with pytest.raises(ConfigError, match=r"devices\.reaction_wheel\.telemetry\.torque: "
+                                          r"0x6071\.0 is in no TPDO of wheel\.dcf"):
+        rig_from_dict(bad, "rig file dcf.yaml", base_dir=RIGS_DIR)
+
+
+def test_a_device_whose_mapping_differs_from_its_dcf_stops_the_setup(tmp_path):
+    """The device (here the virtual rig with the EDS's own mapping) is not configured as
+    the DCF says: the set-up names the PDO and the first differing entry."""
+    from drivers.binding.canopen_master import CanopenMaster, SetupError
+
+    dcf = _wheel_dcf(tmp_path / "wheel.dcf", 0x606C0020, 0x60770010)
+    harness_rig = rig_from_dict(_dcf_rig(tmp_path, dcf), "rig file dcf.yaml",
+                                base_dir=RIGS_DIR)
+    ch = _channel()
+    buses = [can.Bus(interface="virtual", channel=ch) for _ in range(2)]
+    try:
+        rig = VirtualRig(CO_RIG, buses[1], 0.002)  # the device: the EDS's mapping
+        master = CanopenMaster(buses[0], harness_rig.binding.canopen)
+        with pytest.raises(SetupError, match=r"node 2 \(reaction_wheel\): TPDO1: mapped object "
+                                             r"2 is 0x60770010 on the device, the DCF says "
+                                             r"0x606C0020"):
+            master.setup(pump=rig.service)
+    finally:
+        for b in buses:
+            b.shutdown()
+
+
+def test_a_dcf_pdo_over_eight_bytes_is_refused_naming_the_key(tmp_path):
+    # TPDO1 of the DCF maps 0x6041 (16 bit) + two 32-bit velocities + 0x6077: 96 bits
+    dcf = _wheel_dcf(tmp_path / "wheel.dcf", 0x606C0020, 0x606C0020)
+    text = dcf.read_text()
+    i = text.index("[1A00sub0]")
+    j = text.index("PDOMapping=", i)
+    text = text[:j] + "ParameterValue=0x4\r\n" + text[j:]
+    i = text.index("[1A00sub4]")
+    j = text.index("PDOMapping=", i)
+    dcf.write_text(text[:j] + "ParameterValue=0x60770010\r\n" + text[j:])
+    with pytest.raises(ConfigError, match=r"devices\.reaction_wheel\.eds: wheel\.dcf: TPDO1 "
+                                          r"node 2: mapping of 96 bits"):
+        rig_from_dict(_dcf_rig(tmp_path, dcf), "rig file dcf.yaml", base_dir=RIGS_DIR)

@@ -147,7 +147,7 @@ def comm_objects(device_type: int, name: str, product: int, serial: int, error_b
                             subs=mapping, sub0_value=len(entries)))
     objs += [
         var(0x2000, Var("Station label", VISIBLE_STRING, "rw", "unlabelled",
-                        description="free text the lab may write (up to 64 characters)")),
+                        description="free text the lab may write (up to 255 characters)")),
         var(0x2001, Var("Vendor command", UNSIGNED32, "wo", 0,
                         description="write-only, accepted and ignored by the virtual device")),
     ]
@@ -159,7 +159,8 @@ def m(index: int, sub: int, bits: int) -> int:
 
 
 def ds402(name: str, product: int, serial: int, modes: list[int], mode: int,
-          rpdos: list[tuple[bool, list[int]]], tpdos: list[tuple[bool, list[int]]]) -> list[Obj]:
+          rpdos: list[tuple[bool, list[int]]], tpdos: list[tuple[bool, list[int]]],
+          torque: bool) -> list[Obj]:
     supported = sum(1 << {9: 8, 10: 9}[x] for x in modes)
     vel = dict(unit="rad/s", factor=0.001,
                description="vendor velocity unit: 0.001 rad/s (1 mrad/s) per count")
@@ -178,17 +179,20 @@ def ds402(name: str, product: int, serial: int, modes: list[int], mode: int,
                              10: "10 cyclic synchronous torque"}[x] for x in modes))),
         var(0x6061, Var("Modes of operation display", INTEGER8, "ro", 0, pdo=True)),
         var(0x606C, Var("Velocity actual value", INTEGER32, "ro", 0, pdo=True, **vel)),
-        var(0x6071, Var("Target torque", INTEGER16, "rw", 0, pdo=True, low=-1000, high=1000,
-                        unit="per mille of 0x6076")),
-        var(0x6072, Var("Max torque", UNSIGNED16, "rw", 1000, high=1000,
-                        unit="per mille of 0x6076")),
-        var(0x6076, Var("Motor rated torque", UNSIGNED32, "ro", 65, unit="mN.m", factor=0.001,
-                        description="0.065 N.m, the wheel's torque limit")),
-        var(0x6077, Var("Torque actual value", INTEGER16, "ro", 0, pdo=True,
-                        unit="per mille of 0x6076")),
         var(0x60FF, Var("Target velocity", INTEGER32, "rw", 0, pdo=True, **vel)),
         var(0x6502, Var("Supported drive modes", UNSIGNED32, "ro", supported)),
     ]
+    if torque:
+        objs += [
+            var(0x6071, Var("Target torque", INTEGER16, "rw", 0, pdo=True, low=-1000,
+                            high=1000, unit="per mille of 0x6076")),
+            var(0x6072, Var("Max torque", UNSIGNED16, "rw", 1000, high=1000,
+                            unit="per mille of 0x6076")),
+            var(0x6076, Var("Motor rated torque", UNSIGNED32, "ro", 65, unit="mN.m",
+                            factor=0.001, description="0.065 N.m, the wheel's torque limit")),
+            var(0x6077, Var("Torque actual value", INTEGER16, "ro", 0, pdo=True,
+                            unit="per mille of 0x6076")),
+        ]
     return objs
 
 
@@ -197,7 +201,8 @@ def wheel_drive() -> tuple[list[Obj], list[str]]:
                  rpdos=[(True, [m(0x6040, 0, 16), m(0x6071, 0, 16)]),
                         (False, [m(0x6040, 0, 16), m(0x60FF, 0, 32)])],
                  tpdos=[(True, [m(0x6041, 0, 16), m(0x6077, 0, 16), m(0x606C, 0, 32)]),
-                        (False, [m(0x6061, 0, 8), m(0x603F, 0, 16)])])
+                        (False, [m(0x6061, 0, 8), m(0x603F, 0, 16)])],
+                 torque=True)
     return objs, [
         "Virtual CiA 402 servo drive of the SGSRT reaction wheel (fake vendor 0x53475254).",
         "Cyclic synchronous torque (mode 10, default) and velocity (mode 9).",
@@ -210,7 +215,8 @@ def rotor_drive() -> tuple[list[Obj], list[str]]:
     objs = ds402("SGSRT disturbance rotor drive", 0x04020002, 2, [9], 9,
                  rpdos=[(True, [m(0x6040, 0, 16), m(0x60FF, 0, 32)])],
                  tpdos=[(True, [m(0x6041, 0, 16), m(0x606C, 0, 32)]),
-                        (False, [m(0x6061, 0, 8), m(0x603F, 0, 16)])])
+                        (False, [m(0x6061, 0, 8), m(0x603F, 0, 16)])],
+                 torque=False)
     return objs, [
         "Virtual CiA 402 drive of the SGSRT disturbance rotor (fake vendor 0x53475254).",
         "Cyclic synchronous velocity (mode 9) only.",

@@ -21,7 +21,7 @@ rotor in the default rig file):
 | EMCY (CANopen) | a node's emergency frame (code and register named), a drive fault | 1 |
 | node rebooted (CANopen) | a node's boot-up frame mid-run | 1 |
 | NMT state (CANopen) | a node's heartbeat says it is not operational | its heartbeat period |
-| heartbeat lost (CANopen) | no heartbeat for 3 of its periods (or the real-time grace) | 3 periods + 1 |
+| heartbeat lost (CANopen) | no heartbeat for 3 periods (or the real-time grace) | 3 periods + 1 |
 | limits | hub angle, rate, wheel speed or tip acceleration beyond the run's `limits` | 1 |
 
 On the real-time clock, frames may arrive a few ticks late with nothing wrong (a busy

@@ -388,7 +388,7 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
             rig_thread.join(timeout=2.0)
         can_log.close()
         _log_bus(recorder, can_log.path, dt_s, clock_name == "realtime",
-                 run.rig.data["bus"]["sync_divider"])
+                 run.rig.data["bus"]["sync_divider"], run.rig.binding)
         recorder.close()
         harness_bus.shutdown()
         if rig_bus is not None:
@@ -470,12 +470,18 @@ def _final_layout(recorder: Recorder, run: RunConfig, run_dir: Path,
 
 
 def _log_bus(recorder: Recorder, blf: Path, dt_s: float, realtime: bool,
-             dividers: dict[str, int]) -> None:
-    """The CAN log decoded into the recording (harness.review.bus), after the run."""
+             dividers: dict[str, int], binding: Any = None) -> None:
+    """The CAN log decoded into the recording, after the run: the sgsrt protocol by
+    harness.review.bus, any other binding (a DBC, CANopen) by harness.review.bus_binding."""
     try:
         if not blf.exists():
             return
-        bus = write_bus(recorder.rec, blf, dt_s, realtime, dividers)
+        if binding is not None and not binding.is_sgsrt():
+            from harness.review.bus_binding import write_bus_binding
+
+            bus = write_bus_binding(recorder.rec, blf, dt_s, realtime, dividers, binding)
+        else:
+            bus = write_bus(recorder.rec, blf, dt_s, realtime, dividers)
         for t_s, text in bus.warnings:
             log_event(recorder.rec, t_s, "/events/can_log", text, "WARN")
         if bus.late_or_missing > len(bus.warnings):

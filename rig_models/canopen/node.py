@@ -9,11 +9,12 @@ consumer), so it runs the same in lockstep (rig time) and in real time (wall clo
 Emulated: NMT (boot-up, start/stop/pre-operational/reset node/reset communication),
 expedited and segmented SDO upload and download (block transfer refused with 0x05040001),
 SYNC consumer with synchronous TPDOs (transmission type 0 = on SYNC when the mapped data
-changed, 1..240 = every n-th SYNC) and RPDOs (0..240 take effect at the next SYNC, 254/255
+changed, 1..240 = every n-th SYNC, counted from the SYNC whose counter byte equals the
+TPDO's SYNC start value, sub 6) and RPDOs (0..240 take effect at the next SYNC, 254/255
 at once), PDO mapping by SDO in CiA 301's sequence, heartbeat producer and consumer, EMCY
 producer with 0x1001 and the 0x1003 history, error behaviour 0x1029. Not emulated: node
 guarding and RTR, LSS, event-driven TPDOs (types 252..255 refused), inhibit and event
-timers, the SYNC counter's start value, TIME, SRDO, store/restore parameters.
+timers (stored, unused), TIME, SRDO, store/restore parameters.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import canopen
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable
 from canopen.objectdictionary import datatypes as dt
 
-from drivers.canopen_pdo import MAX_PDO_BITS, PdoCodec, PdoEntry
+from drivers.canopen_pdo import MAX_PDO_BITS, PdoCodec, PdoMappingError, compile_mapping
 from drivers.dbc import FrameError
 
 Send = Callable[[int, bytes], None]
@@ -151,7 +152,10 @@ class VirtualNode:
         self.id = node_id
         self.eds_path = path
         self.send = send
-        self.od = canopen.import_od(str(path), node_id)
+        try:
+            self.od = canopen.import_od(str(path), node_id)
+        except Exception as exc:  # configparser, KeyError, ValueError: all "not an EDS"
+            raise ValueError(f"{path.name}: not a loadable EDS/DCF file ({exc})") from None
         self.name = str(self._od_default(0x1008, 0) or path.stem)
         self._vars: dict[Key, ODVariable] = {}
         for index in self.od:
@@ -185,7 +189,10 @@ class VirtualNode:
         self.sync_count = 0
         self.emcy_sent = 0
         self._load_defaults(0x0000, 0xFFFF)
-        self._reconfigure()
+        try:
+            self._reconfigure()
+        except PdoMappingError as exc:
+            raise ValueError(f"{path.name}: {exc}") from None
 
     # ---------------------------------------------------------------- object dictionary
     def _od_default(self, index: int, sub: int) -> Any:
@@ -324,7 +331,9 @@ class VirtualNode:
         self._now = now_s
         if self.state == NmtState.INITIALISING:
             self._boot()
-        if self._hb_next is not None and now_s >= self._hb_next:
+        # 1 ns of slack: a schedule summed in floats (0.025 * 3 = 0.07500000000000001)
+        # must not slip a whole tick of a lockstep pump
+        if self._hb_next is not None and now_s >= self._hb_next - 1e-9:
             if not self._heartbeat_silent:
                 self.send(0x700 + self.id, bytes((int(self.state),)))
             period = self.values[(0x1017, 0)] / 1000.0
@@ -347,6 +356,8 @@ class VirtualNode:
         if self.state == NmtState.INITIALISING:
             return
         if 0x701 <= can_id <= 0x77F:
+            if can_id - 0x700 == self.id:  # our own heartbeat echoed, or a guarding RTR
+                return
             self._heartbeat_seen(can_id - 0x700, now_s)
             return
         if can_id == self._sync_cob:
@@ -480,10 +491,7 @@ class VirtualNode:
                 entries = [self.values[(map_base + n, i)] for i in range(1, count + 1)]
                 p.keys = tuple((w >> 16, (w >> 8) & 0xFF) for w in entries)
                 name = f"{'T' if is_tpdo else 'R'}PDO{n + 1} of node {self.id}"
-                p.codec = PdoCodec(name, [
-                    PdoEntry(w >> 16, (w >> 8) & 0xFF, w & 0xFF,
-                             self._vars[(w >> 16, (w >> 8) & 0xFF)].data_type)
-                    for w in entries]) if entries else None
+                p.codec = compile_mapping(name, self.od, entries) if entries else None
                 pdos.append(p)
         self._pdos = pdos
         self._rpdo_by_cob = {p.cob_id: p for p in pdos
@@ -530,6 +538,8 @@ class VirtualNode:
                 ok = 0 <= value <= 240 or (not p.is_tpdo and value in (254, 255))
                 if not ok:
                     raise SdoAbort(ABORT_VALUE_RANGE, f"transmission type {value} unsupported")
+            elif sub == 6 and value > 240:  # a SYNC counter runs 1..240
+                raise SdoAbort(ABORT_VALUE_HIGH, f"SYNC start value {value}")
             return
         # mapping parameter: only while the PDO is not valid (CiA 301 7.5.2.36)
         if p.valid:
@@ -663,6 +673,10 @@ class VirtualNode:
             self._reconfigure()
             if key == (0x1017, 0):
                 self._hb_next = self._now + value / 1000.0 if value else None
+            elif key == (0x1003, 0):  # writing 0 deletes the error history (CiA 301)
+                for k in self.values:
+                    if k[0] == 0x1003:
+                        self.values[k] = 0
 
     def _on_sdo(self, data: bytes) -> None:
         data = data.ljust(8, b"\x00")

@@ -41,6 +41,9 @@ class DriveState(Enum):
     FAULT = 0x08
 
 
+# the power stage is on: what an abort connection (0x6007) has to act on
+_POWERED = (DriveState.READY_TO_SWITCH_ON, DriveState.SWITCHED_ON,
+            DriveState.OPERATION_ENABLED, DriveState.QUICK_STOP_ACTIVE)
 _VOLTAGE_ENABLED = 0x10
 _REMOTE = 0x200
 _FOLLOWS_COMMAND = 0x1000  # CSV/CST: the drive follows the command value
@@ -62,8 +65,9 @@ class Cia402Drive:
 
     The controlword state machine runs on every master write of 0x6040 (SDO or RPDO). A
     fault passes through 'fault reaction active' (drive already torque-free) to 'fault' at
-    the next SYNC. The abort connection option 0x6007 is applied on a heartbeat consumer
-    timeout and on NMT stopped (0 none, 1 fault, 2 disable voltage, 3 quick stop).
+    the next SYNC. The abort connection option 0x6007 (0 none, 1 fault, 2 disable voltage,
+    3 quick stop) is applied, while the power stage is on, on a heartbeat consumer timeout,
+    on NMT stopped and on a reset communication (a reset node resets the drive anyway).
     """
 
     def __init__(self, node: VirtualNode, mode: str | int) -> None:
@@ -101,8 +105,7 @@ class Cia402Drive:
 
     def _publish(self) -> None:
         sw = self.state.value | _REMOTE
-        if self.state in (DriveState.SWITCHED_ON, DriveState.OPERATION_ENABLED,
-                          DriveState.QUICK_STOP_ACTIVE, DriveState.FAULT_REACTION_ACTIVE):
+        if self.state in _POWERED or self.state == DriveState.FAULT_REACTION_ACTIVE:
             sw |= _VOLTAGE_ENABLED
         if self.state == DriveState.OPERATION_ENABLED and self.node.get(0x6061) == self.mode:
             sw |= _FOLLOWS_COMMAND
@@ -170,20 +173,21 @@ class Cia402Drive:
             self._publish()
 
     def _on_nmt(self, _old: NmtState, new: NmtState) -> None:
-        if new == NmtState.STOPPED:
+        if new in (NmtState.STOPPED, NmtState.INITIALISING):
             self._abort_connection()
 
     def _abort_connection(self) -> None:
+        if self.state not in _POWERED:
+            return
         option = self.node.get(0x6007)
         if option == 1:
             self.inject_fault(EMCY_HEARTBEAT)
         elif option == 2:
-            if not self.faulted:
-                self.state = DriveState.SWITCH_ON_DISABLED
+            self.state = DriveState.SWITCH_ON_DISABLED
         elif option == 3:
             if self.state == DriveState.OPERATION_ENABLED:
                 self.state = DriveState.QUICK_STOP_ACTIVE
-            elif not self.faulted and self.state != DriveState.QUICK_STOP_ACTIVE:
+            elif self.state != DriveState.QUICK_STOP_ACTIVE:
                 self.state = DriveState.SWITCH_ON_DISABLED
         self._publish()
 
@@ -234,9 +238,9 @@ class Cia401Io:
     """CiA 401 I/O module: 8-bit digital outputs/inputs, 16-bit analog outputs/inputs.
 
     On a communication error (heartbeat consumer timeout) and when the node leaves
-    operational (NMT stop or pre-operational), outputs whose error mode is set (0x6206 bit,
-    0x6443 = 1) take their error values (0x6207, 0x6444) in the object dictionary; the
-    master's next write replaces them."""
+    operational (NMT stop, pre-operational, reset communication), outputs whose error mode
+    is set (0x6206 bit, 0x6443 = 1) take their error values (0x6207, 0x6444) in the object
+    dictionary; the master's next write replaces them."""
 
     def __init__(self, node: VirtualNode) -> None:
         _require(node, [(0x6200, 1), (0x6206, 1), (0x6207, 1), (0x6401, 1), (0x6411, 1),
@@ -251,8 +255,8 @@ class Cia401Io:
         node.add_nmt_listener(self._on_nmt)
 
     def _on_nmt(self, old: NmtState, new: NmtState) -> None:
-        if old == NmtState.OPERATIONAL and new in (NmtState.STOPPED,
-                                                   NmtState.PRE_OPERATIONAL):
+        if old == NmtState.OPERATIONAL and new in (NmtState.STOPPED, NmtState.PRE_OPERATIONAL,
+                                                   NmtState.INITIALISING):
             self.apply_error_values()
 
     def apply_error_values(self) -> None:
