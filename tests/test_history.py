@@ -409,3 +409,16 @@ def test_a_mode_leaving_the_calibrated_band_says_to_calibrate_again(tmp_path):
     band = [a for a in s.alarms if a.kind == "band"]
     assert [a.index for a in band] == [2]  # 3.0 is inside 3.045, 3.1 is not
     assert "run `harness calibrate` again" in band[0].message
+
+
+def test_a_database_that_cannot_be_written_never_fails_the_command(tmp_path, capsys):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "history.sqlite").mkdir()  # a directory where the file should be
+    path = decay_run_file(tmp_path, rig_file(tmp_path, "r"), "unrecorded",
+                          {"peak": {"measure": "peak_tip_accel_m_s2", "max_m_s2": 1.0}},
+                          duration_s=1.0, rate_hz=100)
+    assert main(["run", str(path), "--out", str(logs), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "history: not recorded" in err and "Traceback" not in err
+    assert list(logs.glob("*-unrecorded/verdict.json"))  # the run's own files are there

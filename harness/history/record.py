@@ -220,23 +220,36 @@ def _add(records: list[Record], logs: Path) -> HistoryDB | None:
         return None
 
 
-def record_verdict(run_dir: Path, verdict: Mapping[str, Any]) -> None:
-    rec = verdict_record(Path(run_dir), verdict)
-    db = _add([rec] if rec else [], logs_of(Path(run_dir)))
+def _record(make: Any, logs: Any) -> None:
+    """Build the records and add them; any failure is one line on stderr, never the
+    command's (its own files are already written)."""
+    if not recording_enabled():
+        return
+    try:
+        records = make()
+        where = logs()
+    except Exception as exc:  # noqa: BLE001
+        print(f"harness: history: not recorded ({type(exc).__name__}: {exc})", file=sys.stderr)
+        return
+    db = _add(records, where)
     if db is not None:
         db.close()
+
+
+def record_verdict(run_dir: Path, verdict: Mapping[str, Any]) -> None:
+    def make() -> list[Record]:
+        rec = verdict_record(Path(run_dir), verdict)
+        return [rec] if rec else []
+    _record(make, lambda: logs_of(Path(run_dir)))
 
 
 def record_identify(run_dir: Path, ident: Mapping[str, Any]) -> None:
-    db = _add([identify_record(Path(run_dir), ident)], logs_of(Path(run_dir)))
-    if db is not None:
-        db.close()
+    _record(lambda: [identify_record(Path(run_dir), ident)], lambda: logs_of(Path(run_dir)))
 
 
 def record_calibration(folder: Path, data: Mapping[str, Any]) -> None:
-    db = _add([calibration_record(Path(folder), data)], Path(folder).resolve().parent)
-    if db is not None:
-        db.close()
+    _record(lambda: [calibration_record(Path(folder), data)],
+            lambda: Path(folder).resolve().parent)
 
 
 def record_suite(out_dir: Path, doc: dict[str, Any]) -> None:
