@@ -40,6 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=Path("logs"), help="parent directory of the "
                    "run directory (default: ./logs)")
     p.add_argument("--duration-s", type=float, help="override the run's duration (s)")
+    p.add_argument("--rig", metavar="R", help="run on this rig file (built-in name or path) "
+                   "instead of the run file's, e.g. sgsrt-canopen (the lab's CANopen devices)")
     p.add_argument("--variant", action="append", metavar="NAME",
                    help="run only this variant of a run file with variants (e.g. beta-0.8 of "
                    "case-a); repeatable. Default: every variant in turn")
@@ -72,6 +74,8 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
         if args.duration_s is not None and not args.duration_s > 0:
             raise ConfigError(f"--duration-s {args.duration_s:g}: expected a duration > 0 s")
         overrides = {"duration_s": args.duration_s} if args.duration_s is not None else None
+        if args.rig:
+            overrides = {**(overrides or {}), "rig": args.rig}
         if args.view:
             check_viewer_listening(check_view_url(args.view))
         base = load_run(args.run, overrides)
@@ -222,6 +226,9 @@ def _judge(run_dir: Path, summary: dict | None) -> int:
         return 4
     path = write_verdict(verdict, run_dir)
     print(format_block(verdict, path), file=sys.stderr)
+    from harness.history.record import record_verdict  # the results database (issue 22)
+
+    record_verdict(run_dir, verdict.to_dict())
     if summary is not None:
         summary["verdict"] = verdict.verdict
     return verdict.exit_code

@@ -170,7 +170,8 @@ def run_from_dict(raw: Any, source: str = "run", base_dir: Path | None = None,
         if not isinstance(data["rig_overrides"], dict):
             raise ConfigError(f"{source}: rig_overrides: expected a mapping")
         rig = rig_from_dict(_deep_merge(rig.data, data["rig_overrides"]),
-                            source=f"{rig.source} + rig_overrides of {source}")
+                            source=f"{rig.source} + rig_overrides of {source}",
+                            base_dir=rig.base_dir)
     _check_expect(data, rig, source, base_dir, check_files)
     return RunConfig(source=source, data=data, rig=rig)
 
@@ -191,6 +192,14 @@ def _check_expect(data: dict[str, Any], rig: RigConfig, source: str, base_dir: P
 def build_controller(run: RunConfig) -> Any:
     _, builder = CONTROLLERS[run.controller["type"]]
     try:
-        return builder(run.controller, run.rig, run.dt_s)
+        controller = builder(run.controller, run.rig, run.dt_s)
     except ValueError as exc:
         raise ConfigError(f"{run.source}: controller: {exc}") from exc
+    except (OverflowError, ZeroDivisionError, FloatingPointError) as exc:
+        # a finite but absurd value (bandwidth_rad_s: 1e308) overflows the design's math
+        keys = ", ".join(f"{k}: {v!r}" for k, v in run.controller.items()
+                         if isinstance(v, int | float) and not isinstance(v, bool)
+                         and abs(v) > 1e6)
+        raise ConfigError(f"{run.source}: controller: its numbers are out of range ({exc}"
+                          f"{'; ' + keys if keys else ''})") from exc
+    return controller
