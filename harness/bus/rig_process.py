@@ -24,7 +24,6 @@ import signal
 import subprocess
 import sys
 import threading
-from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
 from typing import IO
@@ -56,26 +55,6 @@ def fault_argument(f: FaultSpec) -> str:
     if f.value is not None:
         text += f"={f.value!r}"
     return text
-
-
-PR_SET_PDEATHSIG = 1
-
-
-def _die_with_parent(parent_pid: int) -> Callable[[], None]:
-    """For ``Popen(preexec_fn=...)``: the child gets SIGKILL when the harness dies (a
-    SIGKILLed real-time run left its rig process running for the run's length plus a
-    minute). Linux only; elsewhere the rig's own ``--duration-s`` still ends it."""
-    def preexec() -> None:
-        try:
-            import ctypes
-
-            libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-        except (OSError, AttributeError):
-            return
-        if os.getppid() != parent_pid:  # the harness died before the prctl took effect
-            os._exit(1)
-    return preexec
 
 
 class RigProcess:
@@ -120,8 +99,7 @@ class RigProcess:
             cmd += ["--duration-s", f"{self.lifetime_s:g}"]
         self._log = self.log_path.open("w")
         self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.PIPE, text=True, start_new_session=True,
-                                     preexec_fn=_die_with_parent(os.getpid()))
+                                     stderr=subprocess.PIPE, text=True, start_new_session=True)
         lines: queue.Queue[str | None] = queue.Queue()
         self._pump = threading.Thread(target=self._copy_stderr, args=(lines,), daemon=True)
         self._pump.start()
