@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import enum
 import logging
+import os
 import queue
 import re
 import selectors
@@ -217,6 +218,7 @@ class _Client:
     closed: bool = False
     settle_until: float = 0.0
     pending: deque[str] | None = None
+    connected_at: float = field(default_factory=time.monotonic)
 
 
 @dataclass(frozen=True)
@@ -242,8 +244,12 @@ class SocketcandServerBus(can.BusABC):
         port: TCP port; 0 picks a free one (read it back from :attr:`port`).
         handshake_settle_s: how long frames for a client that just entered rawmode are held
             back (see the module docstring).
-        client_send_timeout_s: a client that does not take a frame within this time is
-            disconnected, so a stuck client never blocks ``send()`` for longer.
+        client_send_timeout_s: a client that does not take a handshake reply within this
+            time is disconnected. Frames are sent without waiting: a client whose socket
+            buffer is full (it stopped reading) is disconnected at once, so one slow reader
+            never stalls ``send()`` for the others.
+        handshake_timeout_s: a client not in rawmode this long after it connected is
+            disconnected (idle connections took every slot for good).
         max_clients: connections beyond this get ``< error too many clients >`` and are closed.
         rx_queue_size: frames from clients waiting for ``recv()``; beyond it new ones are
             dropped and counted.
@@ -258,6 +264,7 @@ class SocketcandServerBus(can.BusABC):
         *,
         handshake_settle_s: float = 0.25,
         client_send_timeout_s: float = 2.0,
+        handshake_timeout_s: float = 5.0,
         max_clients: int = 16,
         rx_queue_size: int = 100_000,
         relay_between_clients: bool = True,
@@ -276,6 +283,9 @@ class SocketcandServerBus(can.BusABC):
         self.channel = channel
         self._settle_s = float(handshake_settle_s)
         self._send_timeout_s = float(client_send_timeout_s)
+        if not handshake_timeout_s > 0:
+            raise ValueError(f"handshake_timeout_s must be > 0, got {handshake_timeout_s!r}")
+        self._handshake_timeout_s = float(handshake_timeout_s)
         self._max_clients = max_clients
         self._relay = relay_between_clients
         self._rx: queue.Queue[object] = queue.Queue(maxsize=rx_queue_size)
@@ -422,6 +432,7 @@ class SocketcandServerBus(can.BusABC):
                     else:
                         self._read_client(key.data)
                 self._flush_settled_clients()
+                self._drop_idle_clients()
         except Exception:  # pragma: no cover - a bug; keep the process alive, log it
             log.exception("socketcand server thread failed")
         finally:
@@ -430,9 +441,23 @@ class SocketcandServerBus(can.BusABC):
     def _select_timeout(self) -> float | None:
         with self._lock:
             waits = [cl.settle_until for cl in self._clients.values() if cl.pending is not None]
+            waits += [cl.connected_at + self._handshake_timeout_s
+                      for cl in self._clients.values() if cl.mode is not _Mode.RAW]
         if not waits:
             return None
         return max(0.0, min(waits) - time.monotonic())
+
+    def _drop_idle_clients(self) -> None:
+        now = time.monotonic()
+        with self._lock:
+            idle = [cl for cl in self._clients.values() if cl.mode is not _Mode.RAW
+                    and now - cl.connected_at >= self._handshake_timeout_s]
+        for client in idle:
+            log.warning("socketcand server: dropping client %s: no rawmode within %g s",
+                        client.peer, self._handshake_timeout_s)
+            with self._lock:
+                self._counts["dropped"] += 1
+            self._remove_client(client)
 
     def _accept(self) -> None:
         try:
@@ -578,7 +603,7 @@ class SocketcandServerBus(can.BusABC):
                 client.pending = None
             if not text:
                 return
-            ok = self._sendall_locked(client, text)
+            ok = self._sendall_locked(client, text, wait=False)
         if ok:
             with self._lock:
                 self._counts["to_clients"] += frames
@@ -588,9 +613,18 @@ class SocketcandServerBus(can.BusABC):
             if not client.closed:
                 self._sendall_locked(client, text)
 
-    def _sendall_locked(self, client: _Client, text: str) -> bool:
+    def _sendall_locked(self, client: _Client, text: str, wait: bool = True) -> bool:
         try:
-            client.sock.sendall(text.encode("ascii"))
+            if wait:
+                client.sock.sendall(text.encode("ascii"))
+            else:  # a frame: never wait for one client while the others wait for theirs
+                data = text.encode("ascii")
+                # the socket has a timeout, so Python keeps its descriptor non-blocking and
+                # polls in sock.send: a plain write of the descriptor never waits
+                sent = os.write(client.sock.fileno(), data)
+                if sent < len(data):
+                    raise BlockingIOError(f"its socket buffer is full ({sent} of {len(data)} "
+                                          "bytes taken): it stopped reading")
         except OSError as exc:  # includes TimeoutError: the client stopped reading
             log.warning("socketcand server: dropping client %s: %s", client.peer, exc)
             client.closed = True

@@ -542,3 +542,50 @@ def test_shutdown_without_clients_frees_port_for_a_plain_bind() -> None:
         plain.bind((HOST, port))  # no SO_REUSEADDR: fails if anything still holds it
     finally:
         plain.close()
+
+
+# --------------------------------------------------------------------------- issue 24
+
+
+def test_idle_connections_do_not_keep_every_slot() -> None:
+    """16 connections that never complete the handshake took every slot for good; now each
+    is dropped after handshake_timeout_s and a real client gets in."""
+    srv = SocketcandServerBus(port=0, max_clients=4, handshake_timeout_s=0.5)
+    idle = [socket.create_connection((HOST, srv.port)) for _ in range(4)]
+    try:
+        assert _wait_until(lambda: srv.stats.clients_connected == 4)
+        assert _wait_until(lambda: srv.stats.clients_connected == 0, timeout_s=3.0)
+        raw = _RawClient(srv.port)
+        raw.handshake()
+        assert srv.wait_for_clients(1, timeout_s=TIMEOUT_S)
+        time.sleep(0.8)  # past the handshake timeout: a client in rawmode stays
+        assert srv.stats.clients_in_rawmode == 1
+        raw.close()
+    finally:
+        for s in idle:
+            s.close()
+        srv.shutdown()
+
+
+def test_a_client_that_never_reads_does_not_stall_the_others() -> None:
+    """Every frame used to wait for the stuck client's socket (up to client_send_timeout_s
+    each time its buffer was full); frames are now sent without waiting and the stuck
+    client is dropped as soon as its buffer is full."""
+    srv = SocketcandServerBus(port=0, handshake_settle_s=0.0, client_send_timeout_s=2.0)
+    stuck = _RawClient(srv.port, rcvbuf=4096)
+    try:
+        stuck.handshake()
+        assert srv.wait_for_clients(1, timeout_s=TIMEOUT_S)
+        msg = can.Message(arbitration_id=0x1, is_extended_id=False, data=bytes(8))
+        slowest = 0.0
+        for _ in range(200_000):
+            t0 = time.perf_counter()
+            srv.send(msg)
+            slowest = max(slowest, time.perf_counter() - t0)
+            if srv.stats.clients_dropped_total:
+                break
+        assert srv.stats.clients_dropped_total == 1
+        assert slowest < 0.5, f"a send waited {slowest:.3f} s for the stuck client"
+    finally:
+        stuck.close()
+        srv.shutdown()
