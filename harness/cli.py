@@ -105,7 +105,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # a refused option (exit 2, named) or --help: returned, so
+        return int(exc.code or 0)  # in-process callers get the code as from any command
     if getattr(args, "func", None) is None:
         parser.print_help(sys.stderr)
         return 2

@@ -41,4 +41,4 @@ def test_bad_run_file_exit_code_and_message(tmp_path):
     bad.write_text("name: bad\nduration_s: -1\ncontroller: {type: hold}\n")
     out = harness("run", str(bad), "--out", str(tmp_path))
     assert out.returncode == 2
-    assert "bad.yaml: duration_s: expected a finite number > 0 (s)" in out.stderr
+    assert "bad.yaml: duration_s: expected a finite number > 0" in out.stderr
