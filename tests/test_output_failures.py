@@ -388,3 +388,29 @@ def test_second_signal_aborts_a_loop_but_not_the_closing():
     exec("def run_loop():\n    req._handler(signal.SIGTERM, _sys._getframe())\n", scope)
     with pytest.raises(KeyboardInterrupt):
         scope["run_loop"]()
+
+
+# -- hand-edited results ---------------------------------------------------------------------
+
+SHAPES = ['{"faults": "x", "stopped_by": "completed"}', "[1, 2]", '"text"',
+          "[" * 5000 + "]" * 5000,
+          '{"stopped_by": 5, "faults": [1], "ticks": "x", "final_angle_error_deg": "a"}',
+          '{"frames": 3, "faults": [{"device": 1}], "run": [], "error": {}}']
+
+
+def test_hand_edited_summaries_never_crash_judge_or_logs(short_run, tmp_path):
+    import shutil
+
+    from harness.cli import main
+
+    logs = tmp_path / "logs"
+    for i, text in enumerate(SHAPES):
+        run_dir = logs / f"run{i}"
+        shutil.copytree(short_run, run_dir)
+        (run_dir / "summary.json").write_text(text)
+        proc = subprocess.run([sys.executable, "-m", "harness", "judge", str(run_dir)],
+                              capture_output=True, text=True, timeout=120, cwd=ROOT)
+        assert "Traceback" not in proc.stderr + proc.stdout, text[:80]
+        assert proc.returncode in (3, 4), (text[:80], proc.stdout, proc.stderr)
+        assert "summary.json" in proc.stdout + proc.stderr
+    assert main(["logs", "--logs", str(logs)]) == 0

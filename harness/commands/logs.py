@@ -24,6 +24,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from harness.record.summary_file import read_summary
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("logs", help="list the recorded runs and how each ended",
@@ -46,13 +48,13 @@ def collect(logs: Path) -> list[dict[str, Any]]:
         row: dict[str, Any] = {"dir": str(run_dir), **_verdict(run_dir)}
         path = run_dir / "summary.json"
         try:
-            s = json.loads(path.read_text())
+            s, problems = read_summary(path)
         except FileNotFoundError:
             row["status"] = "no summary.json (killed?)"
             rows.append(row)
             continue
         except (OSError, ValueError) as exc:
-            row["status"] = f"unreadable summary.json ({type(exc).__name__})"
+            row["status"] = f"unreadable summary.json ({exc})"
             rows.append(row)
             continue
         faults = s.get("faults") or []
@@ -66,6 +68,8 @@ def collect(logs: Path) -> list[dict[str, Any]]:
             "residual_tip_accel_m_s2": s.get("residual_tip_accel_m_s2"),
             "real_time_factor": s.get("real_time_factor"),
         })
+        if problems:  # a hand-edited summary: listed with what is wrong, the others too
+            row["status"] = f"{row['status']} ({'; '.join(problems)})"
         rows.append(row)
     return rows
 

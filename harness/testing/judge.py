@@ -415,10 +415,11 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
     summary: dict[str, Any] = {}
     sum_path = run_dir / "summary.json"
     try:
-        loaded = json.loads(sum_path.read_text())
-        summary = loaded if isinstance(loaded, dict) else {}
-        if not summary:
-            raise ValueError("not a JSON object")
+        from harness.record.summary_file import read_summary
+
+        # a hand-edited field of the wrong shape is left out and named (ERROR), never a crash
+        summary, shape_problems = read_summary(sum_path)
+        results.extend(_missing("summary.json", p) for p in shape_problems)
     except FileNotFoundError:
         results.append(_missing("summary.json", "no summary.json (the harness was killed?)"))
     except (OSError, ValueError) as exc:
