@@ -34,7 +34,7 @@ import copy
 import json
 import math
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -181,15 +181,29 @@ def harness_frame_ids(protocol: Protocol) -> frozenset[int]:
                      if HARNESS_NODE in (m.senders or []))
 
 
-def read_log(path: Path) -> list[can.Message]:
-    """Every frame of a CAN log python-can reads (.blf, .asc, candump .log, ...)."""
+def read_log(path: Path) -> Iterator[can.Message]:
+    """Every frame of a CAN log python-can reads (.blf, .asc, candump .log, ...), one at a
+    time: the frames are never all in memory (a 600 s capture's list took about 1 GB)."""
     if not path.is_file():
         raise ReplayError(f"{path}: no such file")
     try:
-        return list(can.LogReader(str(path)))
+        reader = can.LogReader(str(path))
     except Exception as exc:  # python-can raises many kinds for a damaged or foreign file
         raise ReplayError(f"{path}: cannot read as a CAN log ({type(exc).__name__}: {exc})"
                           ) from exc
+    return _frames_of(path, reader)
+
+
+def _frames_of(path: Path, reader: Iterable[can.Message]) -> Iterator[can.Message]:
+    try:
+        yield from reader
+    except Exception as exc:  # a damaged container found part way through the file
+        raise ReplayError(f"{path}: cannot read as a CAN log ({type(exc).__name__}: {exc})"
+                          ) from exc
+    finally:
+        stop = getattr(reader, "stop", None)
+        if callable(stop):
+            stop()
 
 
 def _decode(codec: FrameCodec, data: bytes) -> dict[str, float]:
