@@ -261,7 +261,7 @@ def test_the_deprecated_check_form_is_translated_with_its_new_spelling(capsys):
 
 
 def test_exit_code_is_the_most_severe():
-    from harness.testing.plugin import exit_code
+    from harness.testing.outcome import exit_code
 
     def recs(*pairs):
         return [{"verdict": v, "exit_code": c} for v, c in pairs]

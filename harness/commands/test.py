@@ -74,7 +74,8 @@ def _terminate(signum: int, frame: object) -> None:
 def cmd_test(args: argparse.Namespace) -> int:
     import pytest
 
-    from harness.testing.plugin import SuitePlugin, exit_code
+    from harness.testing.outcome import exit_code
+    from harness.testing.plugin import SuitePlugin
 
     if args.list:
         for name, desc in list_suites():

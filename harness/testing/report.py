@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from harness.testing.checks import worst
+from harness.testing.outcome import exit_code
 
 OVERVIEW = ("/attitude/angle_deg", "/tip/accel_m_s2")
 COLORS = {"PASS": "#1a7f37", "MARGINAL": "#9a6700", "FAIL": "#cf222e", "ERROR": "#8250df",
@@ -217,8 +218,6 @@ def write_reports(out_dir: Path, records: list[dict[str, Any]], *, not_run: list
                   suites: list[Any], engine: str, bus: str | None,
                   preflight: dict[str, Any] | None, refused: str | None,
                   wall_s: float, interrupted: bool = False) -> dict[str, Any]:
-    from harness.testing.plugin import exit_code
-
     out_dir.mkdir(parents=True, exist_ok=True)
     verdicts = [r["verdict"] for r in records
                 if r["verdict"] != "SKIPPED" and r.get("reported", True)]
