@@ -54,3 +54,29 @@ def test_last_failed_reruns_only_the_failed_matrix_point(matrix_suite):
     assert again.returncode == 1, again.stderr[-2000:]
     assert [t["item"] for t in results_of(out, "mx")["tests"]] == [
         "slew-rw[torque_fraction=0.8]"]
+
+
+def test_logs_failed_lists_the_failing_runs_inside_a_suite_folder(matrix_suite):
+    _, _, out, first = matrix_suite
+    assert first.returncode == 1
+    proc = harness("logs", "--logs", str(out), "--failed", "--json")
+    assert proc.returncode == 0, proc.stderr
+    rows = json.loads(proc.stdout)
+    assert rows and all(r["run"] == "slew-rw-torque_fraction-0.8" for r in rows)
+    assert all(r["verdict"] == "FAIL" and r["group"].endswith("-mx") for r in rows)
+    every = json.loads(harness("logs", "--logs", str(out), "--json").stdout)
+    assert {r["run"] for r in every} >= {"slew-rw-torque_fraction-0.5",
+                                        "slew-rw-torque_fraction-0.8"}
+    text = harness("logs", "--logs", str(out), "--failed").stdout
+    assert "-mx " in text and "FAIL" in text
+
+
+def test_a_refused_run_leaves_no_run_folder(tmp_path):
+    # a bus that does not open: refused before anything is sent (exit 2), and nothing for
+    # 'harness logs --failed' to list as a killed run
+    proc = harness("run", "slew-rw", "--bus", "socketcan:nosuch0", "--out", str(tmp_path),
+                   "--duration-s", "1")
+    assert proc.returncode == 2, proc.stderr
+    assert "nosuch0" in proc.stderr and "Traceback" not in proc.stderr
+    assert list(tmp_path.iterdir()) == []
+    assert harness("logs", "--logs", str(tmp_path), "--failed").returncode == 1

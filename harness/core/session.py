@@ -11,6 +11,7 @@ import contextlib
 import datetime as dt
 import json
 import math
+import shutil
 import sys
 import threading
 from collections.abc import Callable
@@ -52,7 +53,8 @@ COMMAND_FRAMES = {
 
 
 class RunRefused(RuntimeError):
-    """The run was refused before anything was sent (bus load, limits)."""
+    """The run was refused before anything was sent (bus load, limits, a bus that does not
+    open): no run directory is left behind."""
 
 
 @dataclass
@@ -146,6 +148,11 @@ def execute_run(
         try:
             result = _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
                               show_progress, dry_run, faults, should_stop)
+        except RunRefused:
+            # nothing was sent and the folder holds only config.yaml: left behind, it would
+            # read as a run killed on the way ('harness logs --failed')
+            shutil.rmtree(run_dir, ignore_errors=True)
+            raise
         except Exception as exc:  # the run raised: its directory can still be judged (ERROR)
             exc.run_dir = run_dir  # type: ignore[attr-defined]
             raise
@@ -301,7 +308,10 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
              should_stop: Callable[[], str | None] | None) -> RunResult:
     dt_s = run.dt_s
     protocol = load_protocol()
-    harness_bus = open_bus(spec)
+    try:
+        harness_bus = open_bus(spec)
+    except Exception as exc:  # python-can raises many kinds (OSError, CanError, ValueError)
+        raise RunRefused(f"bus {spec}: cannot open: {type(exc).__name__}: {exc}") from exc
     rig_bus = None
     rig: VirtualRig | None = None
     rig_thread: threading.Thread | None = None
