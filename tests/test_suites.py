@@ -68,6 +68,7 @@ def write_suite(tmp: Path) -> Path:
                                  "marginal_deg": 0.9999}}},
             {"run": "case-a", "duration_s": 6, "variants": ["beta-0.6", "beta-1.0"],
              "set": {"steady_window_s": 3}, "own_expect": False,
+             "expect": {"safe": {"left_safe": True}},  # a suite requires criteria
              "compare": [{"measure": "compensation_amplitude_n_m", "largest": "beta-1.0"}]},
         ],
     }

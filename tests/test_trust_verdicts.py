@@ -80,3 +80,73 @@ def test_a_refused_run_leaves_no_run_folder(tmp_path):
     assert "nosuch0" in proc.stderr and "Traceback" not in proc.stderr
     assert list(tmp_path.iterdir()) == []
     assert harness("logs", "--logs", str(tmp_path), "--failed").returncode == 1
+
+
+def _run_file(tmp: Path, name: str, expect: dict | None) -> Path:
+    from harness.core.runs import RUNS_DIR
+
+    raw = yaml.safe_load((RUNS_DIR / "slew-rw.yaml").read_text())
+    raw.update(name=name, duration_s=2.0)
+    raw.pop("expect", None)
+    if expect is not None:
+        raw["expect"] = expect
+    path = tmp / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    return path
+
+
+def test_a_run_without_criteria_is_no_criteria_not_pass(tmp_path):
+    bare = _run_file(tmp_path, "bare", None)
+    out = tmp_path / "logs"
+    proc = harness("run", str(bare), "--out", str(out), "--quiet")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "VERDICT NO CRITERIA (exit 0)" in proc.stderr
+    assert "WARNING: NO CRITERIA" in proc.stderr
+    [run_dir] = out.iterdir()
+    verdict = json.loads((run_dir / "verdict.json").read_text())
+    assert verdict["verdict"] == "NO CRITERIA" and verdict["criteria"] == []
+    # not a failure of the run (it completed), but never listed as PASS
+    rows = json.loads(harness("logs", "--logs", str(out), "--json").stdout)
+    assert [r["verdict"] for r in rows] == ["NO CRITERIA"]
+
+    # a what-if judgement writes nothing unless asked; asked, it is the run's verdict
+    strict = tmp_path / "strict.yaml"
+    strict.write_text(yaml.safe_dump({"expect": {"tracking": {
+        "channel": "/attitude/error_deg", "max_abs_deg": 1e-9}}}))
+    proc = harness("judge", str(run_dir), "--expect", str(strict))
+    assert proc.returncode == 1 and "VERDICT FAIL" in proc.stdout
+    assert "verdict.json left as it was" in proc.stderr
+    assert json.loads((run_dir / "verdict.json").read_text())["verdict"] == "NO CRITERIA"
+    assert harness("logs", "--logs", str(out), "--failed", "--json").stdout.strip() == "[]"
+    proc = harness("judge", str(run_dir), "--expect", str(strict), "--write")
+    assert proc.returncode == 1
+    assert json.loads((run_dir / "verdict.json").read_text())["verdict"] == "FAIL"
+    rows = json.loads(harness("logs", "--logs", str(out), "--failed", "--json").stdout)
+    assert [r["verdict"] for r in rows] == ["FAIL"]
+
+
+def test_a_suite_fails_a_test_without_criteria_unless_it_allows_it(tmp_path):
+    bare = _run_file(tmp_path, "bare", None)
+    proc = harness("test", str(bare), "--out", str(tmp_path / "a"), "--workers", "1")
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    [test] = results_of(tmp_path / "a", "bare")["tests"]
+    assert test["verdict"] == "FAIL" and test["reason"].startswith("no criteria")
+    assert "require_criteria: false" in test["reason"]
+    suite = tmp_path / "lenient.yaml"
+    suite.write_text(yaml.safe_dump({"name": "lenient", "require_criteria": False,
+                                     "tests": [{"run": str(bare)}]}))
+    proc = harness("test", str(suite), "--out", str(tmp_path / "b"), "--workers", "1")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    doc = results_of(tmp_path / "b", "lenient")
+    assert [t["verdict"] for t in doc["tests"]] == ["NO CRITERIA"]
+    assert doc["verdict"] == "NO CRITERIA" and doc["exit_code"] == 0
+
+
+def test_harness_test_runs_a_run_file_as_a_one_test_suite(tmp_path):
+    run = _run_file(tmp_path, "short-slew", {"safe": {"left_safe": True}})
+    proc = harness("test", str(run), "--out", str(tmp_path), "--workers", "1")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "unknown key" not in proc.stderr
+    [test] = results_of(tmp_path, "short-slew")["tests"]
+    assert test["item"] == "short-slew" and test["verdict"] == "PASS"
+    assert [c["name"] for c in test["criteria"]] == ["safe"]

@@ -6,7 +6,9 @@ the rig file's ``expect_overrides``), or those of ``--expect FILE`` (a YAML file
 run.rrd and can.blf; the run's own checks are added (it raised, was interrupted, a fault no
 criterion expects, files missing). Writes verdict.json and verdict.rrd into RUN_DIR (the
 same verdict.json ``harness run`` wrote at the end of the run, for the same criteria and
-code) and prints the verdict: one line per criterion (value, limit, margin, verdict, the
+code) and prints the verdict. Judged by ``--expect FILE`` (a what-if) it writes nothing
+unless ``--write`` is given, so the run's own verdict (what ``harness logs`` reports) stays.
+It prints one line per criterion (value, limit, margin, verdict, the
 worst sample's time). Forms of criteria: docs/criteria.md.
 
 Exit codes: 0 PASS (or no criteria), 1 FAIL, 2 bad input (no such directory, bad criteria),
@@ -31,6 +33,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("run_dir", type=Path, help="a run directory (logs/<UTC time>-<name>/)")
     p.add_argument("--expect", type=Path, metavar="FILE",
                    help="judge by this file's expect: section instead of the run's own")
+    p.add_argument("--write", action="store_true",
+                   help="with --expect: make this the run's verdict (verdict.json, "
+                   "verdict.rrd); without, a what-if judgement writes nothing")
     p.add_argument("--json", action="store_true", help="print verdict.json on stdout")
     p.set_defaults(func=cmd_judge)
 
@@ -41,7 +46,12 @@ def cmd_judge(args: argparse.Namespace) -> int:
     except (ConfigError, JudgeInputError) as exc:
         print(f"harness judge: {exc}", file=sys.stderr)
         return 2
-    path = write_verdict(verdict, args.run_dir)
+    path = None
+    if args.expect is None or args.write:
+        path = write_verdict(verdict, args.run_dir)
+    else:  # a what-if: the run's own verdict (what 'harness logs' reads) stays as it is
+        print(f"harness judge: judged by {args.expect}, not the run's own criteria: "
+              "verdict.json left as it was (--write to replace it)", file=sys.stderr)
     if args.json:
         print(json.dumps(verdict.to_dict(), indent=2))
         print(format_block(verdict, path), file=sys.stderr)

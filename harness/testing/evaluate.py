@@ -24,6 +24,10 @@ from harness.testing.measures import NULL_MEANS_FAIL, WORST_SAMPLE, FieldMissing
 
 PASS, MARGINAL, FAIL, ERROR = "PASS", "MARGINAL", "FAIL", "ERROR"
 SEVERITY = {PASS: 0, MARGINAL: 1, FAIL: 2, ERROR: 3}
+NO_CRITERIA = "NO CRITERIA"
+"""A run's verdict when nothing was judged: no criterion, and none of the run's own checks
+found a problem. Not PASS (a run whose ``expect:`` was lost must not read as a passing
+test); exit code 0 for ``harness run``, a failure in a suite unless it allows it."""
 
 Channel = Callable[[str], tuple[np.ndarray, np.ndarray]]
 """entity -> (time s, values); raises KeyError/ValueError if the channel is missing."""
@@ -827,17 +831,17 @@ def worst_verdict(results: Sequence[CriterionResult]) -> str:
 
 
 def exit_code(verdict: str, results: Sequence[CriterionResult]) -> int:
-    """0 PASS, 1 FAIL, 3 ERROR by an unexpected fault, 4 ERROR otherwise, 5 MARGINAL,
-    130 interrupted."""
+    """0 PASS (or NO CRITERIA), 1 FAIL, 3 ERROR by an unexpected fault, 4 ERROR otherwise,
+    5 MARGINAL, 130 interrupted."""
     if verdict == ERROR:
         causes = {r.cause for r in results if r.verdict == ERROR}
         return 130 if "interrupted" in causes else 3 if "fault" in causes else 4
-    return {PASS: 0, MARGINAL: 5, FAIL: 1}[verdict]
+    return {PASS: 0, MARGINAL: 5, FAIL: 1, NO_CRITERIA: 0}[verdict]
 
 
 def reason(verdict: str, results: Sequence[CriterionResult]) -> str:
     if not results:
-        return "no criteria"
+        return "no criteria: nothing was judged (the run has no expect: criteria)"
     worst = [r for r in results if r.verdict == verdict]
     if verdict == PASS:
         return f"all {len(results)} criteria passed"

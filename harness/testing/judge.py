@@ -24,6 +24,7 @@ import yaml
 from harness.testing.criteria import Criterion, apply_overrides, parse_criteria
 from harness.testing.evaluate import (
     ERROR,
+    NO_CRITERIA,
     CriterionResult,
     Facts,
     MissingData,
@@ -60,8 +61,8 @@ class Verdict:
 
 def make_verdict(results: list[CriterionResult], identity: Mapping[str, Any] | None = None,
                  run_dir: Path | None = None) -> Verdict:
-    """The worst of ``results`` wins; no results is PASS (completed with no criteria)."""
-    v = worst_verdict(results)
+    """The worst of ``results`` wins; no results is NO CRITERIA (nothing judged), not PASS."""
+    v = worst_verdict(results) if results else NO_CRITERIA
     return Verdict(v, reason(v, results), results, dict(identity or {}), run_dir,
                    exit_code(v, results))
 

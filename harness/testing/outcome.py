@@ -8,9 +8,10 @@ from __future__ import annotations
 
 from typing import Any
 
-NO_CRITERIA = "NO CRITERIA"
-"""A test that judged nothing: it ran (or completed) with no criterion of its own. Not a
-PASS: a suite fails it unless the suite says ``require_criteria: false``."""
+from harness.testing.evaluate import NO_CRITERIA
+
+# NO CRITERIA: a test that judged nothing. Not a PASS: a suite fails it unless the suite
+# says ``require_criteria: false`` (``require_criteria``).
 
 EXIT = {"PASS": 0, "FAIL": 1, "MARGINAL": 5, "ERROR": 4, NO_CRITERIA: 0}
 
@@ -23,6 +24,20 @@ def item_result(verdict: str, reason: str, criteria: list[dict[str, Any]] | None
                 exit_code: int | None = None, **extra: Any) -> dict[str, Any]:
     return {"verdict": verdict, "reason": reason, "criteria": criteria or [],
             "exit_code": EXIT[verdict] if exit_code is None else exit_code, **extra}
+
+
+def require_criteria(items: dict[str, dict[str, Any]], required: bool) -> dict[str, Any]:
+    """A suite's items with NO CRITERIA turned into FAIL when the suite requires criteria
+    (its default): a test that checks nothing must not count as passed."""
+    if not required:
+        return items
+    return {name: (item_result(
+        "FAIL", f"no criteria: {res['reason']}; this test judges nothing (give it expect: or "
+        "check:, or set require_criteria: false in the suite)", res.get("criteria"),
+        **{k: v for k, v in res.items() if k not in ("verdict", "reason", "criteria",
+                                                      "exit_code")})
+                   if res.get("verdict") == NO_CRITERIA else res)
+            for name, res in items.items()}
 
 
 def exit_code(records: list[dict[str, Any]]) -> int:

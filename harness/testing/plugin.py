@@ -16,7 +16,9 @@ is only active when passed this way; the project's own tests never collect it.
   need the virtual rig (fault injection) are skipped with the reason. The engine is inline,
   one test at a time (the bus is one rig).
 - The verdict of an item maps to pytest: PASS and MARGINAL pass (MARGINAL is in the report,
-  the JUnit properties and the exit code), FAIL fails with the failed criterion as the
+  the JUnit properties and the exit code), and so does NO CRITERIA in a suite with
+  ``require_criteria: false`` (otherwise the job made it FAIL: ``outcome.require_criteria``);
+  FAIL fails with the failed criterion as the
   message, ERROR errors (JUnit ``<error>``).
 - ``pytest_sessionfinish``: stops the engine (``-x``, Ctrl-C: running runs end at their next
   tick with the rig safe), then writes results.json, report.md and report.html in the

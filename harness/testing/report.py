@@ -27,7 +27,7 @@ from harness.testing.outcome import exit_code
 
 OVERVIEW = ("/attitude/angle_deg", "/tip/accel_m_s2")
 COLORS = {"PASS": "#1a7f37", "MARGINAL": "#9a6700", "FAIL": "#cf222e", "ERROR": "#8250df",
-          "SKIPPED": "#6e7781"}
+          "SKIPPED": "#6e7781", "NO CRITERIA": "#bc4c00"}
 
 
 def _fmt(v: Any) -> str:

@@ -28,7 +28,7 @@ from typing import Any
 from harness.core.paths import safe_child
 from harness.engine import current_worker, stop_requested
 from harness.testing.checks import combine, judge_checks
-from harness.testing.outcome import EXIT, item_result
+from harness.testing.outcome import EXIT, item_result, require_criteria
 from harness.testing.suite import Case
 
 
@@ -241,5 +241,6 @@ def run_case(case: Case, out_dir: str, ship: bool = False,
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
+    out["items"] = require_criteria(out["items"], case.require_criteria)
     out["wall_s"] = round(time.perf_counter() - t0, 3)
     return out
