@@ -329,7 +329,7 @@ def test_calibrate_sgsrt_wheel_end_to_end(tmp_path: Path, capsys) -> None:
     from harness.testing import judge_run
 
     run = load_run(data["run_file"])
-    assert "residual_below_unshaped" in run.data["expect"]
+    assert "residual_within_calibration" in run.data["expect"]
     result = execute_run(run, out_dir=tmp_path / "rerun", show_progress=False)
     assert result.summary["stopped_by"] == "completed"
     assert judge_run(result.run_dir).verdict == "PASS"

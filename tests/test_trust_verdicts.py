@@ -150,3 +150,75 @@ def test_harness_test_runs_a_run_file_as_a_one_test_suite(tmp_path):
     [test] = results_of(tmp_path, "short-slew")["tests"]
     assert test["item"] == "short-slew" and test["verdict"] == "PASS"
     assert [c["name"] for c in test["criteria"]] == ["safe"]
+
+
+# ------------------------------------------------------------------ calibrate's criteria
+@pytest.mark.slow
+def test_the_unshaped_calibration_run_fails_recommended_yaml(tmp_path):
+    """Issue 24's generated criterion that could not fail: judged by recommended.yaml, the
+    unshaped slew of the same calibration must FAIL (and the shaped one PASS); judged by
+    baseline.yaml, the shaped slew must FAIL (the baseline no longer unshaped)."""
+    proc = harness("calibrate", "--max-verify", "1", "--out", str(tmp_path), "--json")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    data = json.loads(proc.stdout)
+    runs = Path(data["folder"]) / "runs"
+    [unshaped] = runs.glob("*-unshaped")
+    rec_key = data["recommended"]
+    [shaped] = runs.glob(f"*-{rec_key}")
+    measured = next(c for c in data["candidates"] if c["key"] == rec_key)["measured"]
+
+    def judged(run_dir: Path, expect: str) -> tuple[int, dict]:
+        p = harness("judge", str(run_dir), "--expect", data[expect], "--json")
+        assert p.returncode in (0, 1), p.stderr[-2000:]
+        return p.returncode, json.loads(p.stdout)
+
+    code, v = judged(unshaped, "run_file")
+    assert code == 1 and v["verdict"] == "FAIL"
+    [c] = v["criteria"]
+    assert c["name"] == "residual_within_calibration" and c["verdict"] == "FAIL"
+    # it reads what calibrate measured of the unshaped slew: the same fit, the same window
+    assert c["value"] == pytest.approx(data["baseline"]["fitted"]["peak_m_s2"], rel=1e-3)
+    code, v = judged(shaped, "run_file")
+    assert code == 0 and v["criteria"][0]["value"] == pytest.approx(
+        measured["fitted"]["peak_m_s2"], rel=1e-3)
+    code, v = judged(shaped, "baseline_run_file")
+    assert code == 1 and v["criteria"][0]["name"] == "vibrates_beyond_shaped_limit"
+    assert judged(unshaped, "baseline_run_file")[0] == 0
+
+
+def test_modal_residual_criterion_refuses_bad_modes():
+    from harness.testing import parse_criteria
+    from rig_models.schema import ConfigError
+
+    good = {"modal_residual": "/tip/accel_m_s2", "modes": [{"omega_rad_s": 2.9,
+                                                            "damping_ratio": 0.07}],
+            "after": "slew_profile_end_s", "max_m_s2": 0.003}
+    [c] = parse_criteria({"r": good})
+    assert c.kind == "modal_residual" and c.limit == {"max": 0.003}
+    for change, where in (({"modes": []}, "expect.r.modes"),
+                          ({"modes": [{"damping_ratio": 0.1}]}, "expect.r.modes[0].omega_rad_s"),
+                          ({"modes": [{"omega_rad_s": 3, "damping_ratio": 1.5}]},
+                           "expect.r.modes[0].damping_ratio"),
+                          ({"max_m_s2": None, "max_deg": 1}, "expect.r.max_deg")):
+        raw = {k: v for k, v in {**good, **change}.items() if v is not None}
+        with pytest.raises(ConfigError, match=where.replace("[", r"\[").replace("]", r"\]")):
+            parse_criteria({"r": raw})
+
+
+def test_modal_residual_reads_a_decay_in_blocks_as_whole():
+    import numpy as np
+
+    from harness.identification.residual_fit import ModalResidualFit
+
+    rng = np.random.default_rng(3)
+    t = np.arange(0, 20, 0.01)
+    x = 0.02 * np.exp(-0.07 * 2.9 * (t - 5)) * np.cos(2.9 * (t - 5)) * (t >= 5)
+    x = x + 0.005 * rng.standard_normal(len(t))
+    whole = ModalResidualFit([(2.9, 0.07)], 5.0)
+    whole.add(t, x)
+    parts = ModalResidualFit([(2.9, 0.07)], 5.0)
+    for i in range(0, len(t), 137):
+        parts.add(t[i:i + 137], x[i:i + 137])
+    a, b = whole.result(), parts.result()
+    assert a.peak == pytest.approx(b.peak, rel=1e-9) and a.samples == b.samples == 1500
+    assert a.peak == pytest.approx(0.02, rel=0.1) and a.sigma < 0.002

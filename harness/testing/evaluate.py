@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.identification.residual_fit import ModalResidualFit
 from harness.testing.criteria import Criterion, Window
 from harness.testing.measures import NULL_MEANS_FAIL, WORST_SAMPLE, FieldMissing, find
 
@@ -106,7 +107,7 @@ def _fmt(v: Any) -> str:
 
 def limit_dict(c: Criterion) -> dict[str, Any]:
     """The limits as written in the run file (keys with their unit)."""
-    if c.kind in ("scalar", "channel"):
+    if c.kind in ("scalar", "channel", "modal_residual"):
         if "is" in c.limit:
             return {"is": c.limit["is"]}
         return {f"{k}_{c.unit}": v for k, v in c.limit.items()}
@@ -494,6 +495,32 @@ def evaluate_settles(c: Criterion, measures: Mapping[str, Any]) -> Consumer:
     return _windowed(c, measures, lambda start: _settles_core(c, start))
 
 
+def _modal_core(c: Criterion, start: float) -> Generator[None, Any, CriterionResult]:
+    """A ``modal_residual:`` criterion: its modes fitted to the window's samples (normal
+    equations accumulated block by block), judged on the fitted modal part's peak."""
+    fit = ModalResidualFit(c.params["modes"], start)
+    while (blk := (yield)) is not None:
+        fit.add(*blk)
+    try:
+        r = fit.result()
+    except ValueError as exc:
+        raise MissingData(f"{c.target}: {exc}") from exc
+    margin = float(band_margins(np.array([r.peak]), c.limit)[0])
+    verdict = grade(margin, c.marginal)
+    at = start + r.peak_tau_s
+    return _result(c, r.peak, margin, verdict, at,
+                   f"{len(c.params['modes'])} modes fitted to {c.target} "
+                   f"({c.window.describe()}, from t = {start:.3f} s): residual peak "
+                   f"{_fmt(r.peak)} +- {r.sigma:.2g} {c.unit} (1 sigma; noise rms "
+                   f"{r.noise_rms:.2g}) at t = {at:.3f} s {_verb(verdict)} {_limits_text(c)}",
+                   [at] if verdict == FAIL else [])
+
+
+def evaluate_modal_residual(c: Criterion, measures: Mapping[str, Any]) -> Consumer:
+    """A ``modal_residual:`` criterion as a consumer of its channel's blocks."""
+    return _windowed(c, measures, lambda start: _modal_core(c, start))
+
+
 def evaluate_baseline(c: Criterion, facts: Facts) -> CriterionResult:
     t, x, _ = _samples(c, facts)
     base = c.params["baseline"]
@@ -670,6 +697,7 @@ EVALUATORS: dict[str, Callable[[Criterion, Facts], CriterionResult]] = {
 STREAMED: dict[str, Callable[[Criterion, Mapping[str, Any]], Consumer]] = {
     "channel": evaluate_channel,
     "settles": evaluate_settles,
+    "modal_residual": evaluate_modal_residual,
 }
 
 
