@@ -1,4 +1,4 @@
-"""`harness judge RUN_DIR [--expect FILE] [--json]`: judge (or re-judge) a recorded run.
+"""`harness judge RUN_DIR [--expect FILE [--write]] [--json]`: judge (or re-judge) a recorded run.
 
 The run's criteria (the ``expect:`` section of its run file, as written in config.yaml, with
 the rig file's ``expect_overrides``), or those of ``--expect FILE`` (a YAML file with an
@@ -11,7 +11,7 @@ unless ``--write`` is given, so the run's own verdict (what ``harness logs`` rep
 It prints one line per criterion (value, limit, margin, verdict, the
 worst sample's time). Forms of criteria: docs/criteria.md.
 
-Exit codes: 0 PASS (or no criteria), 1 FAIL, 2 bad input (no such directory, bad criteria),
+Exit codes: 0 PASS (or NO CRITERIA), 1 FAIL, 2 bad input (no such directory, bad criteria),
 3 ERROR by a fault the run did not expect, 4 ERROR otherwise (the run raised, missing data, a
 real-time budget not held), 5 MARGINAL, 130 the run was interrupted.
 """

@@ -1,7 +1,8 @@
 """The verdict layer: criteria (a run file's ``expect:`` section), judging, verdicts.
 
-Depends on the loop's channel list, the recording and the CAN log; nothing below it imports
-it (``harness.core.runs`` calls ``parse_criteria`` lazily to refuse bad criteria before a run).
+Depends on the loop's channel list, the recording, the CAN log and the pure
+``harness.identification`` (the ``modal_residual:`` fit); nothing below it imports it
+(``harness.core.runs`` calls ``parse_criteria`` lazily to refuse bad criteria before a run).
 The criteria forms are documented in docs/criteria.md.
 
 Public API
