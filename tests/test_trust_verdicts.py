@@ -40,8 +40,30 @@ def matrix_suite(tmp_path_factory):
     path = tmp / "mx.yaml"
     path.write_text(yaml.safe_dump(suite, sort_keys=False))
     out = tmp / "out"
-    first = harness("test", str(path), "--out", str(out), "--workers", "1")
+    first = harness("test", str(path), "--out", str(out), "--workers", "1", "--junit",
+                    str(tmp / "junit.xml"))
     return tmp, path, out, first
+
+
+def test_junit_times_are_the_jobs_and_no_dots_run_into_the_progress_lines(matrix_suite,
+                                                                           tmp_path):
+    import xml.etree.ElementTree as ET
+
+    _, _, _, first = matrix_suite
+    assert "[2/2]" in first.stderr
+    # an identification's item comes after its run's, whose setup waited for the job: pytest
+    # timed it about 0 (JUnit time="0.000"); its time is the job's
+    suite = tmp_path / "ident.yaml"
+    suite.write_text(yaml.safe_dump({"name": "ident", "require_criteria": False, "tests": [
+        {"run": "slew-rw", "duration_s": 3, "identify": {"n_modes": 1}}]}))
+    proc = harness("test", str(suite), "--out", str(tmp_path / "o"), "--workers", "1",
+                   "--junit", str(tmp_path / "j.xml"))
+    assert proc.returncode in (0, 1, 4), proc.stderr[-2000:]
+    times = {c.get("name"): float(c.get("time")) for c in
+             ET.parse(tmp_path / "j.xml").iter("testcase")}
+    assert set(times) == {"slew-rw", "identify[slew-rw]"}, times
+    assert all(t > 0.05 for t in times.values()), times
+    assert not any(line.startswith((".F", "F.", "..")) for line in first.stdout.splitlines())
 
 
 def test_last_failed_reruns_only_the_failed_matrix_point(matrix_suite):

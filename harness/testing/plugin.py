@@ -152,7 +152,30 @@ class SuitePlugin:
         if isinstance(item, SuiteItem) and call.excinfo is not None and isinstance(
                 call.excinfo.value, SuiteFailure | SuiteError):
             report.longrepr = item._describe()
+        if isinstance(item, SuiteItem) and call.when == "setup":
+            # the job ran in the engine while pytest walked other items: a test whose job
+            # had finished by the time its item came up took no time here (JUnit time
+            # 0.000 for identify and fault tests); its time is the job's (setup is where
+            # an item waits for it, and the phase every item has)
+            out = self.outputs.get(item.case_key) if item.case is not None else None
+            wall = out.get("wall_s") if out else None
+            if isinstance(wall, int | float):
+                report.duration = max(report.duration, float(wall))
         return report
+
+    @pytest.hookimpl(tryfirst=True)
+    def pytest_report_teststatus(self, report: pytest.TestReport, config: pytest.Config
+                                 ) -> tuple[str, str, str] | None:
+        """No progress dots while the plugin prints a line per test: on one terminal the
+        two ran into each other."""
+        if not self.show_progress or config.option.verbose > 0 or report.when == "collect":
+            return None
+        if report.when == "call" or report.failed or report.skipped:
+            outcome = report.outcome
+            if report.when != "call" and report.failed:
+                outcome = "error"
+            return outcome, "", outcome.upper()
+        return None
 
     # --- results ----------------------------------------------------------------------
     def _finished(self, key: str, fut: Any) -> None:
