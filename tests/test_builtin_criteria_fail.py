@@ -10,13 +10,16 @@ for, a channel with the degradation's shape, a CAN log whose last command leaves
 enabled. ``DEGRADATIONS`` is keyed by criterion name: a new built-in criterion without an
 entry fails ``test_every_built_in_criterion_has_a_degradation``.
 
-Left for later: the paper suites' ``check:`` criteria on the studies' JSON (docs/claims.md).
+The paper suites' ``check:`` criteria on the studies' JSON get a weaker guard (last section):
+each must FAIL for some value its measure can take; a degradation of the studies themselves
+(a study re-run with its model changed) is left for later.
 Calibrate's generated criteria are tested on a real calibration
 (tests/test_trust_verdicts.py, slow).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -303,3 +306,95 @@ def test_a_real_degraded_run_fails_the_criterion(where, criterion, degraded_runs
     [r] = [x for x in v.criteria if x.name == criterion.name]
     assert r.verdict == "FAIL", f"{where}: {r.message}"
 
+
+
+# ------------------------------------------------------------------ the paper suites' checks
+# A weaker guard than the degradations above (left for later: re-running a study with its
+# model changed): each paper-suite check: criterion on a study's JSON must FAIL for a value
+# its measure can take, so none is vacuous (a min of 0 on a magnitude, a max of 1 on a
+# share, a length of at least 0). The measure's domain: magnitudes (ratios of energies or
+# residuals, gains, shares, counts) are >= 0, shares <= 1; the rest any number.
+NONNEG_SUFFIX = ("_ratio", "_count", "_s")
+NONNEG_WORDS = ("_over_", "reduction", "gain", "share")
+
+
+def _domain(path: str, unit: str) -> tuple[float, float]:
+    name = path.rsplit(".", 1)[-1]
+    lo = 0.0 if unit == "count" or name.endswith(NONNEG_SUFFIX) or any(
+        k in name for k in NONNEG_WORDS) else -math.inf
+    hi = 1.0 if "share" in name else math.inf
+    return lo, hi
+
+
+def _failing_value(c: Criterion) -> Any:
+    """A value in the measure's domain outside the criterion's limits, or None if none."""
+    lim = c.limit
+    if "is" in lim:
+        return (not lim["is"]) if isinstance(lim["is"], bool) else f"not {lim['is']}"
+    if "len_min" in lim:
+        return [{}] * int(lim["len_min"] - 1) if lim["len_min"] >= 1 else None
+    if "len_max" in lim:
+        return [{}] * int(lim["len_max"] + 1)
+    lo, hi = _domain(c.target, c.unit)
+    candidates = []
+    if "equals" in lim:
+        candidates.append(lim["equals"] + max(1.0, abs(lim["equals"])))
+    for key, sign in (("max", 1), ("max_abs", 1), ("min", -1)):
+        if key in lim:
+            v = lim[key]
+            candidates.append(v + sign * max(abs(v) * 0.5, 1e-3))
+    if "max_abs" in lim:
+        candidates.append(-lim["max_abs"] * 1.5 - 1e-3)
+    inside = [v for v in candidates if lo <= v <= hi]
+    if not inside and lo == 0.0 and lim.get("min", 0) > 0:
+        inside = [0.0]
+    if not inside and hi == 1.0 and lim.get("max", 1) < 1:
+        inside = [1.0]
+    return inside[0] if inside else None
+
+
+def _document(path: str, value: Any) -> dict[str, Any]:
+    """The smallest JSON document with ``value`` at ``path`` (``a.b``, ``a[*].b``)."""
+    head, _, rest = path.partition(".")
+    if head.endswith("[*]") or head.endswith("]"):
+        key = head[:head.index("[")]
+        inner = _document(rest, value) if rest else value
+        return {key: [inner]}
+    return {head: _document(rest, value) if rest else value}
+
+
+def paper_checks() -> list[tuple[str, Criterion]]:
+    out = []
+    for name in ("paper001", "paper002", "paper003", "paper004"):
+        for case in load_suite(name).cases:
+            out += [(f"{name}::{case.id}", c) for c in (*case.checks, *case.identify_checks)]
+    return out
+
+
+PAPER = paper_checks()
+
+
+def test_the_paper_suites_have_checks():
+    assert len(PAPER) >= 80
+
+
+@pytest.mark.parametrize(("where", "criterion"), PAPER,
+                         ids=[f"{w}:{c.name}" for w, c in PAPER])
+def test_every_paper_suite_check_can_fail(where, criterion):
+    value = _failing_value(criterion)
+    assert value is not None, (f"{where}: {criterion.name} ({criterion.target}, "
+                               f"{criterion.limit}) cannot fail for any value its measure "
+                               "can take")
+    doc = _document(criterion.target, value)
+    [r] = judge_checks([criterion], doc)
+    assert r["verdict"] == "FAIL", f"{where}: {criterion.name} at {value!r}: {r['message']}"
+
+
+def test_the_guard_finds_a_check_that_cannot_fail():
+    from harness.testing.suite import parse_checks
+
+    vacuous = parse_checks({
+        "share": {"measure": "measures.best_share", "min_ratio": 0.0},
+        "energy": {"measure": "measures.peak_energy_ratio", "max_ratio": 0.5},
+        "modes": {"measure": "modes", "len_min_count": 0}}, "test", "check")
+    assert [_failing_value(c) is None for c in vacuous] == [True, False, True]
