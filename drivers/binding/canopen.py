@@ -342,6 +342,7 @@ class NodeSpec:
     device_type: int | None = None
     parameters: list[tuple[ObjRef, int]] = field(default_factory=list)
     heartbeat_ms: int = 50
+    verify: bool = False  # a DCF: its PDO mapping is verified on the device, not written
     tpdos: list[PdoSpec] = field(default_factory=list)
     rpdos: list[PdoSpec] = field(default_factory=list)
     # device -> its quantities on this node (both directions), for the virtual rig
@@ -482,7 +483,8 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
         od = load_eds(eds, node_id)
         node = nodes.get(node_id)
         if node is None:
-            node = nodes[node_id] = NodeSpec(node_id, eds, profile, [], od)
+            node = nodes[node_id] = NodeSpec(node_id, eds, profile, [], od,
+                                             verify=eds.lower().endswith(".dcf"))
         elif node.eds != eds or node.profile != profile:
             raise BindingError(f"{key}.node_id: node {node_id} is also the "
                                f"{'/'.join(node.devices)} with another EDS or profile (a node "
@@ -551,6 +553,9 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
     tlm_maps: dict[str, list[Any]] = {d: [] for d in devices}
     cmd_maps: dict[str, list[Any]] = {d: [] for d in devices}
     for node in nodes.values():
+        if node.verify:
+            _dcf_maps(node, dividers, tlm_maps, cmd_maps)
+            continue
         n_tpdo = 0
         for d, qrefs in node.telemetry.items():
             if SYNC_COUNTER_OVERFLOW % int(dividers.get(d, 1)):
@@ -589,6 +594,82 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
     bus = CanopenBus(master_id, nodes, consumer_timeout_ms=consumer_ms, node_of=node_of)
     return (bus, {d: tuple(v) for d, v in tlm_maps.items()},
             {d: tuple(v) for d, v in cmd_maps.items()}, files)
+
+
+def _od_value(od: Any, index: int, sub: int) -> int | None:
+    """A DCF's configured value (ParameterValue), else the EDS default; None if absent."""
+    obj = od.get(index) if hasattr(od, "get") else None
+    if obj is None:
+        return None
+    var = obj if hasattr(obj, "data_type") else obj.subindices.get(sub)
+    if var is None:
+        return None
+    v = var.value if getattr(var, "value", None) is not None else var.default
+    return int(v) if v is not None else None
+
+
+def dcf_pdos(od: Any, node_id: int, comm_base: int, map_base: int, name: str,
+             eds: str) -> list[PdoSpec]:
+    """The enabled PDOs a DCF configures (COB-ID, transmission type, mapped objects)."""
+    out = []
+    for n in range(1, 5):
+        cob = _od_value(od, comm_base + n - 1, 1)
+        count = _od_value(od, map_base + n - 1, 0)
+        if cob is None or cob & 0x80000000 or not count:
+            continue
+        refs = []
+        for i in range(1, count + 1):
+            word = _od_value(od, map_base + n - 1, i) or 0
+            refs.append(object_ref(od, word >> 16, word >> 8 & 0xFF,
+                                   f"{Path(eds).name}: {name}{n} mapped object {i}", eds))
+        trans = _od_value(od, comm_base + n - 1, 2)
+        try:
+            codec = PdoCodec(f"{name}{n} node {node_id}", cob & 0x7FF, tuple(refs))
+        except BindingError as exc:  # a DCF mapping more than 8 bytes
+            raise BindingError(f"{Path(eds).name}: {exc}") from None
+        out.append(PdoSpec(n, cob & 0x7FF, 255 if trans is None else trans, codec))
+    return out
+
+
+def _dcf_maps(node: NodeSpec, dividers: Mapping[str, int], tlm_maps: dict[str, list[Any]],
+              cmd_maps: dict[str, list[Any]]) -> None:
+    """A DCF's node: its PDOs are the DCF's (the harness verifies them on the device during
+    set-up instead of writing them); each quantity must be in one of them."""
+    key = f"devices.{node.devices[-1]}.eds"
+    try:
+        node.tpdos = dcf_pdos(node.od, node.node_id, 0x1800, 0x1A00, "TPDO", node.eds)
+        node.rpdos = dcf_pdos(node.od, node.node_id, 0x1400, 0x1600, "RPDO", node.eds)
+    except BindingError as exc:
+        raise BindingError(f"{key}: {exc}") from None
+    for d, qrefs in node.telemetry.items():
+        for qr in qrefs:
+            pdo = next((p for p in node.tpdos if qr.ref in p.codec.entries), None)
+            if pdo is None:
+                raise BindingError(f"devices.{d}.telemetry.{qr.quantity}: {qr.ref.label} is in "
+                                   f"no TPDO of {Path(node.eds).name}'s mapping")
+            if pdo.trans_type != int(dividers.get(d, 1)):
+                raise BindingError(f"bus.sync_divider.{d}: {dividers.get(d, 1)}, but "
+                                   f"{Path(node.eds).name} sends TPDO{pdo.number} every "
+                                   f"{pdo.trans_type} SYNC (transmission type)")
+        for pdo in node.tpdos:
+            fields = tuple(qr for qr in qrefs if qr.ref in pdo.codec.entries)
+            if fields:
+                tlm_maps[d].append(PdoTelemetryMap(d, pdo.codec, fields))
+    owner: dict[int, str] = {}
+    for d, qrefs in node.commands.items():
+        for qr in qrefs:
+            pdo = next((p for p in node.rpdos if qr.ref in p.codec.entries), None)
+            if pdo is None:
+                raise BindingError(f"devices.{d}.commands.{qr.quantity}: {qr.ref.label} is in "
+                                   f"no RPDO of {Path(node.eds).name}'s mapping")
+            if owner.setdefault(pdo.number, d) != d:
+                raise BindingError(f"devices.{d}.commands.{qr.quantity}: RPDO{pdo.number} of "
+                                   f"{Path(node.eds).name} also carries the {owner[pdo.number]}'s "
+                                   "commands; the harness sends one device's command a frame")
+        for pdo in node.rpdos:
+            fields = tuple(qr for qr in qrefs if qr.ref in pdo.codec.entries)
+            if fields:
+                cmd_maps[d].append(PdoCommandMap(d, pdo.codec, fields))
 
 
 def _param_ref(od: Any, p: Mapping[str, Any], key: str, eds: str) -> ObjRef:

@@ -49,6 +49,9 @@ def cmd_judge(args: argparse.Namespace) -> int:
     path = None
     if args.expect is None or args.write:
         path = write_verdict(verdict, args.run_dir)
+        from harness.history.record import record_verdict  # the results database (issue 22)
+
+        record_verdict(args.run_dir, verdict.to_dict())
     else:  # a what-if: the run's own verdict (what 'harness logs' reads) stays as it is
         print(f"harness judge: judged by {args.expect}, not the run's own criteria: "
               "verdict.json left as it was (--write to replace it)", file=sys.stderr)
