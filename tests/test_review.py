@@ -94,20 +94,28 @@ def test_no_plot_mixes_units_or_scales():
     assert set(CHANNELS) <= set(by_channel)  # every recorded channel has a plot
 
 
-@pytest.mark.parametrize(("lo", "hi", "want"), [
-    (-4.2e-4, 3.5e-4, (-1e-3, 1e-3)), (-0.09, 0.09, (-0.1, 0.1)), (-260.0, 0.0, (-300.0, 0.0)),
-    (0.0, 20.0, (0.0, 20.0)), (0.0, 0.0, (0.0, 1.0)), (19.99985, 19.99985, None)])
-def test_nice_range_puts_labelled_ticks_at_its_ends(lo, hi, want):
-    a, b = L.nice_range(lo, hi)
-    assert a <= lo and b >= hi and b > a
-    def multiple(x: float, step: float) -> bool:
-        return abs(x / step - round(x / step)) < 1e-6
-
-    # both ends on one power of ten, few enough steps apart for the viewer to label them
-    assert any(multiple(a, 10.0 ** k) and multiple(b, 10.0 ** k)
-               and (b - a) / 10.0 ** k <= L.MAX_STEPS + 1e-9 for k in range(-12, 12))
-    if want is not None:
-        assert (a, b) == pytest.approx(want)
+def test_y_axis_is_the_data_with_a_small_margin_and_the_judged_band():
+    """A 5 deg slew is not drawn on +-10, nor a 0.02 deg error on +-100 (issue 21): the axis
+    is the data's span plus a margin, widened only to a criterion's band on that channel."""
+    angle = L.axis_range(L.PLOTS["angle"], {"/attitude/angle_deg": [0.0, 5.0],
+                                            "/attitude/reference_deg": [0.0, 5.0]})
+    assert angle[0] < 0.0 < 5.0 < angle[1] and angle[1] - angle[0] < 5.0 * 1.2
+    error = L.axis_range(L.PLOTS["error"], {"/attitude/error_deg": [-0.02, 0.03]})
+    assert error[1] - error[0] < 0.05 * 1.2
+    # the settle band of +-0.1 deg judges the error: the axis shows it
+    run = {"run": {"controller": {"type": "pd_wheel"}, "duration_s": 30.0,
+                   "expect": {"s": {"settles": "/attitude/error_deg", "band_deg": 0.1},
+                              "t": {"channel": "/tip/accel_m_s2", "max_abs_m_s2": 0.05},
+                              "r": {"channel": "/tip/accel_m_s2", "reduce": "rms",
+                                    "max_m_s2": 0.001}}}}
+    bands = L.criterion_bands(run)
+    assert bands == {"/attitude/error_deg": [-0.1, 0.1], "/tip/accel_m_s2": [-0.05, 0.05]}
+    banded = L.axis_range(L.PLOTS["error"], {"/attitude/error_deg": [-0.02, 0.03]}, bands)
+    assert banded[0] < -0.1 and 0.1 < banded[1] < 0.13
+    # counts from zero, a flat signal still gets a span
+    assert L.axis_range(L.PLOTS["firings"], {"/thrusters/firings": [3.0, 7.0]})[0] < 0.0
+    flat = L.axis_range(L.PLOTS["rate"], {"/attitude/rate_deg_s": [2.0, 2.0]})
+    assert flat[0] < 2.0 < flat[1]
 
 
 @pytest.fixture(scope="module")
@@ -147,6 +155,55 @@ def test_faulted_run_recording_holds_event_markers_summary_config_bus(faulted):
     names = {v.name for v in saved[-1]}
     assert TEXT_VIEWS <= names and L.PLOTS["error"].title in names
     assert (faulted.run_dir / L.LAYOUT_FILE).exists()
+
+
+def test_time_plots_keep_peaks_and_draw_discrete_signals_whole(faulted):
+    """Issue 21: zoomed out, the viewer averaged a 44 ms work peak to 22 ms and drew a
+    -1/0/+1 valve at -0.5. Every continuous series is aggregated MinMax, every discrete one
+    not at all (stepped), in the recording itself and as each plot's default in the layout
+    run.rrd carries; the same quantity has one colour, distinct within each plot."""
+    from harness.review.names import series_colour
+    from harness.review.reader import read_series_styles
+
+    rrd = faulted.run_dir / "run.rrd"
+    min_max, off, step_after = 5, 1, 2  # Rerun 0.41's enum numbers
+    styles = read_series_styles(rrd)
+    for c in ("/timing/work_ms", "/tip/accel_m_s2", "/attitude/angle_deg",
+              "/bus/accelerometer/tlm/accel_m_s2", "/bus/reaction_wheel/tlm/torque_n_m"):
+        assert styles[c]["aggregation_policy"] == min_max, c
+    for c in ("/thrusters/valve_cmd", "/thrusters/valve_state", "/thrusters/firings",
+              "/timing/frames_rx", "/bus/late_or_missing"):
+        assert styles[c]["aggregation_policy"] == off, c
+        assert styles[c]["interpolation_mode"] == step_after, c
+    final = read_blueprints(rrd)[-1]
+    by_name = {v.name: dict(v.defaults) for v in final}
+    agg = "SeriesLines:aggregation_policy"
+    assert by_name[L.PLOTS["timing"].title][agg] == min_max
+    assert by_name[L.PLOTS["tip"].title][agg] == min_max
+    assert by_name[L.PLOTS["valves"].title][agg] == off
+    assert by_name[L.PLOTS["firings"].title][agg] == off
+    assert all(agg in by_name[p.title] for p in (*L.PLOTS.values(), *L.BUS_PLOTS))
+    # colours: distinct within a plot, the bus's copy of a quantity in the loop's colour
+    for plot in (*L.PLOTS.values(), *L.BUS_PLOTS):
+        colours = [series_colour(c) for c in plot.channels]
+        assert None not in colours and len(set(colours)) == len(colours), plot.key
+    assert styles["/bus/reaction_wheel/cmd/torque_cmd_n_m"]["colors"] == \
+        styles["/wheel/torque_cmd_n_m"]["colors"]
+    assert styles["/piezo/cmd_ch1_v"]["colors"] != styles["/piezo/cmd_ch2_v"]["colors"]
+
+
+def test_time_axes_end_where_the_run_ended(faulted):
+    """A faulted run's plots end at the fault, not half empty to the configured end."""
+    import json
+
+    saved = json.loads((faulted.run_dir / L.LAYOUT_FILE).read_text())
+    assert saved["end_s"] == pytest.approx(faulted.summary["simulated_time_s"], abs=0.01)
+    assert saved["end_s"] < 2.0  # the 3 s run stopped at the fault near 1 s
+    for view in L.blueprint_views(L.blueprint_for_run_dir(faulted.run_dir)):
+        axis = getattr(view, "properties", {}).get("TimeAxis")
+        if axis is not None:
+            end_ns = axis.view_range.as_arrow_array().to_pylist()[0]["end"]
+            assert saved["end_s"] < end_ns * 1e-9 < saved["end_s"] * 1.05, view.name
 
 
 def test_bus_frames_sit_at_their_tick(faulted):

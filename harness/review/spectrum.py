@@ -84,9 +84,7 @@ def identify_blueprint(run_dir: Path, cfg: Mapping[str, Any] | None) -> rrb.Blue
     if cfg:
         if (run_dir / "config.yaml").exists():
             return blueprint_for_run_dir(run_dir)
-        from harness.core.loop import CHANNELS
-
-        return layout_for_run(cfg, CHANNELS)
+        return layout_for_run(cfg)
     spec, windows, table = spectrum_views()
     return rrb.Blueprint(rrb.Horizontal(rrb.Vertical(spec, windows), table,
                                         column_shares=[3, 1]), collapse_panels=True)
