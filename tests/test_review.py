@@ -369,6 +369,70 @@ def test_judged_run_verdict_rrd_has_layout_events_and_markers(faulted, tmp_path)
     assert sorted(v.name for v in ours) == sorted(v.name for v in theirs)
 
 
+def test_verdict_lives_in_run_rrd_and_rejudging_replaces_it(faulted, tmp_path):
+    """Issue 21: the verdict panel was empty unless verdict.rrd was opened too, and a run
+    stopped by an unexpected fault was headlined by a consequence. Judged, run.rrd holds the
+    verdict (root cause first, failing criteria first, each with value, limit, margin and
+    worst time), its violation as an event and marker, and the run's layout; re-judging
+    replaces it, and every recorded sample stays."""
+    import shutil
+
+    from harness.record.reader import read_scalar_channel
+    from harness.testing import judge_run
+    from harness.testing.judge import write_verdict
+
+    run_dir = tmp_path / faulted.run_dir.name
+    shutil.copytree(faulted.run_dir, run_dir)
+    rrd = run_dir / "run.rrd"
+    before = read_scalar_channel(rrd, "/attitude/angle_deg")
+    bus_before = read_scalar_channel(rrd, "/bus/hub_sensor/tlm/angle_rad")
+    assert read_text(rrd, "/run/verdict") is None
+    for _ in range(2):  # judged, then re-judged
+        write_verdict(judge_run(run_dir), run_dir)
+        text = read_text(rrd, "/run/verdict")
+        assert text is not None
+        head = text.splitlines()[0]
+        fault = faulted.summary["faults"][0]
+        assert head.startswith("# ERROR: unexpected fault hub_sensor: silent"), head
+        assert f"{fault['time_s']:.3f} s" in head
+        items = [ln for ln in text.splitlines() if ln.startswith("- **")]
+        verdicts = [ln.split("**")[1] for ln in items]
+        assert verdicts == sorted(verdicts, key=["ERROR", "FAIL", "MARGINAL", "PASS"].index)
+        assert "unexpected_fault" in items[0]  # the cause before its consequences
+        final = next(ln for ln in items if " final_error:" in ln)
+        assert "limit |x| ≤ 0.1 deg" in final and "margin" in final and "worst at" in final
+        assert "missing data" in text and "a consequence of the run stopping early" in text
+        ev = [e for e in read_events(rrd) if e.entity == "/events/verdict"]
+        assert len(ev) == 1 and ev[0].time_s == pytest.approx(fault["time_s"])
+        assert "/markers/tip/verdict" in entities(rrd)
+        names = {v.name for v in read_blueprints(rrd)[-1]}
+        assert L.VERDICT_VIEW in names and L.PLOTS["tip"].title in names
+        for (t0, v0), (t1, v1) in ((before, read_scalar_channel(rrd, "/attitude/angle_deg")),
+                                   (bus_before,
+                                    read_scalar_channel(rrd, "/bus/hub_sensor/tlm/angle_rad"))):
+            assert np.array_equal(t0, t1) and np.array_equal(v0, v1)
+
+
+def test_verdict_is_not_appended_to_a_cut_recording(faulted, tmp_path):
+    """A run.rrd cut short mid-message (SIGKILL) is left as it is; the verdict stays in
+    verdict.json and verdict.rrd."""
+    import shutil
+
+    from harness.record.append import stream_end
+    from harness.review.verdict import write_into_run
+    from harness.testing import judge_run
+
+    run_dir = tmp_path / faulted.run_dir.name
+    shutil.copytree(faulted.run_dir, run_dir)
+    rrd = run_dir / "run.rrd"
+    verdict = judge_run(run_dir).to_dict()
+    data = rrd.read_bytes()
+    rrd.write_bytes(data[: len(data) - 100])
+    assert stream_end(rrd) == "cut"
+    assert not write_into_run(run_dir, verdict)
+    assert rrd.read_bytes() == data[: len(data) - 100]
+
+
 def test_realtime_bus_frames_at_their_receive_time(tmp_path):
     """On the real-time clock a frame sits at its own timestamp after the first SYNC: the
     SYNCs near their ticks (the clock's lateness), telemetry just after its SYNC."""
