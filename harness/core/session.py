@@ -36,6 +36,7 @@ from harness.core.streaming import RunningSummary
 from harness.record.can_log import CanLog
 from harness.record.reader import RecordedColumns
 from harness.record.recording import Recorder
+from harness.review.annotations import ReviewAnnotator
 from harness.review.bus import write_bus
 from harness.review.events import log_event
 from harness.review.layouts import PlotStats, layout_for_run, write_layout_file
@@ -315,7 +316,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                         # lockstep outruns the file sink: wait for it every 10 blocks so its
                         # queue stays bounded; real time never waits (the sink keeps up)
                         flush_every_blocks=0 if clock_name == "realtime" else 10,
-                        blueprint=layout_for_run(run.resolved(), CHANNELS))
+                        blueprint=layout_for_run(run.resolved(), CHANNELS),
+                        annotator=ReviewAnnotator())
     pump = None
     stats = LoopStats()
     setup = RealTimeSetup()
