@@ -279,17 +279,41 @@ def test_identify_rrd_spectrum_marks_every_mode_with_the_runs_layout(faulted, tm
     path = write_identify_rrd(faulted.run_dir / "identify.rrd", faulted.run_dir, result,
                               cfg={"run": {}})
     have = entities(path)
-    for view in ("/identify/spectrum/", ):
-        marks = sorted(e for e in have if e.startswith(view + "mode_"))
-        assert len(marks) == 3, marks
-        for m, (w, _, _) in zip(marks, modes, strict=True):
-            f_hz = float(m.split("_")[2])
-            assert f_hz == pytest.approx(w / (2 * np.pi), rel=0.01)
+    # short legend names (the entity path is the legend), one per mode
+    marks = sorted(e for e in have if e.startswith("/identify/spectrum/mode_"))
+    assert marks == [f"/identify/spectrum/mode_{i}" for i in (1, 2, 3)]
     assert "/identify/spectrum/amplitude" in have and "/identify/spectrum/fft_peaks" in have
-    assert "| 3 |" in read_text(path, "/identify/modes")
+    # the modes view: undamped and damped frequency labelled, damping, 1 sigma
+    text = read_text(path, "/identify/modes")
+    assert "f: undamped natural frequency" in text and "fd: damped frequency" in text
+    for i, (w, z, _) in enumerate(modes):
+        block = text.split(f"## Mode {i + 1} ")[1].split("## ")[0]
+        f_hz = float(block.split("- f = ")[1].split()[0])
+        fd_hz = float(block.split("- fd = ")[1].split()[0])
+        assert f_hz == pytest.approx(w / (2 * np.pi), rel=0.01)
+        assert fd_hz == pytest.approx(w * np.sqrt(1 - z * z) / (2 * np.pi), rel=0.01)
+        assert fd_hz < f_hz and "+-" in block.split("- f = ")[1].splitlines()[0]
+        assert float(block.split("- zeta = ")[1].split()[0]) == pytest.approx(z, rel=0.1)
+    # every mode's marker its own colour, none the spectrum's
+    from harness.review.spectrum import MODE_COLOURS, SPECTRUM_COLOUR
+
+    assert len(set(MODE_COLOURS)) == len(MODE_COLOURS) and SPECTRUM_COLOUR not in MODE_COLOURS
     ours = read_blueprints(faulted.run_dir / "run.rrd")[-1]
     theirs = read_blueprints(path)[-1]
     assert sorted(v.name for v in ours) == sorted(v.name for v in theirs)
+
+
+def test_modes_view_compares_with_the_model():
+    from harness.review.spectrum import modes_markdown
+
+    m = {"freq_hz": 1.0, "omega_rad_s": 2 * np.pi, "sigma_omega_rad_s": 0.01,
+         "damping_ratio": 0.02, "sigma_damping": 0.001, "fft_peak_omega_rad_s": 6.28,
+         "model_mode": 1, "model_omega_rad_s": 2 * np.pi * 1.02, "model_damping_ratio": 0.01,
+         "source": {"experiment": "final free decay"}}
+    text = modes_markdown([m], ["a note"])
+    assert "- model (mode 1): f = 1.0200 Hz, zeta = 0.0100" in text
+    assert "- identified - model: f -1.96 %, zeta +100.00 %" in text
+    assert "- from: final free decay" in text and "- a note" in text
 
 
 def test_sweep_rrd_has_its_layout(tmp_path):

@@ -3,12 +3,16 @@ in Hz, every identified mode as its own series (its name, frequency and damping 
 legend, so labels never overlap), the FFT peaks, and the modes as a markdown table.
 
 ``/identify/spectrum/...``: the longest (final) free decay's spectrum, its FFT peaks and a
-marker per mode (``mode_<n>_<f>_Hz_zeta_<damping>``). ``/identify/windows/...``: per
-experiment of short windows (repetitions of one burst) the mean of their spectra, with the
-mode markers again. ``/identify/modes``: the table. A mode's marker is a bar at its damped
-frequency reaching 15 % above the highest spectrum of its view within 2 % of that frequency
-(at least 15 % of the view's highest bar), so it stands above its peak and is seen even
-where the mode has decayed.
+marker per mode (``mode_<n>``: Rerun 0.41's bar charts take no legend name, so the legend
+shows the entity path, kept short; its frequency and damping are in the modes view).
+``/identify/windows/...``: per experiment of short windows (repetitions of one burst) the
+mean of their spectra, with the mode markers again. ``/identify/modes``: the modes view,
+every value labelled: undamped and damped frequency (the spectrum peaks and the markers sit at
+the damped one), damping, their 1-sigma uncertainties, the model's values and the
+difference. A mode's marker is a bar at its damped frequency reaching 15 % above the highest
+spectrum of its view within 2 % of that frequency (at least 15 % of the view's highest
+bar), so it stands above its peak and is seen even where the mode has decayed; each mode
+has its own colour, none the spectrum's.
 """
 
 from __future__ import annotations
@@ -29,8 +33,8 @@ from harness.review.layouts import blueprint_for_run_dir, layout_for_run, spectr
 SPECTRUM_COLOUR = (40, 90, 180)
 PEAK_COLOUR = (20, 20, 20)
 WINDOW_COLOURS = ((120, 120, 120), (255, 150, 40), (70, 170, 90), (150, 90, 200))
-MODE_COLOURS = ((220, 30, 30), (0, 150, 0), (230, 120, 0), (150, 0, 200), (0, 140, 190),
-                (120, 80, 40))
+MODE_COLOURS = ((230, 40, 40), (0, 170, 90), (240, 160, 0), (190, 90, 230), (0, 190, 210),
+                (160, 110, 60), (250, 110, 180), (150, 200, 40))
 
 
 def _band(freq_hz: np.ndarray, f_top_hz: float) -> np.ndarray:
@@ -54,27 +58,55 @@ def _mode_markers(rec: rr.RecordingStream, base: str, modes: Sequence[Any],
                  for fs, a in spectra if len(fs) > 1]
         top = max(float(a.max(initial=0.0)) for _, a in spectra)
         height = max(1.15 * max([*local, 0.0]), 0.15 * top) or 1e-6
-        name = f"mode_{i + 1}_{f:.4f}_Hz_zeta_{m.damping_ratio:.4f}"
+        name = mode_entity(i)
         rec.log(f"{base}/{name}", rr.BarChart([height], abscissa=[f], widths=[width],
                                                color=MODE_COLOURS[i % len(MODE_COLOURS)]),
                 static=True)
 
 
+def mode_entity(i: int) -> str:
+    """The short entity (and legend) name of mode ``i`` (0-based): ``mode_1``."""
+    return f"mode_{i + 1}"
+
+
+def _pct(a: float, b: float) -> str:
+    return f"{100.0 * (a / b - 1.0):+.2f} %" if b else "-"
+
+
 def modes_markdown(modes: Sequence[Mapping[str, Any]], notes: Sequence[str]) -> str:
+    """The modes view: per mode its undamped and damped frequency, damping, 1-sigma
+    uncertainties, the FFT peak, the model's values and the difference, each labelled."""
     lines = ["# Identified modes", "",
-             "| mode | f (Hz) | omega (rad/s) | +- | zeta | +- | FFT peak (rad/s) | "
-             "model (rad/s) | from |", "|---|---|---|---|---|---|---|---|---|"]
+             "f: undamped natural frequency; fd: damped frequency, f sqrt(1 - zeta^2), where "
+             "the spectrum peaks and the marker `mode_<n>` stands; zeta: damping ratio; "
+             "+-: one standard deviation (1 sigma).", ""]
     for i, m in enumerate(modes):
+        f = float(m["freq_hz"])
+        zeta = float(m["damping_ratio"])
+        fd = f * math.sqrt(max(1.0 - zeta * zeta, 0.0))
+        sigma_f = float(m["sigma_omega_rad_s"]) / (2 * math.pi)
+        lines += [f"## Mode {i + 1} (marker `{mode_entity(i)}`)", "",
+                  f"- f = {f:.4f} +- {sigma_f:.4f} Hz ({m['omega_rad_s']:.4f} rad/s)",
+                  f"- fd = {fd:.4f} Hz",
+                  f"- zeta = {zeta:.4f} +- {float(m['sigma_damping']):.4f}"]
         fft = m.get("fft_peak_omega_rad_s")
+        if fft is not None:
+            lines.append(f"- FFT peak (damped): {fft / (2 * math.pi):.4f} Hz"
+                         + (" (rough)" if m.get("fft_rough") else ""))
         model = m.get("model_omega_rad_s")
-        lines.append(
-            f"| {i + 1} | {m['freq_hz']:.4f} | {m['omega_rad_s']:.4f} | "
-            f"{m['sigma_omega_rad_s']:.4f} | {m['damping_ratio']:.4f} | "
-            f"{m['sigma_damping']:.4f} | {'-' if fft is None else f'{fft:.4f}'}"
-            f"{' (rough)' if m.get('fft_rough') else ''} | "
-            f"{'-' if model is None else f'{model:.4f}'} | {m['source']['experiment']} |")
+        if model is not None:
+            mf = float(model) / (2 * math.pi)
+            mz = m.get("model_damping_ratio")
+            lines.append(f"- model (mode {m.get('model_mode', '?')}): f = {mf:.4f} Hz"
+                         + ("" if mz is None else f", zeta = {float(mz):.4f}"))
+            lines.append(f"- identified - model: f {_pct(f, mf)}"
+                         + ("" if mz is None else f", zeta {_pct(zeta, float(mz))}"))
+        source = m.get("source") or {}
+        if source.get("experiment"):
+            lines.append(f"- from: {source['experiment']}")
+        lines.append("")
     if notes:
-        lines += ["", *[f"- {n}" for n in notes]]
+        lines += ["## Notes", "", *[f"- {n}" for n in notes]]
     return "\n".join(lines) + "\n"
 
 
