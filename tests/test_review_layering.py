@@ -57,3 +57,6 @@ def test_the_recorder_takes_the_review_as_an_annotator(tmp_path):
         assert (names.get("/tip/accel_m_s2") == ["tip acceleration"]) is named
         markers = read_series_names(path, points=True)
         assert ("/markers/tip/warning" in markers) is named
+        # the review lists the first events under the summary (the events view scrolls to
+        # its last rows)
+        assert ("First events (1 of 1" in (read_text(path, "/run/summary") or "")) is named

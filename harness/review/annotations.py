@@ -2,7 +2,12 @@
 (``harness.record.recording.Annotator``): series named and styled (``names``), events logged
 and marked on the plots (``events``), the summary as a markdown table. The caller (the
 session, replay) hands ``ReviewAnnotator()`` to the ``Recorder``, so that
-``harness.record`` never imports this package."""
+``harness.record`` never imports this package.
+
+It also keeps the run's first events (``FIRST_EVENTS``, bounded) and lists them under the
+summary: the viewer's events view scrolls to its last rows, where a long run's first
+warnings are out of sight.
+"""
 
 from __future__ import annotations
 
@@ -15,7 +20,14 @@ from harness.review.events import log_event, summary_markdown
 from harness.review.names import log_series_names
 
 
+FIRST_EVENTS = 12
+
+
 class ReviewAnnotator:
+    def __init__(self) -> None:
+        self.first: list[tuple[float, str, str]] = []
+        self.events = 0
+
     def name_series(self, rec: rr.RecordingStream, channels: list[str]) -> None:
         log_series_names(rec, channels)
 
@@ -23,6 +35,15 @@ class ReviewAnnotator:
                   level: str, values: Mapping[str, float], name: str | None,
                   series: str | None) -> None:
         log_event(rec, time_s, entity, text, level, values, name=name, series=series)
+        self.events += 1
+        if len(self.first) < FIRST_EVENTS:
+            self.first.append((time_s, level, text))
 
     def summary_text(self, summary: Mapping[str, Any]) -> str:
-        return summary_markdown(summary)
+        text = summary_markdown(summary)
+        if self.first:
+            shown = len(self.first)
+            text += (f"\n## First events ({shown} of {self.events}; all in the events "
+                     "view)\n\n" + "\n".join(f"- {t:.3f} s {lv}: {tx}"
+                                              for t, lv, tx in sorted(self.first)) + "\n")
+        return text

@@ -287,8 +287,9 @@ def text_views(include_verdict: bool = True) -> rrb.Container:
         rrb.TextDocumentView(origin="/run/config", name=CONFIG_VIEW))
     if not include_verdict:
         return rrb.Vertical(docs)
+    # the verdict gets the larger part: every criterion is on its own lines there
     return rrb.Vertical(rrb.TextDocumentView(origin="/run/verdict", name=VERDICT_VIEW), docs,
-                        row_shares=[1, 2])
+                        row_shares=[3, 2])
 
 
 def spectrum_views() -> list[rrb.View]:
