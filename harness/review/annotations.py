@@ -19,7 +19,6 @@ import rerun as rr
 from harness.review.events import log_event, summary_markdown
 from harness.review.names import log_series_names
 
-
 FIRST_EVENTS = 12
 
 
