@@ -280,9 +280,10 @@ def test_identify_rrd_spectrum_marks_every_mode_with_the_runs_layout(faulted, tm
                               cfg={"run": {}})
     have = entities(path)
     # short legend names (the entity path is the legend), one per mode
-    marks = sorted(e for e in have if e.startswith("/identify/spectrum/mode_"))
-    assert marks == [f"/identify/spectrum/mode_{i}" for i in (1, 2, 3)]
-    assert "/identify/spectrum/amplitude" in have and "/identify/spectrum/fft_peaks" in have
+    marks = sorted(e for e in have if e.startswith("/final/mode_"))
+    assert marks == [f"/final/mode_{i}" for i in (1, 2, 3)]
+    assert "/final/spectrum" in have and "/final/fft_peaks" in have
+    assert max(len(e) for e in have if e.startswith("/final/")) <= 16
     # the modes view: undamped and damped frequency labelled, damping, 1 sigma
     text = read_text(path, "/identify/modes")
     assert "f: undamped natural frequency" in text and "fd: damped frequency" in text

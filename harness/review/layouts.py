@@ -296,9 +296,9 @@ def spectrum_views() -> list[rrb.View]:
     """The identification (``harness identify`` writes identify.rrd): spectra as bar charts
     over frequency in Hz, one series per identified mode (its name in the legend)."""
     return [
-        rrb.BarChartView(origin="/identify/spectrum", name=SPECTRUM_VIEW,
+        rrb.BarChartView(origin="/final", name=SPECTRUM_VIEW,
                          plot_legend=rrb.PlotLegend(corner="RightTop")),
-        rrb.BarChartView(origin="/identify/windows", name=WINDOWS_VIEW,
+        rrb.BarChartView(origin="/short", name=WINDOWS_VIEW,
                          plot_legend=rrb.PlotLegend(corner="RightTop")),
         rrb.TextDocumentView(origin="/identify/modes", name=IDENTIFY_VIEW),
     ]
@@ -369,7 +369,7 @@ def layout_for_run(run: Mapping[str, Any], channels: Iterable[str] | None = None
     if kind == "free_decay":
         spec = spectrum_views()
         run_page: rrb.Container = rrb.Vertical(
-            _grid(main), rrb.Horizontal(spec[0], spec[1], spec[2], column_shares=[2, 2, 1]),
+            _grid(main), rrb.Horizontal(spec[0], spec[1], spec[2], column_shares=[3, 3, 2]),
             row_shares=[3, 2], name="Run")
     else:
         run_page = rrb.Vertical(_grid(main), name="Run")

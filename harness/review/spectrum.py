@@ -2,11 +2,12 @@
 in Hz, every identified mode as its own series (its name, frequency and damping in the
 legend, so labels never overlap), the FFT peaks, and the modes as a markdown table.
 
-``/identify/spectrum/...``: the longest (final) free decay's spectrum, its FFT peaks and a
-marker per mode (``mode_<n>``: Rerun 0.41's bar charts take no legend name, so the legend
-shows the entity path, kept short; its frequency and damping are in the modes view).
-``/identify/windows/...``: per experiment of short windows (repetitions of one burst) the
-mean of their spectra, with the mode markers again. ``/identify/modes``: the modes view,
+``/final/...``: the longest (final) free decay's spectrum, its FFT peaks and a marker per
+mode (``mode_<n>``: Rerun 0.41's bar charts take no legend name, so the legend shows the
+whole entity path, kept short; each mode's frequency and damping are in the modes view).
+``/short/...``: per experiment of short windows (repetitions of one burst) the mean of their
+spectra (``mean_<k>``, named in the modes view), with the mode markers again.
+``/identify/modes``: the modes view,
 every value labelled: undamped and damped frequency (the spectrum peaks and the markers sit at
 the damped one), damping, their 1-sigma uncertainties, the model's values and the
 difference. A mode's marker is a bar at its damped frequency reaching 15 % above the highest
@@ -30,6 +31,10 @@ from harness.identification.windows import MultiWindowResult
 from harness.record.recording import APPLICATION_ID
 from harness.review.layouts import blueprint_for_run_dir, layout_for_run, spectrum_views
 
+# short roots: Rerun 0.41's bar-chart legend is the whole entity path
+FINAL = "/final"
+SHORT = "/short"
+MODES_ENTITY = "/identify/modes"
 SPECTRUM_COLOUR = (40, 90, 180)
 PEAK_COLOUR = (20, 20, 20)
 WINDOW_COLOURS = ((120, 120, 120), (255, 150, 40), (70, 170, 90), (150, 90, 200))
@@ -136,17 +141,18 @@ def write_identify_rrd(path: Path, run_dir: Path, result: MultiWindowResult,
         sp = primary.spectrum
         sel = _band(sp.freq_hz, f_top)
         f_max = float(sp.freq_hz[sel][-1])
-        _bars(rec, "/identify/spectrum/amplitude", sp.freq_hz[sel], sp.amplitude[sel],
+        _bars(rec, f"{FINAL}/spectrum", sp.freq_hz[sel], sp.amplitude[sel],
               SPECTRUM_COLOUR)
         if primary.fft_peaks:
-            _bars(rec, "/identify/spectrum/fft_peaks",
+            _bars(rec, f"{FINAL}/fft_peaks",
                   np.array([p.freq_hz for p in primary.fft_peaks]),
                   np.array([p.amplitude for p in primary.fft_peaks]), PEAK_COLOUR,
                   width=f_max / 400.0)
         primary_spectra = [(sp.freq_hz[sel], sp.amplitude[sel])]
-        _mode_markers(rec, "/identify/spectrum", result.modes, primary_spectra, f_max)
+        _mode_markers(rec, FINAL, result.modes, primary_spectra, f_max)
         k_primary = result.results.index(primary)
         short: list[tuple[np.ndarray, np.ndarray]] = []
+        means: list[str] = []
         for e, idx in enumerate(result.experiments):
             idx = tuple(i for i in idx if i != k_primary)
             if not idx:
@@ -156,16 +162,17 @@ def write_identify_rrd(path: Path, run_dir: Path, result: MultiWindowResult,
             amps = [np.interp(f0[sel0], result.results[i].spectrum.freq_hz,
                               result.results[i].spectrum.amplitude) for i in idx]
             mean = np.mean(amps, axis=0)
-            label = result.experiment_label(e).replace(" ", "_").replace("/", "_per_")
-            _bars(rec, f"/identify/windows/mean_of_{label}", f0[sel0], mean,
+            _bars(rec, f"{SHORT}/mean_{len(short) + 1}", f0[sel0], mean,
                   WINDOW_COLOURS[len(short) % len(WINDOW_COLOURS)])
+            means.append(f"`{SHORT}/mean_{len(short) + 1}`: the mean spectrum of "
+                         f"{result.experiment_label(e)}")
             short.append((f0[sel0], mean))
         if short:
-            _mode_markers(rec, "/identify/windows", result.modes, short,
+            _mode_markers(rec, SHORT, result.modes, short,
                           max(float(f[-1]) for f, _ in short))
-        rec.log("/identify/modes", rr.TextDocument(
+        rec.log(MODES_ENTITY, rr.TextDocument(
             modes_markdown(modes if modes is not None else result.to_dict()["modes"],
-                           result.notes), media_type="text/markdown"), static=True)
+                           [*means, *result.notes]), media_type="text/markdown"), static=True)
     finally:
         rec.flush()
         rec.disconnect()
