@@ -335,6 +335,35 @@ def test_sweep_rrd_has_its_layout(tmp_path):
     assert "Sweep" in views
 
 
+def test_sweep_rrd_shows_the_whole_range_one_colour_per_beta_and_scaled_maps(tmp_path):
+    """Issue 21: half the lambda range (the resonance included) was off screen, the maps
+    had no colour scale and a beta's colour changed between plots."""
+    from harness.commands.sweep import save_plots, save_rrd, sweep_blueprint
+    from harness.review.reader import read_series_styles
+
+    lambdas = np.linspace(0.3, 3.2, 30)
+    betas = np.array([0.3, 0.6, 1.0])
+    amps = np.random.default_rng(0).uniform(0.01, 1.0, (30, 3, 2))
+    save_plots(tmp_path / "maps.png", tmp_path / "curves.png", lambdas, betas, amps, "hub_free")
+    path = tmp_path / "sweep.rrd"
+    save_rrd(path, "sweep-test", lambdas, betas, amps, maps_png=tmp_path / "maps.png")
+    styles = read_series_styles(path)
+    for b in ("0.30", "0.60", "1.00"):
+        colours = {str(styles[f"/sweep/{k}/{o}/beta_{b}"]["colors"])
+                   for k in ("curves", "log10") for o in ("tip_accel_m_s2", "tip_deflection_m")}
+        assert len(colours) == 1, b  # one colour for a beta everywhere
+    assert len({str(styles[f"/sweep/curves/tip_accel_m_s2/beta_{b}"]["colors"])
+                for b in ("0.30", "0.60", "1.00")}) == 3
+    assert "/sweep/maps" in entities(path)  # the maps with their colour bars
+    views = {v.name: v for v in read_blueprints(path)[-1]}
+    assert any(v.kind == "2D" and v.origin == "/sweep/maps" for v in views.values())
+    for view in L.blueprint_views(sweep_blueprint(lambdas, True)):
+        axis = getattr(view, "properties", {}).get("TimeAxis")
+        if isinstance(view, rrb.TimeSeriesView):
+            rng = axis.view_range.as_arrow_array().to_pylist()[0]
+            assert rng["start"] <= 300 and rng["end"] >= 3200, view.name
+
+
 def test_legend_goes_where_it_hides_no_curve():
     """A slew stopped at 12 s of 50: its angle rises in the left of the plot, so the legend
     must not sit at the left top (where it hid the curve in the viewer)."""

@@ -438,16 +438,28 @@ def blueprint_for_run_dir(run_dir: Path) -> rrb.Blueprint:
 
 def study_layout(curves: Mapping[str, Sequence[str]], timeline: str,
                  texts: Mapping[str, str] | None = None,
-                 tensors: Mapping[str, str] | None = None) -> rrb.Blueprint:
+                 tensors: Mapping[str, str] | None = None,
+                 x_range: tuple[int, int] | None = None,
+                 images: Mapping[str, str] | None = None,
+                 bars: Mapping[str, str] | None = None) -> rrb.Blueprint:
     """A layout for a sweep, study or calibration: one plot per entry of ``curves`` (title
     with its unit -> entity paths, each plot one quantity) over ``timeline`` (the swept
-    variable as a sequence timeline, its scale in its name), optional tensor maps (title ->
-    entity) and text documents (title -> entity) on the right."""
+    variable as a sequence timeline, its scale in its name), its x axis on ``x_range``
+    (first, last value on the timeline: the whole sweep in view, not the viewer's own
+    window), optional tensor maps, images (title -> entity: a map drawn with its colour
+    scale), bar charts (title -> origin) and text documents (title -> entity) on the right."""
+    axis = None if x_range is None else rrb.TimeAxis(view_range=rrb.TimeRange(
+        start=rrb.TimeRangeBoundary.absolute(seq=int(x_range[0])),
+        end=rrb.TimeRangeBoundary.absolute(seq=int(x_range[1]))))
     plots: list[rrb.View] = [
-        rrb.TimeSeriesView(name=title, contents=list(paths),
+        rrb.TimeSeriesView(name=title, contents=list(paths), axis_x=axis,
                            plot_legend=rrb.PlotLegend(corner="RightTop"))
         for title, paths in curves.items()]
+    plots += [rrb.BarChartView(origin=path, name=title,
+                               plot_legend=rrb.PlotLegend(corner="RightTop"))
+              for title, path in (bars or {}).items()]
     plots += [rrb.TensorView(origin=path, name=title) for title, path in (tensors or {}).items()]
+    plots += [rrb.Spatial2DView(origin=path, name=title) for title, path in (images or {}).items()]
     left = _grid(plots, 2 if len(plots) > 2 else 1)
     docs = [rrb.TextDocumentView(origin=path, name=title) for title, path in (texts or {}).items()]
     root: rrb.Container = rrb.Horizontal(left, rrb.Vertical(*docs), column_shares=[3, 1]) \
