@@ -58,7 +58,8 @@ def _mode_markers(rec: rr.RecordingStream, base: str, modes: Sequence[Any],
                   spectra: Sequence[tuple[np.ndarray, np.ndarray]], f_max: float) -> None:
     width = f_max / 250.0
     for i, m in enumerate(modes):
-        f = m.omega_damped_rad_s / (2 * math.pi)
+        zeta = float(m.damping_ratio)
+        f = m.omega_rad_s * math.sqrt(max(1.0 - zeta * zeta, 0.0)) / (2 * math.pi)
         local = [a[np.abs(fs - f) <= 0.02 * f + 2 * np.median(np.diff(fs))].max(initial=0.0)
                  for fs, a in spectra if len(fs) > 1]
         top = max(float(a.max(initial=0.0)) for _, a in spectra)
