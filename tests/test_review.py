@@ -467,6 +467,50 @@ def test_verdict_lives_in_run_rrd_and_rejudging_replaces_it(faulted, tmp_path):
             assert np.array_equal(t0, t1) and np.array_equal(v0, v1)
 
 
+def test_baseline_comparison_draws_the_baseline_on_the_same_plot(faulted, tmp_path):
+    """Issue 21: a baseline criterion's baseline channel is drawn on the judged channel's
+    plot, on the run's time axis shifted as judged."""
+    import shutil
+
+    import yaml
+
+    from harness.record.reader import read_scalar_channel
+    from harness.testing import judge_run
+    from harness.testing.judge import write_verdict
+
+    run_dir = tmp_path / faulted.run_dir.name
+    shutil.copytree(faulted.run_dir, run_dir)
+    cfg_path = run_dir / "config.yaml"
+    cfg = yaml.safe_load(cfg_path.read_text())
+    cfg["run"]["expect"] = {"same_as_before": {
+        "baseline": str(faulted.run_dir), "channel": "/attitude/error_deg",
+        "tol_deg": 1e-6, "max_shift_s": 0.01}}
+    cfg_path.write_text(yaml.safe_dump(cfg))
+    v = judge_run(run_dir)
+    [same] = [c for c in v.criteria if c.name == "same_as_before"]
+    assert "time shift +0.000 s" in same.message
+    write_verdict(v, run_dir)
+    t0, x0 = read_scalar_channel(faulted.run_dir / "run.rrd", "/attitude/error_deg")
+    t1, x1 = read_scalar_channel(run_dir / "run.rrd", "/baseline/attitude/error_deg")
+    assert np.allclose(t0, t1) and np.array_equal(x0, x1)
+    error_plot = next(w for w in read_blueprints(run_dir / "run.rrd")[-1]
+                      if w.name == L.PLOTS["error"].title)
+    assert "/baseline/attitude/error_deg" in error_plot.contents
+    # a judged shift moves the baseline: its sample at t + shift sits at the run's t
+    from harness.review.verdict import log_baselines
+
+    shifted = tmp_path / "shifted.rrd"
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id="shifted")
+    rec.save(str(shifted))
+    assert log_baselines(rec, run_dir, {"criteria": [
+        {"name": "same_as_before", "kind": "baseline",
+         "message": "... time shift +0.010 s) within tolerance"}]}) == 1
+    rec.flush()
+    rec.disconnect()
+    t2, x2 = read_scalar_channel(shifted, "/baseline/attitude/error_deg")
+    assert np.allclose(t2, t0 - 0.010) and np.array_equal(x2, x0)
+
+
 def test_verdict_is_not_appended_to_a_cut_recording(faulted, tmp_path):
     """A run.rrd cut short mid-message (SIGKILL) is left as it is; the verdict stays in
     verdict.json and verdict.rrd."""

@@ -257,6 +257,8 @@ def time_plot(plot: Plot, end_s: float | None, channels: Iterable[str] | None = 
     contents = [c for c in plot.channels
                 if recorded is None or c in recorded or c.startswith("/bus/")]
     contents.append(f"{plot.marker_path}/**")
+    # a baseline run's copy of a judged channel, once the run is judged (review.verdict)
+    contents += [f"/baseline{c}" for c in plot.channels if not c.startswith("/bus/")]
     yr = axis_range(plot, ranges, bands)
     return rrb.TimeSeriesView(
         name=plot.title, contents=contents, axis_x=whole_run_axis(end_s),

@@ -15,6 +15,7 @@ the verdict layer is imported (harness.testing calls this).
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -143,6 +144,58 @@ def log_verdict(rec: rr.RecordingStream, verdict: Mapping[str, Any],
                                    for t, _, text in events])
 
 
+SHIFT = re.compile(r"time shift ([+-]?\d+(?:\.\d+)?) s")
+BASELINE_COLOUR = (150, 150, 150)
+
+
+def baseline_entity(channel: str) -> str:
+    """Where a baseline's copy of ``channel`` goes: ``/baseline/attitude/error_deg``; each
+    plot of the channel lists it (harness.review.layouts.time_plot)."""
+    return "/baseline" + channel
+
+
+def log_baselines(rec: rr.RecordingStream, run_dir: Path, verdict: Mapping[str, Any]) -> int:
+    """Each ``baseline:`` criterion's baseline channel on the run's time axis, shifted as
+    judged (the judged run's sample at t was compared with the baseline's at t + shift,
+    the shift the message names), drawn on the channel's plot; returns how many."""
+    import yaml
+
+    from harness.record.reader import read_scalar_channel
+
+    try:
+        cfg = yaml.safe_load((run_dir / "config.yaml").read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        return 0
+    data = cfg.get("run", cfg) if isinstance(cfg, dict) else {}
+    expect = data.get("expect") or cfg.get("expect") or {}
+    n = 0
+    for c in verdict.get("criteria") or []:
+        spec = expect.get(c.get("name")) if isinstance(expect, Mapping) else None
+        if c.get("kind") != "baseline" or not isinstance(spec, Mapping):
+            continue
+        channel, base = spec.get("channel"), spec.get("baseline")
+        if not isinstance(channel, str) or not isinstance(base, str):
+            continue
+        base_path = Path(base)
+        if not base_path.is_absolute():
+            base_path = run_dir / base_path
+        rrd = base_path / "run.rrd" if base_path.is_dir() else base_path
+        match = SHIFT.search(str(c.get("message", "")))
+        shift = float(match.group(1)) if match else 0.0
+        try:
+            t, v = read_scalar_channel(rrd, channel)
+        except (OSError, ValueError, RuntimeError):
+            continue  # the baseline may be on another machine: the verdict says so
+        entity = baseline_entity(channel)
+        rec.log(entity, rr.SeriesLines(
+            names=f"baseline ({'shifted' if match else 'unshifted'} {shift:+.3f} s)",
+            colors=[BASELINE_COLOUR], aggregation_policy="MinMax"), static=True)
+        rec.send_columns(entity, indexes=[rr.TimeColumn("time", duration=t - shift)],
+                         columns=rr.Scalars.columns(scalars=v))
+        n += 1
+    return n
+
+
 def _summary(run_dir: Path) -> dict[str, Any]:
     try:
         loaded = json.loads((run_dir / "summary.json").read_text())
@@ -212,5 +265,6 @@ def write_into_run(run_dir: Path, verdict: Mapping[str, Any],
 
     def write(rec: rr.RecordingStream) -> None:
         log_verdict(rec, verdict, summary, events, rrd)
+        log_baselines(rec, run_dir, verdict)
 
     return append_stream(rrd, APPLICATION_ID, run_dir.name, write, blueprint)
