@@ -76,6 +76,8 @@ def criterion_lines(c: Mapping[str, Any], consequence: str | None = None) -> lis
     only when it has one), and for a criterion that did not pass, its message."""
     unit = str(c.get("unit") or "")
     parts = [quantity(c.get("value"), unit)]
+    if c.get("kind") == "settles" and c.get("value") is not None:
+        parts[0] += " after its trigger"  # summary.json's settle_time_s counts from t = 0
     if c.get("limit"):
         parts.append(f"limit {limit_text(c['limit'])}")
     if c.get("margin") is not None:
