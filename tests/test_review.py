@@ -458,13 +458,24 @@ def test_verdict_lives_in_run_rrd_and_rejudging_replaces_it(faulted, tmp_path):
         assert "missing data" in text and "a consequence of the run stopping early" in text
         ev = [e for e in read_events(rrd) if e.entity == "/events/verdict"]
         assert len(ev) == 1 and ev[0].time_s == pytest.approx(fault["time_s"])
-        assert "/markers/tip/verdict" in entities(rrd)
+        # the unexpected fault is marked once, by the run's own fault marker
+        assert "/markers/tip/fault" in entities(rrd)
+        assert "/markers/tip/verdict" not in entities(rrd)
         names = {v.name for v in read_blueprints(rrd)[-1]}
         assert L.VERDICT_VIEW in names and L.PLOTS["tip"].title in names
         for (t0, v0), (t1, v1) in ((before, read_scalar_channel(rrd, "/attitude/angle_deg")),
                                    (bus_before,
                                     read_scalar_channel(rrd, "/bus/hub_sensor/tlm/angle_rad"))):
             assert np.array_equal(t0, t1) and np.array_equal(v0, v1)
+    # a criterion's violation is marked on the plots at its worst sample
+    from harness.review.verdict import write_into_run
+
+    fail = {"name": "tip_quiet", "kind": "channel", "value": 0.03, "unit": "m_s2",
+            "limit": {"max_abs_m_s2": 0.01}, "margin": -0.02, "verdict": "FAIL",
+            "worst_time_s": 0.5, "message": "too much"}
+    assert write_into_run(run_dir, {"verdict": "FAIL", "reason": "x", "criteria": [fail]})
+    assert "/markers/tip/verdict" in entities(rrd)
+    assert [e.time_s for e in read_events(rrd) if e.entity == "/events/verdict"] == [0.5]
 
 
 def test_baseline_comparison_draws_the_baseline_on_the_same_plot(faulted, tmp_path):

@@ -141,9 +141,14 @@ def log_verdict(rec: rr.RecordingStream, verdict: Mapping[str, Any],
     for t, level, text in events:
         rec.set_time("time", duration=t)
         rec.log("/events/verdict", rr.TextLog(text, level=level))
-    if run_rrd is not None and events:
-        mark_events(rec, run_rrd, [(t, "verdict", f"VERDICT {text.split(':')[0]}"[:48])
-                                   for t, _, text in events])
+    # a fault criterion's violation is the fault the run already marked on every plot:
+    # a second marker there only cost a legend line (five-line legends were clipped)
+    faults = tuple(f"{c.get('name')} " for c in verdict.get("criteria") or []
+                   if c.get("kind") == "fault")
+    marks = [(t, "verdict", f"VERDICT {text.split(':')[0]}"[:48]) for t, _, text in events
+             if not (faults and text.startswith(faults))]
+    if run_rrd is not None and marks:
+        mark_events(rec, run_rrd, marks)
 
 
 SHIFT = re.compile(r"time shift ([+-]?\d+(?:\.\d+)?) s")
