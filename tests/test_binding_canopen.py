@@ -290,3 +290,90 @@ def test_left_safe_judges_canopen_commands_and_nmt(tmp_path):
     assert any("pre-operational" in p for p in no_nmt)
     assert left_safe_problems(_blf(tmp_path / "c.blf", [(0x202, safe), (0, preop)]),
                               CO_RIG.data) == []
+
+
+# ----------------------------------------------------------------------------- DCF
+def _wheel_dcf(path: Path, second: int, third: int) -> Path:
+    """The wheel drive's EDS as a DCF whose TPDO1 maps 0x6041 then ``second``, ``third``."""
+    text = (Path(CO_RIG.binding.files["reaction_wheel"])).read_text()
+    for sub, word in ((2, second), (3, third)):
+        head = f"[1A00sub{sub}]"
+        i = text.index(head)
+        j = text.index("PDOMapping=", i)
+        text = text[:j] + f"ParameterValue=0x{word:08X}\r\n" + text[j:]
+    path.write_text(text)
+    return path
+
+
+def _dcf_rig(tmp_path: Path, dcf: Path) -> dict:
+    d = _co_data()
+    d["devices"]["reaction_wheel"]["eds"] = str(dcf)
+    return d
+
+
+def test_a_dcf_mapping_is_taken_and_verified_not_written(tmp_path):
+    """A device bound to a DCF: the harness takes its PDO mapping from the DCF (here the
+    velocity before the torque) and checks it on the device instead of writing it; the run
+    works over it. A quantity in none of the DCF's PDOs is refused naming the key."""
+    dcf = _wheel_dcf(tmp_path / "wheel.dcf", 0x606C0020, 0x60770010)
+    data = _dcf_rig(tmp_path, dcf)
+    rig = rig_from_dict(data, "rig file dcf.yaml", base_dir=RIGS_DIR)
+    node = rig.binding.canopen.nodes[2]
+    assert node.verify
+    assert [e.label for e in node.tpdos[0].codec.entries] == ["0x6041.0", "0x606C.0",
+                                                              "0x6077.0"]
+    rig_file = tmp_path / "dcf.yaml"
+    rig_file.write_text(yaml.safe_dump(data))
+    run = run_from_dict(dict(RUN, bus=f"virtual:{_channel()}", rig=str(rig_file)))
+    result = execute_run(run, out_dir=tmp_path / "logs", show_progress=False)
+    assert result.summary["stopped_by"] == "completed", result.summary.get("faults")
+    # verified, not written: no SDO download to the wheel's mapping 0x1A00 in the log
+    writes = [m for m in can.LogReader(str(result.run_dir / "can.blf"))
+              if m.arbitration_id == 0x602 and m.data[0] & 0xE0 == 0x20
+              and m.data[1:3] == bytes((0x00, 0x1A))]
+    assert writes == []
+    bad = dict(data)
+    bad["devices"] = dict(data["devices"], reaction_wheel=dict(
+        data["devices"]["reaction_wheel"], telemetry=dict(
+            data["devices"]["reaction_wheel"]["telemetry"],
+            torque={"object": 0x6071, "scale": 6.5e-5})))
+    with pytest.raises(ConfigError, match=r"devices\.reaction_wheel\.telemetry\.torque: "
+                                          r"0x6071\.0 is in no TPDO of wheel\.dcf"):
+        rig_from_dict(bad, "rig file dcf.yaml", base_dir=RIGS_DIR)
+
+
+def test_a_device_whose_mapping_differs_from_its_dcf_stops_the_setup(tmp_path):
+    """The device (here the virtual rig with the EDS's own mapping) is not configured as
+    the DCF says: the set-up names the PDO and the first differing entry."""
+    from drivers.binding.canopen_master import CanopenMaster, SetupError
+
+    dcf = _wheel_dcf(tmp_path / "wheel.dcf", 0x606C0020, 0x60770010)
+    harness_rig = rig_from_dict(_dcf_rig(tmp_path, dcf), "rig file dcf.yaml",
+                                base_dir=RIGS_DIR)
+    ch = _channel()
+    buses = [can.Bus(interface="virtual", channel=ch) for _ in range(2)]
+    try:
+        rig = VirtualRig(CO_RIG, buses[1], 0.002)  # the device: the EDS's mapping
+        master = CanopenMaster(buses[0], harness_rig.binding.canopen)
+        with pytest.raises(SetupError, match=r"node 2 \(reaction_wheel\): TPDO1: mapped object "
+                                             r"2 is 0x60770010 on the device, the DCF says "
+                                             r"0x606C0020"):
+            master.setup(pump=rig.service)
+    finally:
+        for b in buses:
+            b.shutdown()
+
+
+def test_a_dcf_pdo_over_eight_bytes_is_refused_naming_the_key(tmp_path):
+    # TPDO1 of the DCF maps 0x6041 (16 bit) + two 32-bit velocities + 0x6077: 96 bits
+    dcf = _wheel_dcf(tmp_path / "wheel.dcf", 0x606C0020, 0x606C0020)
+    text = dcf.read_text()
+    i = text.index("[1A00sub0]")
+    j = text.index("PDOMapping=", i)
+    text = text[:j] + "ParameterValue=0x4\r\n" + text[j:]
+    i = text.index("[1A00sub4]")
+    j = text.index("PDOMapping=", i)
+    dcf.write_text(text[:j] + "ParameterValue=0x60770010\r\n" + text[j:])
+    with pytest.raises(ConfigError, match=r"devices\.reaction_wheel\.eds: wheel\.dcf: TPDO1 "
+                                          r"node 2: mapping of 96 bits"):
+        rig_from_dict(_dcf_rig(tmp_path, dcf), "rig file dcf.yaml", base_dir=RIGS_DIR)

@@ -12,7 +12,6 @@ is CiA 301 itself (COB-IDs, the SYNC counter, NMT, EMCY meanings).
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cache
@@ -21,7 +20,6 @@ from typing import Any
 
 from drivers.binding.frames import BindingError
 from drivers.binding.quantities import COMMANDS, REQUIRED_COMMANDS, REQUIRED_TELEMETRY, TELEMETRY
-from drivers.dbc import FrameError
 
 PROFILES = ("cia401", "cia402", "cia406")
 SYNC_COB_ID = 0x080
@@ -96,6 +94,7 @@ class ObjRef:
     signed: bool
     code: str  # struct format character
     name: str
+    data_type: int = 0  # CiA 301 data type
 
     @property
     def label(self) -> str:
@@ -130,37 +129,35 @@ def object_ref(od: Any, index: Any, sub: Any, key: str, eds: str) -> ObjRef:
     if getattr(var, "pdo_mappable", True) is False:
         raise BindingError(f"{key}.object: 0x{index:04X}.{sub} ({var.name}) is not PDO "
                            f"mappable in {Path(eds).name}")
-    return ObjRef(index, sub, t[0], t[1], t[2], var.name)
+    return ObjRef(index, sub, t[0], t[1], t[2], var.name, var.data_type)
 
 
 # ----------------------------------------------------------------------------- codecs
 class PdoCodec:
-    """One PDO's payload: mapped objects packed little-endian in order (CiA 301)."""
+    """One PDO of the binding: its COB-ID, mapped objects and labels; the payload is packed
+    by ``drivers.canopen_pdo.PdoCodec``, the codec the virtual nodes use too."""
 
-    __slots__ = ("name", "frame_id", "is_extended", "length", "entries", "_struct",
-                 "signal_names", "signals")
+    __slots__ = ("name", "frame_id", "is_extended", "length", "entries", "_codec",
+                 "signal_names", "signals", "decode_raw", "encode_raw")
 
     def __init__(self, name: str, cob_id: int, entries: tuple[ObjRef, ...]) -> None:
         bits = sum(e.bits for e in entries)
         if bits > 64:
             raise BindingError(f"{name}: mapping of {bits} bits (a PDO carries 64 at most)")
+        from drivers.canopen_pdo import PdoCodec as Packer
+
         self.name = name
         self.frame_id = cob_id
         self.is_extended = False
         self.entries = entries
-        self._struct = struct.Struct("<" + "".join(e.code for e in entries))
-        self.length = self._struct.size
+        self._codec = Packer(f"{name} (0x{cob_id:03X})",
+                             [(e.index, e.sub, e.bits, e.data_type) for e in entries])
+        self.length = self._codec.length
         self.signal_names = tuple(e.label for e in entries)
         self.signals = ()
-
-    def decode_raw(self, data: bytes | bytearray) -> tuple[Any, ...]:
-        if len(data) != self.length:
-            raise FrameError(f"{self.name} (0x{self.frame_id:03X}): expected {self.length} "
-                             f"data bytes, got {len(data)}")
-        return self._struct.unpack(data)
-
-    def encode_raw(self, raw: list[Any] | tuple[Any, ...]) -> bytes:
-        return self._struct.pack(*raw)
+        # the hot path calls the packer's own methods (one attribute lookup, no wrapper)
+        self.decode_raw = self._codec.decode
+        self.encode_raw = self._codec.encode
 
     def decode(self, data: bytes | bytearray) -> dict[str, float]:
         """By object label ("0x6077.0"), raw values (review, replay)."""
@@ -345,6 +342,7 @@ class NodeSpec:
     device_type: int | None = None
     parameters: list[tuple[ObjRef, int]] = field(default_factory=list)
     heartbeat_ms: int = 50
+    verify: bool = False  # a DCF: its PDO mapping is verified on the device, not written
     tpdos: list[PdoSpec] = field(default_factory=list)
     rpdos: list[PdoSpec] = field(default_factory=list)
     # device -> its quantities on this node (both directions), for the virtual rig
@@ -437,20 +435,23 @@ def _quantity(q: str, spec: Any, key: str, od: Any, eds: str, command: bool) -> 
 
 
 def _pack(name: str, refs: list[ObjRef], base: tuple[int, ...], node_id: int, trans: int,
-          key: str) -> list[PdoSpec]:
-    """Objects into PDOs of at most 64 bits, in order; at most four."""
+          key: str, first: int = 1) -> list[PdoSpec]:
+    """Objects into PDOs of at most 64 bits, in order, numbered from ``first`` (of four)."""
     pdos: list[list[ObjRef]] = []
     for r in refs:
         if pdos and sum(e.bits for e in pdos[-1]) + r.bits <= 64:
             pdos[-1].append(r)
         else:
             pdos.append([r])
-    if len(pdos) > len(base):
+    if first - 1 + len(pdos) > len(base):
         raise BindingError(f"{key}: its objects need {len(pdos)} more {name}s of 64 bits; the "
-                           f"node has {len(base)} left of 4")
-    return [PdoSpec(i + 1, base[i] + node_id, trans,
-                    PdoCodec(f"{name}{i + 1} node {node_id}", base[i] + node_id, tuple(p)))
-            for i, p in enumerate(pdos)]
+                           f"node has {len(base) - first + 1} left of {len(base)}")
+    out = []
+    for i, p in enumerate(pdos):
+        n = first + i
+        cob = base[n - 1] + node_id
+        out.append(PdoSpec(n, cob, trans, PdoCodec(f"{name}{n} node {node_id}", cob, tuple(p))))
+    return out
 
 
 def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[str, int],
@@ -482,7 +483,8 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
         od = load_eds(eds, node_id)
         node = nodes.get(node_id)
         if node is None:
-            node = nodes[node_id] = NodeSpec(node_id, eds, profile, [], od)
+            node = nodes[node_id] = NodeSpec(node_id, eds, profile, [], od,
+                                             verify=eds.lower().endswith(".dcf"))
         elif node.eds != eds or node.profile != profile:
             raise BindingError(f"{key}.node_id: node {node_id} is also the "
                                f"{'/'.join(node.devices)} with another EDS or profile (a node "
@@ -551,6 +553,9 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
     tlm_maps: dict[str, list[Any]] = {d: [] for d in devices}
     cmd_maps: dict[str, list[Any]] = {d: [] for d in devices}
     for node in nodes.values():
+        if node.verify:
+            _dcf_maps(node, dividers, tlm_maps, cmd_maps)
+            continue
         n_tpdo = 0
         for d, qrefs in node.telemetry.items():
             if SYNC_COUNTER_OVERFLOW % int(dividers.get(d, 1)):
@@ -561,11 +566,8 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
             for qr in qrefs:
                 if qr.ref not in refs:
                     refs.append(qr.ref)
-            packed = _pack("TPDO", refs, TPDO_BASE[n_tpdo:], node.node_id,
-                           int(dividers.get(d, 1)), f"devices.{d}.telemetry")
-            for p in packed:
-                p.number += n_tpdo
-                p.codec.name = f"TPDO{p.number} node {node.node_id}"
+            packed = _pack("TPDO", refs, TPDO_BASE, node.node_id, int(dividers.get(d, 1)),
+                           f"devices.{d}.telemetry", first=n_tpdo + 1)
             n_tpdo += len(packed)
             node.tpdos.extend(packed)
             for pdo in packed:
@@ -582,11 +584,8 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
             # event-driven RPDOs (type 255): a command applies on receipt, and so over the
             # next physics step, as the sgsrt devices' do; the safe command at the end of a
             # run needs no further SYNC to take effect
-            packed = _pack("RPDO", crefs, RPDO_BASE[n_rpdo:], node.node_id, 255,
-                           f"devices.{d}.commands")
-            for p in packed:
-                p.number += n_rpdo
-                p.codec.name = f"RPDO{p.number} node {node.node_id}"
+            packed = _pack("RPDO", crefs, RPDO_BASE, node.node_id, 255,
+                           f"devices.{d}.commands", first=n_rpdo + 1)
             n_rpdo += len(packed)
             node.rpdos.extend(packed)
             for pdo in packed:
@@ -595,6 +594,82 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
     bus = CanopenBus(master_id, nodes, consumer_timeout_ms=consumer_ms, node_of=node_of)
     return (bus, {d: tuple(v) for d, v in tlm_maps.items()},
             {d: tuple(v) for d, v in cmd_maps.items()}, files)
+
+
+def _od_value(od: Any, index: int, sub: int) -> int | None:
+    """A DCF's configured value (ParameterValue), else the EDS default; None if absent."""
+    obj = od.get(index) if hasattr(od, "get") else None
+    if obj is None:
+        return None
+    var = obj if hasattr(obj, "data_type") else obj.subindices.get(sub)
+    if var is None:
+        return None
+    v = var.value if getattr(var, "value", None) is not None else var.default
+    return int(v) if v is not None else None
+
+
+def dcf_pdos(od: Any, node_id: int, comm_base: int, map_base: int, name: str,
+             eds: str) -> list[PdoSpec]:
+    """The enabled PDOs a DCF configures (COB-ID, transmission type, mapped objects)."""
+    out = []
+    for n in range(1, 5):
+        cob = _od_value(od, comm_base + n - 1, 1)
+        count = _od_value(od, map_base + n - 1, 0)
+        if cob is None or cob & 0x80000000 or not count:
+            continue
+        refs = []
+        for i in range(1, count + 1):
+            word = _od_value(od, map_base + n - 1, i) or 0
+            refs.append(object_ref(od, word >> 16, word >> 8 & 0xFF,
+                                   f"{Path(eds).name}: {name}{n} mapped object {i}", eds))
+        trans = _od_value(od, comm_base + n - 1, 2)
+        try:
+            codec = PdoCodec(f"{name}{n} node {node_id}", cob & 0x7FF, tuple(refs))
+        except BindingError as exc:  # a DCF mapping more than 8 bytes
+            raise BindingError(f"{Path(eds).name}: {exc}") from None
+        out.append(PdoSpec(n, cob & 0x7FF, 255 if trans is None else trans, codec))
+    return out
+
+
+def _dcf_maps(node: NodeSpec, dividers: Mapping[str, int], tlm_maps: dict[str, list[Any]],
+              cmd_maps: dict[str, list[Any]]) -> None:
+    """A DCF's node: its PDOs are the DCF's (the harness verifies them on the device during
+    set-up instead of writing them); each quantity must be in one of them."""
+    key = f"devices.{node.devices[-1]}.eds"
+    try:
+        node.tpdos = dcf_pdos(node.od, node.node_id, 0x1800, 0x1A00, "TPDO", node.eds)
+        node.rpdos = dcf_pdos(node.od, node.node_id, 0x1400, 0x1600, "RPDO", node.eds)
+    except BindingError as exc:
+        raise BindingError(f"{key}: {exc}") from None
+    for d, qrefs in node.telemetry.items():
+        for qr in qrefs:
+            pdo = next((p for p in node.tpdos if qr.ref in p.codec.entries), None)
+            if pdo is None:
+                raise BindingError(f"devices.{d}.telemetry.{qr.quantity}: {qr.ref.label} is in "
+                                   f"no TPDO of {Path(node.eds).name}'s mapping")
+            if pdo.trans_type != int(dividers.get(d, 1)):
+                raise BindingError(f"bus.sync_divider.{d}: {dividers.get(d, 1)}, but "
+                                   f"{Path(node.eds).name} sends TPDO{pdo.number} every "
+                                   f"{pdo.trans_type} SYNC (transmission type)")
+        for pdo in node.tpdos:
+            fields = tuple(qr for qr in qrefs if qr.ref in pdo.codec.entries)
+            if fields:
+                tlm_maps[d].append(PdoTelemetryMap(d, pdo.codec, fields))
+    owner: dict[int, str] = {}
+    for d, qrefs in node.commands.items():
+        for qr in qrefs:
+            pdo = next((p for p in node.rpdos if qr.ref in p.codec.entries), None)
+            if pdo is None:
+                raise BindingError(f"devices.{d}.commands.{qr.quantity}: {qr.ref.label} is in "
+                                   f"no RPDO of {Path(node.eds).name}'s mapping")
+            if owner.setdefault(pdo.number, d) != d:
+                raise BindingError(f"devices.{d}.commands.{qr.quantity}: RPDO{pdo.number} of "
+                                   f"{Path(node.eds).name} also carries the {owner[pdo.number]}'s "
+                                   "commands; the harness sends one device's command a frame")
+        for pdo in node.rpdos:
+            fields = tuple(qr for qr in qrefs if qr.ref in pdo.codec.entries)
+            if fields:
+                cmd_maps[d].append(PdoCommandMap(d, pdo.codec, fields))
 
 
 def _param_ref(od: Any, p: Mapping[str, Any], key: str, eds: str) -> ObjRef:
@@ -607,4 +682,4 @@ def _param_ref(od: Any, p: Mapping[str, Any], key: str, eds: str) -> ObjRef:
     except (KeyError, IndexError):
         raise BindingError(f"{key}.sub: 0x{index:04X} has no sub-index {sub}") from None
     t = _TYPES.get(var.data_type, (32, False, "I"))
-    return ObjRef(index, sub, t[0], t[1], t[2], var.name)
+    return ObjRef(index, sub, t[0], t[1], t[2], var.name, var.data_type)

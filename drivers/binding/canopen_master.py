@@ -89,7 +89,26 @@ class CanopenMaster:
                     time.sleep(0.0005)
             pump_thread = threading.Thread(target=run_pump, daemon=True, name="canopen-pump")
             pump_thread.start()
-        net.notifier = can.Notifier(self.bus, net.listeners, 0.05)
+        listeners = list(net.listeners)
+        if self.log is not None:
+            # the set-up's traffic goes to the run's CAN log too, both ways (its SDOs, the
+            # nodes' boot-ups): the library sends through the network, frames come in here
+            log = self.log
+            send = net.send_message
+
+            def send_logged(can_id: int, data: Any, remote: bool = False) -> None:
+                send(can_id, data, remote)
+                log(can.Message(arbitration_id=can_id, data=bytes(data), is_extended_id=False,
+                                timestamp=time.time(), is_rx=False))
+
+            net.send_message = send_logged  # type: ignore[method-assign]
+
+            class _Logged(can.Listener):
+                def on_message_received(self, msg: can.Message) -> None:
+                    log(msg)
+
+            listeners.append(_Logged())
+        net.notifier = can.Notifier(self.bus, listeners, 0.05)
         booted: dict[int, threading.Event] = {}
         try:
             remotes: dict[int, Any] = {}
@@ -169,9 +188,11 @@ class CanopenMaster:
             if want is not None and v != want:
                 raise SetupError(f"{spec.label}: identity {name} 0x{v:08X}, expected "
                                  f"0x{want:08X} (0x1018.{sub})")
-        # PDOs: the binding's, every other one disabled
-        for comm_base, map_base, pdos in ((0x1800, 0x1A00, spec.tpdos),
-                                          (0x1400, 0x1600, spec.rpdos)):
+        if spec.verify:
+            self._verify_pdos(rn, spec)
+        # PDOs: the binding's, every other one disabled (a DCF's: verified above instead)
+        for comm_base, map_base, pdos in ([] if spec.verify else ((0x1800, 0x1A00, spec.tpdos),
+                                          (0x1400, 0x1600, spec.rpdos))):
             by_number = {p.number: p for p in pdos}
             for n in range(1, 5):
                 comm, mapping = comm_base + n - 1, map_base + n - 1
@@ -233,6 +254,34 @@ class CanopenMaster:
                           for p in spec.tpdos},
                 "rpdos": {f"RPDO{p.number}": [e.label for e in p.codec.entries]
                           for p in spec.rpdos}}
+
+    def _verify_pdos(self, rn: Any, spec: NodeSpec) -> None:
+        """A DCF's node: the device's PDOs must be what the DCF says (COB-ID, transmission
+        type, every mapped object), or the set-up stops naming the first difference."""
+        u32 = struct.Struct("<I")
+        for comm_base, map_base, pdos, kind in ((0x1800, 0x1A00, spec.tpdos, "TPDO"),
+                                                (0x1400, 0x1600, spec.rpdos, "RPDO")):
+            for p in pdos:
+                comm, mapping = comm_base + p.number - 1, map_base + p.number - 1
+                where = f"{spec.label}: {kind}{p.number}"
+                cob = u32.unpack(self._sdo(rn, spec, comm, 1, f"{kind} COB-ID"))[0]
+                if cob & 0x80000000 or cob & 0x7FF != p.cob_id:
+                    raise SetupError(f"{where}: COB-ID 0x{cob:08X} on the device, the DCF says "
+                                     f"0x{p.cob_id:03X} enabled")
+                trans = self._sdo(rn, spec, comm, 2, f"{kind} transmission type")[0]
+                if trans != p.trans_type:
+                    raise SetupError(f"{where}: transmission type {trans} on the device, the "
+                                     f"DCF says {p.trans_type}")
+                count = self._sdo(rn, spec, mapping, 0, f"{kind} mapping count")[0]
+                want = [e.mapping_entry for e in p.codec.entries]
+                if count != len(want):
+                    raise SetupError(f"{where}: {count} mapped objects on the device, the DCF "
+                                     f"says {len(want)}")
+                for i, w in enumerate(want, start=1):
+                    got = u32.unpack(self._sdo(rn, spec, mapping, i, f"{kind} mapping"))[0]
+                    if got != w:
+                        raise SetupError(f"{where}: mapped object {i} is 0x{got:08X} on the "
+                                         f"device, the DCF says 0x{w:08X}")
 
     def _enable_drive(self, rn: Any, spec: NodeSpec) -> None:
         """CiA 402: fault reset if needed, shutdown -> switch on -> enable operation, each

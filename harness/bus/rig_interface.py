@@ -84,7 +84,13 @@ class RigInterface:
             drv.sequence = b.sequence.get(name)
             drv.multi_frame = len(b.telemetry[name]) > 1
         self.divider = {n: div[n] for n in self.drivers}
-        self._frames_due = {n: len(b.telemetry[n]) for n in self.drivers}
+        # frames due per tick: each distinct telemetry frame (or multiplexed page) once, at
+        # its device's divider (a CANopen TPDO may carry two devices' quantities)
+        groups: dict[int, set[tuple[tuple[int, bool], int | None]]] = {}
+        for n in self.drivers:
+            for m in b.telemetry[n]:
+                groups.setdefault(div[n], set()).add((m.key, m.mux))
+        self._due_groups = tuple((d, len(keys)) for d, keys in groups.items())
         # (id, extended) -> [(frame map, its driver)]
         self._by_key: dict[tuple[int, bool], tuple[tuple[TelemetryMap, DeviceDriver], ...]] = {
             k: tuple((m, every[m.device]) for m in maps)
@@ -179,8 +185,7 @@ class RigInterface:
 
     # ------------------------------------------------------------------ receiving
     def expected_frames(self, tick: int) -> int:
-        due = self._frames_due
-        return sum(due[name] for name, d in self.divider.items() if tick % d == 0)
+        return sum(n for d, n in self._due_groups if tick % d == 0)
 
     def receive(self, tick: int, timeout_s: float, lockstep: bool = False) -> int:
         """Read telemetry until every device due at ``tick`` has answered or the timeout
@@ -233,7 +238,8 @@ class RigInterface:
             self.counters.unknown += 1
             self.counters.last_unknown_id = msg.arbitration_id
             return False
-        for tmap, drv in maps:
+        accepted = False
+        for tmap, drv in maps:  # every device the frame (or this mux page of it) serves
             try:
                 values = tmap.decode(msg.data)
             except FrameError as exc:
@@ -241,7 +247,9 @@ class RigInterface:
                 return False
             if values is not None:
                 drv.update(values, tick)
-                return True
+                accepted = True
+        if accepted:
+            return True
         self.counters.unknown += 1  # a multiplexed page no device is bound to
         self.counters.last_unknown_id = msg.arbitration_id
         return False
