@@ -65,7 +65,7 @@ SERIES_COLOURS: dict[str, tuple[int, int, int]] = {
     "/thrusters/firings": ORANGE,
     "/thrusters/on_time_s": BLUE,
     "/piezo/cmd_ch1_v": ORANGE,
-    "/piezo/cmd_ch2_v": VERMILLION,
+    "/piezo/cmd_ch2_v": PURPLE,
     "/piezo/sensor_ch1_v": BLUE,
     "/piezo/sensor_ch2_v": GREEN,
     "/rotor/angle_rad": BLUE,
