@@ -6,7 +6,8 @@ response overlaid; here the same questions):
   mode (``mode_<n>``) and per mode the rig model predicted (``model_<n>``);
 - ``/candidates/<key>``: each candidate shaper's predicted residual, % of the unshaped slew's
   (worst over the identified bands, weighted by the unshaped slew's modal amplitudes), and
-  ``/measured/<key>``: the residual measured when verified on the rig;
+  ``/measured/<key>``: the residual measured when verified on the rig (a candidate in one
+  colour in both);
 - ``/verified/...`` on the ``time`` timeline (s after the manoeuvre's end + margin): the
   tip acceleration of the unshaped slew and of the recommended shaped one, raw and with the
   identified modes fitted;
@@ -27,7 +28,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from harness.review.names import BLUE, GREY, ORANGE, SKY, VERMILLION
+from harness.review.names import GREEN, GREY, ORANGE, PURPLE, SKY, VERMILLION, YELLOW
 from harness.review.spectrum import (
     FINAL,
     SPECTRUM_COLOUR,
@@ -42,6 +43,10 @@ MODES = "/calibration/modes"
 SPECTRUM_VIEW = "Spectrum of the excitation's free decay (m/s^2) vs frequency (Hz)"
 CANDIDATES_VIEW = "Candidates: residual, % of the unshaped slew's (predicted; measured)"
 VERIFIED_VIEW = "Verified on the rig: tip acceleration after the slew (m/s^2)"
+
+
+# a candidate's colour, the same in the predicted and the measured chart
+CANDIDATE_COLOURS = (SKY, GREEN, PURPLE, YELLOW, ORANGE, (120, 200, 200), (200, 200, 120))
 
 
 def _finite(x: Any) -> bool:
@@ -134,18 +139,19 @@ def write_calibration_rrd(c: Any, path: Path | None = None) -> Path:
                 rec.log(f"{FINAL}/model_{i + 1}", rr.BarChart(
                     [0.5 * top], abscissa=[f], widths=[f_max / 250.0], color=GREY), static=True)
         for k, x in enumerate(c.candidates):
+            colour = CANDIDATE_COLOURS[k % len(CANDIDATE_COLOURS)]
             if _finite(x.predicted_ratio) and x.predicted_ratio:
                 rec.log(f"/candidates/{x.key}", rr.BarChart(
-                    [100.0 / x.predicted_ratio], abscissa=[k], widths=[0.8], color=SKY),
+                    [100.0 / x.predicted_ratio], abscissa=[k], widths=[0.8], color=colour),
                     static=True)
             row = c.verified.get(x.key)
             if row and _finite(row.get("ratio_fitted")) and row["ratio_fitted"]:
                 rec.log(f"/measured/{x.key}", rr.BarChart(
-                    [100.0 / row["ratio_fitted"]], abscissa=[k], widths=[0.8],
-                    color=BLUE if x.key == c.recommended else GREY), static=True)
-        pairs = [("unshaped", c.baseline, VERMILLION, ORANGE)]
+                    [100.0 / row["ratio_fitted"]], abscissa=[k], widths=[0.8], color=colour),
+                    static=True)
+        pairs = [("unshaped", c.baseline, (150, 90, 60), VERMILLION)]
         if c.recommended is not None and c.recommended in c.verified:
-            pairs.append(("shaped", c.verified[c.recommended], BLUE, SKY))
+            pairs.append(("shaped", c.verified[c.recommended], (60, 110, 150), SKY))
         labels = {x.key: x.label for x in c.candidates}
         for name, row, raw_colour, fit_colour in pairs:
             if not row or "series" not in row:
@@ -153,12 +159,14 @@ def write_calibration_rrd(c: Any, path: Path | None = None) -> Path:
             s = row["series"]
             t = np.asarray(s["t"], dtype=float)
             title = "unshaped" if name == "unshaped" else labels.get(c.recommended, "shaped")
-            for part, values, colour in (("raw", s["accel"], raw_colour),
-                                         ("fitted", s["fitted"], fit_colour)):
+            # the fitted residual is the reading: drawn thick over the thin, noisy raw one
+            for part, values, colour, width in (("raw", s["accel"], raw_colour, 0.5),
+                                                ("fitted", s["fitted"], fit_colour, 2.5)):
                 entity = f"/verified/{name}/{part}"
                 rec.log(entity, rr.SeriesLines(
                     names=f"{title}, {'accelerometer' if part == 'raw' else 'modes fitted'}",
-                    colors=[colour], aggregation_policy="MinMax"), static=True)
+                    colors=[colour], widths=[width], aggregation_policy="MinMax"),
+                    static=True)
                 rec.send_columns(entity, indexes=[rr.TimeColumn("time", duration=t)],
                                  columns=rr.Scalars.columns(
                                      scalars=np.asarray(values, dtype=float)))
