@@ -39,12 +39,6 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
-def _limit(limit: Any) -> str:
-    if not isinstance(limit, dict):
-        return _fmt(limit)
-    return ", ".join(f"{k} {_fmt(v)}" for k, v in limit.items() if k != "over")
-
-
 def channel_specs(run_dir: Path, criteria_results: list[dict[str, Any]]
                   ) -> list[dict[str, Any]]:
     """The run's channel criteria (verdict layer): channel, band (lo, hi) and window."""
@@ -328,6 +322,9 @@ def write_reports(out_dir: Path, records: list[dict[str, Any]], *, not_run: list
         "counts": _counts(records), "refused": refused, "preflight": preflight,
         "not_run": not_run, "tests": records,
     }
+    from harness.history.record import record_suite  # the results database (issue 22)
+
+    record_suite(out_dir, doc)  # adds each criterion's recent values ("trend") to doc
     (out_dir / "results.json").write_text(json.dumps(doc, indent=2, default=_json_default))
     (out_dir / "report.md").write_text(_markdown(doc, out_dir))
     (out_dir / "report.html").write_text(_html(doc, out_dir))
@@ -342,7 +339,9 @@ def _json_default(v: Any) -> Any:
 
 def _criteria_rows(criteria: list[dict[str, Any]]) -> list[list[str]]:
     """Value, limit and margin with their units as people write them (``N m``, ``m/s²``,
-    ``|x| ≤ 0.1 deg``), the time of the worst sample."""
+    ``|x| ≤ 0.1 deg``), the criterion's recent values (the results database), the time of
+    the worst sample."""
+    from harness.history.record import trend_text
     from harness.review.units import limit_text, quantity
 
     rows = []
@@ -352,6 +351,8 @@ def _criteria_rows(criteria: list[dict[str, Any]]) -> list[list[str]]:
         value = quantity(c.get("value"), unit)
         if c.get("kind") == "settles" and c.get("value") is not None:
             value += " after its trigger"  # not summary.json's settle_time_s (from t = 0)
+        if c.get("trend"):
+            value += f" (recent: {trend_text(c['trend'])})"
         rows.append([c.get("name", ""), c.get("kind", ""), value,
                      limit_text({k: v for k, v in limit.items() if k != "over"})
                      if isinstance(limit, dict) else _fmt(limit),
