@@ -24,6 +24,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import math
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -532,8 +533,21 @@ def write_outputs(c: Calibration) -> None:
               f"Target {'met' if c.target_met else 'NOT met'}: {c.recommendation_note}.\n"
               f"Report: {c.folder / 'report.md'}")
     c.report = write_report(c)
+    _write_recording(c)
     data = c.to_dict()
     (c.folder / "results.json").write_text(json.dumps(_jsonable(data), indent=2))
+
+
+def _write_recording(c: Calibration) -> None:
+    """calibration.rrd: modes, candidates' predicted and measured residuals and the
+    verified pair in one layout (harness.review.calibration); the calibration stands
+    without it."""
+    try:
+        from harness.review.calibration import write_calibration_rrd
+
+        write_calibration_rrd(c)
+    except Exception as exc:  # noqa: BLE001 - the run files and report are written
+        print(f"harness calibrate: could not write calibration.rrd ({exc})", file=sys.stderr)
 
 
 def _jsonable(x: Any) -> Any:

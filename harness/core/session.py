@@ -37,6 +37,7 @@ from harness.core.streaming import RunningSummary
 from harness.record.can_log import CanLog
 from harness.record.reader import RecordedColumns
 from harness.record.recording import Recorder
+from harness.review.annotations import ReviewAnnotator
 from harness.review.bus import write_bus
 from harness.review.events import log_event
 from harness.review.layouts import PlotStats, layout_for_run, write_layout_file
@@ -329,7 +330,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                         # lockstep outruns the file sink: wait for it every 10 blocks so its
                         # queue stays bounded; real time never waits (the sink keeps up)
                         flush_every_blocks=0 if clock_name == "realtime" else 10,
-                        blueprint=layout_for_run(run.resolved(), CHANNELS))
+                        blueprint=layout_for_run(run.resolved(), CHANNELS),
+                        annotator=ReviewAnnotator())
     pump = None
     stats = LoopStats()
     setup = RealTimeSetup()
@@ -472,9 +474,11 @@ def _final_layout(recorder: Recorder, run: RunConfig, run_dir: Path,
     emptiest corner (``plot_stats``, a recorder observer, saw every row; layout.json keeps
     both for identify.rrd and verdict.rrd, harness.review.layouts)."""
     try:
-        ranges, legends = plot_stats.ranges(), plot_stats.legends(run.data["duration_s"])
-        write_layout_file(run_dir, ranges, legends)
-        recorder.send_layout(layout_for_run(run.resolved(), CHANNELS, ranges, legends))
+        # the time axes end where the recording does (a faulted run's at the fault)
+        end_s = plot_stats.end_s or run.data["duration_s"]
+        ranges, legends = plot_stats.ranges(), plot_stats.legends(end_s)
+        write_layout_file(run_dir, ranges, legends, end_s)
+        recorder.send_layout(layout_for_run(run.resolved(), CHANNELS, ranges, legends, end_s))
     except Exception as exc:  # the layout of the start stays
         print(f"harness: could not write the run's final layout ({exc})", file=sys.stderr)
 
