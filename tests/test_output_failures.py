@@ -144,13 +144,18 @@ def test_judge_writes_through_no_link(short_run, tmp_path):
     outside_rrd = tmp_path / "outside.rrd"
     outside_json.write_text("keep")
     outside_rrd.write_text("keep")
-    for name, target in (("verdict.json", outside_json), ("verdict.rrd", outside_rrd)):
+    outside_run = tmp_path / "outside-run.rrd"
+    shutil.copy(run_dir / "run.rrd", outside_run)
+    before = outside_run.read_bytes()
+    for name, target in (("verdict.json", outside_json), ("verdict.rrd", outside_rrd),
+                         ("run.rrd", outside_run)):
         (run_dir / name).unlink(missing_ok=True)
         (run_dir / name).symlink_to(target)
     proc = subprocess.run([sys.executable, "-m", "harness", "judge", str(run_dir)],
                           capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert "Traceback" not in proc.stderr
     assert outside_json.read_text() == "keep" and outside_rrd.read_text() == "keep"
+    assert outside_run.read_bytes() == before  # the verdict is not appended through a link
     assert json.loads((run_dir / "verdict.json").read_text())["verdict"]
 
 
