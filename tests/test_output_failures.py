@@ -419,3 +419,25 @@ def test_hand_edited_summaries_never_crash_judge_or_logs(short_run, tmp_path):
         assert proc.returncode in (3, 4), (text[:80], proc.stdout, proc.stderr)
         assert "summary.json" in proc.stdout + proc.stderr
     assert main(["logs", "--logs", str(logs)]) == 0
+
+
+# -- replay in bounded memory ----------------------------------------------------------------
+
+def test_streamed_replay_keeps_no_tick_and_checks_the_same(short_run):
+    from harness.core.replay import (
+        ReplayChecker,
+        check_replay,
+        load_run_dir,
+        replay_log,
+    )
+
+    run, summary = load_run_dir(short_run)
+    kept = replay_log(short_run / "can.blf", run.rig, run.dt_s)
+    checker = ReplayChecker(run)
+    streamed = replay_log(short_run / "can.blf", run.rig, run.dt_s, keep_ticks=False,
+                          on_tick=checker)
+    assert streamed.ticks == [] and streamed.n_ticks == len(kept.ticks) > 0
+    assert (streamed.first_tick, streamed.last_tick) == (kept.ticks[0].tick,
+                                                         kept.ticks[-1].tick)
+    assert streamed.missing_frames == kept.missing_frames
+    assert checker.finish() == check_replay(kept, run)

@@ -39,12 +39,13 @@ from harness.core.replay import (
     CheckResult,
     MonitorReplay,
     Replay,
+    ReplayChecker,
     ReplayError,
+    ReplayRecording,
     apply_monitor,
-    check_replay,
     load_run_dir,
     replay_log,
-    write_rrd,
+    replay_recording_name,
 )
 from rig_models.rig_file import load_rig
 from rig_models.schema import ConfigError
@@ -74,6 +75,7 @@ def _stage(text: str) -> None:
 def cmd_replay(args: argparse.Namespace) -> int:
     path: Path = args.path
     result: CheckResult | None = None
+    writer: ReplayRecording | None = None
     try:
         if not path.exists():
             raise ReplayError(f"{path}: no such file or directory")
@@ -82,12 +84,17 @@ def cmd_replay(args: argparse.Namespace) -> int:
             if args.rig or args.rate_hz:
                 print("harness replay: --rig/--rate-hz ignored: the run directory's "
                       "config.yaml gives its rig and rate", file=sys.stderr)
-            monitor = None
+            monitor = checker = None
             if args.check:
                 monitor = MonitorReplay(run, realtime=summary.get("clock") == "realtime",
                                         dry_run=bool(summary.get("dry_run", False)))
-            _stage(f"reading and replaying {path / 'can.blf'}")
-            replay = replay_log(path / "can.blf", run.rig, run.dt_s, on_tick=monitor)
+                checker = ReplayChecker(run, dry_run=bool(summary.get("dry_run", False)))
+            writer = _writer(args.rrd, path / "can.blf")
+            _stage(f"reading and replaying {path / 'can.blf'}"
+                   + (", checking the controller" if args.check else ""))
+            # one pass, tick by tick: nothing of the capture is kept (bounded memory)
+            replay = replay_log(path / "can.blf", run.rig, run.dt_s, keep_ticks=False,
+                                on_tick=_each(monitor, checker, writer))
             rig_name = run.rig.name
         else:
             if args.check:
@@ -96,24 +103,29 @@ def cmd_replay(args: argparse.Namespace) -> int:
             if args.rate_hz is not None and not args.rate_hz > 0:
                 raise ReplayError(f"--rate-hz: expected a number > 0 (Hz), got {args.rate_hz}")
             rig = load_rig(args.rig or "sgsrt")
+            checker = None
+            writer = _writer(args.rrd, path)
             _stage(f"reading and replaying {path}")
-            replay = replay_log(path, rig, 1.0 / (args.rate_hz or 500.0))
+            replay = replay_log(path, rig, 1.0 / (args.rate_hz or 500.0), keep_ticks=False,
+                                on_tick=_each(writer))
             rig_name = rig.name
-        if not replay.ticks:
+        if writer is not None:
+            writer.close()
+            writer = None
+        if not replay.n_ticks:
             raise ReplayError(f"{replay.source}: no SYNC frame (0x080): not a log of a "
                               "harness run")
-        if args.check:
-            _stage(f"checking the controller on {len(replay.ticks)} ticks")
-            result = check_replay(replay, run, dry_run=bool(summary.get("dry_run", False)))
+        if checker is not None:
+            result = checker.finish()
             result.stopped_by = summary.get("stopped_by")
             result.summary_ticks = summary.get("ticks")
             apply_monitor(result, monitor, summary)
-        if args.rrd is not None:
-            _stage(f"writing {args.rrd}")
-            write_rrd(replay, args.rrd)
     except (ReplayError, ConfigError, OSError) as exc:
         print(f"harness replay: {exc}", file=sys.stderr)
         return 2
+    finally:
+        if writer is not None:  # the replay stopped part way: what was written stays
+            writer.close()
     report = to_dict(replay, rig_name, result)
     if args.rrd is not None:
         report["rrd"] = str(args.rrd)
@@ -124,6 +136,22 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 1 if result is not None and not result.consistent else 0
 
 
+def _writer(rrd: Path | None, source: Path) -> ReplayRecording | None:
+    return None if rrd is None else ReplayRecording(rrd, replay_recording_name(source))
+
+
+def _each(*consumers: Any) -> Any:
+    """One ``on_tick`` calling every consumer given (None skipped) in order."""
+    live = [c for c in consumers if c is not None]
+    if not live:
+        return None
+
+    def on_tick(iface: Any, t: Any) -> None:
+        for consume in live:
+            consume(iface, t)
+    return on_tick
+
+
 def to_dict(replay: Replay, rig_name: str, result: CheckResult | None) -> dict[str, Any]:
     protocol = load_protocol()
     frames = []
@@ -132,11 +160,11 @@ def to_dict(replay: Replay, rig_name: str, result: CheckResult | None) -> dict[s
         frames.append({"id": f"0x{fid:03X}", "name": codec.name if codec else "?",
                        "from": "harness" if fid in replay.harness_ids else
                        "device" if codec else "unknown", "frames": n})
-    t = replay.ticks
     out: dict[str, Any] = {
         "log": str(replay.source), "rig": rig_name, "rate_hz": 1.0 / replay.dt_s,
-        "ticks": len(t), "first_tick": t[0].tick, "last_tick": t[-1].tick,
-        "duration_s": t[-1].time_s - t[0].time_s, "frames": frames,
+        "ticks": replay.n_ticks, "first_tick": replay.first_tick,
+        "last_tick": replay.last_tick,
+        "duration_s": replay.last_time_s - replay.first_time_s, "frames": frames,
         "total_frames": replay.total_frames, "malformed": sum(replay.malformed.values()),
         "malformed_by_frame": {k: v for k, v in replay.malformed.items() if v},
         "unknown_ids": replay.unknown, "error_frames": replay.error_frames,

@@ -106,6 +106,14 @@ class Replay:
     """SYNC frames whose tick is not the previous one plus one."""
     before_first_sync: int
     """Device frames before the first SYNC (not fed to the drivers: their tick is unknown)."""
+    n_ticks: int = 0
+    first_tick: int | None = None
+    last_tick: int | None = None
+    first_time_s: float = 0.0
+    last_time_s: float = 0.0
+    missing_total: int = 0
+    """Counted as the ticks go by: ``ticks`` is empty when they were not kept (a streamed
+    replay, ``replay_messages(keep_ticks=False)``)."""
 
     @property
     def total_frames(self) -> int:
@@ -113,7 +121,7 @@ class Replay:
 
     @property
     def missing_frames(self) -> int:
-        return sum(t.missing for t in self.ticks)
+        return self.missing_total
 
 
 @dataclass(frozen=True)
@@ -215,11 +223,13 @@ def _decode(codec: FrameCodec, data: bytes) -> dict[str, float]:
 
 def replay_messages(messages: Iterable[can.Message], rig: RigConfig, dt_s: float,
                     source: Path = Path("-"), protocol: Protocol | None = None,
-                    on_tick: Callable[[RigInterface, ReplayTick], None] | None = None
-                    ) -> Replay:
+                    on_tick: Callable[[RigInterface, ReplayTick], None] | None = None,
+                    keep_ticks: bool = True) -> Replay:
     """Split ``messages`` into ticks at each SYNC and decode them with the harness's drivers.
     ``on_tick(interface, tick)`` is called after each tick's frames went through the drivers
-    (the fault monitor's re-run uses it)."""
+    (the fault monitor's re-run, the check and the recording of a streamed replay use it).
+    ``keep_ticks=False``: the ticks are not kept (``Replay.ticks`` stays empty), so memory
+    does not grow with the capture."""
     protocol = protocol or load_protocol()
     iface, bus = _interface(protocol, rig)
     tx_ids = harness_frame_ids(protocol)
@@ -227,6 +237,7 @@ def replay_messages(messages: Iterable[can.Message], rig: RigConfig, dt_s: float
     frames_by_id: Counter[int] = Counter()
     harness_malformed: Counter[str] = Counter()
     ticks: list[ReplayTick] = []
+    seen = {"n": 0, "first": None, "last": None, "t0": 0.0, "t1": 0.0, "missing": 0}
     sync_gaps = before = 0
     tick: int | None = None
     rx: list[can.Message] = []
@@ -237,10 +248,17 @@ def replay_messages(messages: Iterable[can.Message], rig: RigConfig, dt_s: float
             return
         got = sum(iface.feed(msg, tick) for msg in rx)
         state = copy.copy(iface.snapshot(tick, tick * dt_s))
-        ticks.append(ReplayTick(tick, tick * dt_s, state, list(cmds), got,
-                                max(0, iface.expected_frames(tick) - got)))
+        t = ReplayTick(tick, tick * dt_s, state, list(cmds), got,
+                       max(0, iface.expected_frames(tick) - got))
+        if keep_ticks:
+            ticks.append(t)
+        seen["n"] += 1
+        if seen["first"] is None:
+            seen["first"], seen["t0"] = tick, t.time_s
+        seen["last"], seen["t1"] = tick, t.time_s
+        seen["missing"] += t.missing
         if on_tick is not None:
-            on_tick(iface, ticks[-1])
+            on_tick(iface, t)
 
     for msg in messages:
         if not msg.is_error_frame:
@@ -277,12 +295,16 @@ def replay_messages(messages: Iterable[can.Message], rig: RigConfig, dt_s: float
         harness_ids=tx_ids, error_frames=iface.counters.error_frames,
         bus_off=iface.counters.bus_off, unknown=iface.counters.unknown, malformed=malformed,
         sequence_errors={n: d.counters.sequence_errors for n, d in iface.drivers.items()},
-        sync_gaps=sync_gaps, before_first_sync=before)
+        sync_gaps=sync_gaps, before_first_sync=before, n_ticks=seen["n"],
+        first_tick=seen["first"], last_tick=seen["last"], first_time_s=seen["t0"],
+        last_time_s=seen["t1"], missing_total=seen["missing"])
 
 
 def replay_log(path: Path, rig: RigConfig, dt_s: float,
-               on_tick: Callable[[RigInterface, ReplayTick], None] | None = None) -> Replay:
-    return replay_messages(read_log(path), rig, dt_s, source=path, on_tick=on_tick)
+               on_tick: Callable[[RigInterface, ReplayTick], None] | None = None,
+               keep_ticks: bool = True) -> Replay:
+    return replay_messages(read_log(path), rig, dt_s, source=path, on_tick=on_tick,
+                           keep_ticks=keep_ticks)
 
 
 # ----------------------------------------------------------------------- run directories
@@ -367,39 +389,70 @@ def check_replay(replay: Replay, run: RunConfig, dry_run: bool = False,
                  protocol: Protocol | None = None) -> CheckResult:
     """Step ``run``'s controller (built as ``execute_run`` builds it) on the replayed states
     and compare its encoded commands with the logged ones, tick by tick."""
-    protocol = protocol or load_protocol()
-    controller = build_controller(run)
-    enc, bus = _interface(protocol, run.rig, run.actuators, dry_run=dry_run)
-    out = CheckResult()
-    last = len(replay.ticks) - 1
-    for i, t in enumerate(replay.ticks):
+    checker = ReplayChecker(run, dry_run, protocol)
+    for t in replay.ticks:
+        checker.feed(t)
+    return checker.finish()
+
+
+class ReplayChecker:
+    """``check_replay`` one tick at a time (a streamed replay's ``on_tick``): memory does
+    not grow with the capture. The last tick is told apart (a run that stopped before its
+    commands went out), so each tick is checked when the next one arrives, the last one by
+    ``finish()``."""
+
+    def __init__(self, run: RunConfig, dry_run: bool = False,
+                 protocol: Protocol | None = None) -> None:
+        self.protocol = protocol or load_protocol()
+        self.controller = build_controller(run)
+        self.enc, self.bus = _interface(self.protocol, run.rig, run.actuators,
+                                        dry_run=dry_run)
+        self.out = CheckResult()
+        self._held: ReplayTick | None = None
+
+    def __call__(self, iface: RigInterface, t: ReplayTick) -> None:
+        self.feed(t)
+
+    def feed(self, t: ReplayTick) -> None:
+        if self._held is not None:
+            self._step(self._held, last=False)
+        self._held = t
+
+    def finish(self) -> CheckResult:
+        if self._held is not None:
+            self._step(self._held, last=True)
+            self._held = None
+        return self.out
+
+    def _step(self, t: ReplayTick, last: bool) -> None:
+        out, protocol, bus = self.out, self.protocol, self.bus
         logged, safe = split_commands(t.commands)
         if safe:
             out.safe_tick = t.tick
         bus.sent.clear()
         try:
-            enc.command(controller.step(t.state))
+            self.enc.command(self.controller.step(t.state))
         except Exception as exc:  # the run's controller failed at this tick
-            if i == last and not logged:
+            if last and not logged:
                 out.skipped.append((t.tick, f"the controller raised {type(exc).__name__}: "
                                     f"{exc}; the run sent no command in this tick either"))
-                break
+                return
             out.ticks_compared += 1
             _mismatch(out, Mismatch(t.tick, t.time_s, "(controller)", None, None,
                                     f"the controller raised {type(exc).__name__}: {exc}"))
-            continue
+            return
         sent = [(protocol.by_id[m.arbitration_id], bytes(m.data)) for m in bus.sent]
-        if i == last and sent and not logged:
+        if last and sent and not logged:
             out.skipped.append((t.tick, "no controller command in the log: the run stopped "
                                 "before this tick's commands went out"
                                 + (" (only the safe commands)" if safe else "")))
-            continue
+            return
         out.ticks_compared += 1
         if [c.name for c in logged] != [c.name for c, _ in sent]:
             _mismatch(out, Mismatch(
                 t.tick, t.time_s, "(frames)", [c.name for c in logged],
                 [c.name for c, _ in sent], "the command frames sent differ"))
-            continue
+            return
         pairs = list(zip(logged, sent, strict=True))
         bad = [(c.name, d) for c, (codec, data) in pairs if (d := _compare(codec, c, data))]
         if bad:
@@ -407,11 +460,10 @@ def check_replay(replay: Replay, run: RunConfig, dry_run: bool = False,
             k = [c.name for c in logged].index(name)
             _mismatch(out, Mismatch(t.tick, t.time_s, name, logged[k].values,
                                     sent[k][0].decode(sent[k][1]), detail))
-            continue
+            return
         out.ticks_matching += 1
         if all(c.data == data for c, (_, data) in pairs):
             out.ticks_identical += 1
-    return out
 
 
 def _mismatch(out: CheckResult, m: Mismatch) -> None:
@@ -510,23 +562,44 @@ def write_rrd(replay: Replay, path: Path, recording_name: str | None = None) -> 
     """The replayed telemetry and the controller's command frames (the leave-safe group
     left out, as run.rrd records them) as scalar channels on the ``time`` timeline
     (tick * dt), with the entity paths of run.rrd."""
-    from harness.review.annotations import ReviewAnnotator
-
-    rec = Recorder(path, REPLAY_CHANNELS, max(1, len(replay.ticks)),
-                   recording_name or f"replay-{replay.source.parent.name or replay.source.name}",
-                   annotator=ReviewAnnotator())
+    writer = ReplayRecording(path, recording_name or replay_recording_name(replay.source))
     try:
         for t in replay.ticks:
-            row = rec.row(t.time_s)
-            ctrl = {c.name: c.values for c in split_commands(t.commands)[0] if not c.malformed}
-            row[:] = (
-                *(f(t.state) for f in TELEMETRY_CHANNELS.values()),
-                *(get(ctrl[name]) if name in ctrl else math.nan
-                  for name, get in COMMAND_CHANNELS.values()),
-                t.telemetry_frames,
-            )
-            rec.commit()
-            rec.drain()
+            writer.feed(t)
     finally:
-        rec.close()
+        writer.close()
     return path
+
+
+def replay_recording_name(source: Path) -> str:
+    return f"replay-{source.parent.name or source.name}"
+
+
+class ReplayRecording:
+    """``write_rrd`` one tick at a time (a streamed replay's ``on_tick``)."""
+
+    def __init__(self, path: Path, recording_name: str) -> None:
+        from harness.review.annotations import ReviewAnnotator
+
+        self.path = path
+        self.rec = Recorder(path, REPLAY_CHANNELS, 1, recording_name,
+                            annotator=ReviewAnnotator())
+
+    def __call__(self, iface: RigInterface, t: ReplayTick) -> None:
+        self.feed(t)
+
+    def feed(self, t: ReplayTick) -> None:
+        rec = self.rec
+        row = rec.row(t.time_s)
+        ctrl = {c.name: c.values for c in split_commands(t.commands)[0] if not c.malformed}
+        row[:] = (
+            *(f(t.state) for f in TELEMETRY_CHANNELS.values()),
+            *(get(ctrl[name]) if name in ctrl else math.nan
+              for name, get in COMMAND_CHANNELS.values()),
+            t.telemetry_frames,
+        )
+        rec.commit()
+        rec.drain()
+
+    def close(self) -> None:
+        self.rec.close()
