@@ -129,8 +129,10 @@ def _run(args: argparse.Namespace) -> int:
     except OSError as exc:
         if not is_output_failure(exc):
             raise
-        # a full, read-only or failing disk: one line naming the file, not a traceback
-        print(f"harness: cannot write {exc.filename or ''}: {exc.strerror}", file=sys.stderr)
+        # a full, read-only or failing disk: one line naming the file (or the command's
+        # output folder when the error does not say), not a traceback
+        where = exc.filename or getattr(args, "out", None) or "the output folder"
+        print(f"harness: cannot write to {where}: {exc.strerror or exc}", file=sys.stderr)
         return 4
     except OutputError as exc:
         print(f"harness: {exc}", file=sys.stderr)

@@ -441,3 +441,20 @@ def test_streamed_replay_keeps_no_tick_and_checks_the_same(short_run):
                                                          kept.ticks[-1].tick)
     assert streamed.missing_frames == kept.missing_frames
     assert checker.finish() == check_replay(kept, run)
+
+
+def test_harness_test_on_a_full_filesystem_is_exit_4_without_traceback(tmp_path):
+    import yaml
+
+    run = yaml.safe_load((ROOT / "harness/runs/slew-rw.yaml").read_text())
+    run["duration_s"] = 0.5
+    run["expect"] = {"final_error": {"measure": "final_angle_error_deg", "max_abs_deg": 100}}
+    run_file = tmp_path / "small.yaml"
+    run_file.write_text(yaml.safe_dump(run))
+    with _small_filesystem("64k") as mnt:
+        proc = subprocess.run([sys.executable, "-m", "harness", "test", str(run_file), "--out",
+                               str(mnt), "--workers", "1"],
+                              capture_output=True, text=True, timeout=150, cwd=ROOT)
+        assert proc.returncode == 4, proc.stderr
+        assert "Traceback" not in proc.stderr
+        assert str(mnt) in proc.stderr
