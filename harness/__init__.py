@@ -10,5 +10,9 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 # Recordings are written without an RRD footer on purpose (harness.record.recording: its manifest
 # grows with the run); Rerun warns about that on every file. Only that module's warnings are
-# silenced, only when RUST_LOG is unset. Must precede rerun's import.
-os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd::file_sink=error")
+# silenced, only when RUST_LOG is unset. Must precede rerun's import. The file sink's and the
+# stream's own errors too: a write that fails (a full disk) is caught by the recorder's flush
+# and said in one line naming the folder (harness.record.output.OutputError), where Rerun
+# printed two more of its own.
+os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd::file_sink=off,"
+                      "re_sdk::recording_stream=off")
