@@ -161,7 +161,8 @@ def test_judge_writes_through_no_link(short_run, tmp_path):
 
 # -- a run whose folder fails ------------------------------------------------------------
 
-def test_guard_stops_the_run_safe_and_never_completed(tmp_path, monkeypatch):
+@pytest.mark.parametrize("clock", ["lockstep", "realtime"])
+def test_guard_stops_the_run_safe_and_never_completed(tmp_path, monkeypatch, clock):
     """The disk fills during the run (a fake statvfs): the loop stops at the next block,
     the rig is commanded safe, summary.json says error, everything written reads back."""
     calls = {"n": 0}
@@ -173,7 +174,7 @@ def test_guard_stops_the_run_safe_and_never_completed(tmp_path, monkeypatch):
     monkeypatch.setattr(output, "free_bytes", free)
     with pytest.raises(OutputError) as info:
         execute_run(load_run("slew-rw", {"duration_s": 10.0}), out_dir=tmp_path,
-                    show_progress=False)
+                    show_progress=False, clock=clock)
     (run_dir,) = tmp_path.iterdir()
     assert str(run_dir) in str(info.value)
     summary = json.loads((run_dir / "summary.json").read_text())
@@ -184,9 +185,11 @@ def test_guard_stops_the_run_safe_and_never_completed(tmp_path, monkeypatch):
     assert _rows(run_dir / "run.rrd") > 0
 
 
-def test_can_log_that_cannot_write_stops_the_run_safe(tmp_path, monkeypatch):
-    """A write of the CAN log fails with ENOSPC (a fake writer): the loop leaves the rig
-    safe, the run raises OutputError, summary.json never says completed."""
+@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EROFS, errno.EIO])
+def test_can_log_that_cannot_write_stops_the_run_safe(tmp_path, monkeypatch, code):
+    """A write of the CAN log fails (a fake writer: a full disk, a folder remounted
+    read-only, an I/O error): the loop leaves the rig safe, the run raises OutputError,
+    summary.json never says completed."""
     safe_calls: list[int] = []
     real_leave_safe = loop_module.leave_safe
 
@@ -201,11 +204,11 @@ def test_can_log_that_cannot_write_stops_the_run_safe(tmp_path, monkeypatch):
     def failing_drain(self):
         count["n"] += 1
         if count["n"] > 5:
-            raise OSError(errno.ENOSPC, "No space left on device", str(self.path))
+            raise OSError(code, os.strerror(code), str(self.path))
         return real_drain(self)
 
     monkeypatch.setattr(CanLog, "_drain", failing_drain)
-    with pytest.raises(OutputError, match="No space left on device"):
+    with pytest.raises(OutputError, match=os.strerror(code)):
         execute_run(load_run("slew-rw", {"duration_s": 10.0}), out_dir=tmp_path,
                     show_progress=False)
     assert safe_calls == [1]
