@@ -236,6 +236,7 @@ def test_socketcand_with_nothing_listening_is_one_line_in_bounded_time(tmp_path)
 def test_socketcand_to_another_host_is_refused():
     from harness.bus import BusSpecError, parse_bus
 
-    for text in ("socketcand:10.0.0.2:29536", "socketcand:lab-rig.local:29536"):
+    for text in ("socketcand:10.0.0.2:29536", "socketcand:lab-rig.local:29536",
+                 "socketcand:127.0.0.1:99999", "socketcand:127.0.0.1:0"):
         with pytest.raises(BusSpecError, match="loopback only"):
             parse_bus(text)

@@ -76,7 +76,7 @@ def parse_bus(text: str) -> BusSpec:
         return BusSpec("unix", rest)
     if interface == "socketcand":
         host, _, port = rest.rpartition(":")
-        if host not in LOOPBACK_HOSTS or not port.isdigit():
+        if host not in LOOPBACK_HOSTS or not port.isdigit() or not 0 < int(port) < 65536:
             raise BusSpecError(
                 f"--bus {text!r}: expected socketcand:127.0.0.1:PORT; socketcand is for a "
                 "virtual rig on this machine (loopback only), the lab rig is reached with "
