@@ -40,7 +40,6 @@ from pathlib import Path
 from typing import Any, cast
 
 import can
-import yaml
 
 from drivers.dbc import FrameCodec, FrameError, Protocol, load_protocol
 from harness.bus.rig_interface import RigInterface
@@ -317,10 +316,12 @@ def load_run_dir(run_dir: Path) -> tuple[RunConfig, dict[str, Any]]:
     cfg_path = run_dir / "config.yaml"
     if not cfg_path.is_file():
         raise ReplayError(f"{cfg_path}: no such file (not a run directory)")
+    from rig_models.yaml_file import load_yaml
+
     try:
-        cfg = yaml.safe_load(cfg_path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise ReplayError(f"{cfg_path}: cannot read: {exc}") from exc
+        cfg = load_yaml(cfg_path, "config.yaml")  # bounded: a hand-edited copy may not be
+    except ConfigError as exc:
+        raise ReplayError(str(exc)) from exc
     if not isinstance(cfg, dict) or not isinstance(cfg.get("run"), dict) \
             or not isinstance(cfg.get("rig"), dict):
         raise ReplayError(f"{cfg_path}: expected the resolved run config (keys run, rig)")
