@@ -25,6 +25,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from harness.record.streams import save_with_blueprint, send_blueprint, sweep_orphans
+
 APPLICATION_ID = "sgsrt-harness"
 
 
@@ -94,23 +96,24 @@ class Recorder:
         self._blocks_sent = 0
         self._closed = False
         self._last_block: _Block | None = None
-        self.rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_name)
+        rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_name)
+        self.rec: rr.RecordingStream | None = rec
         bp = blueprint or default_blueprint()
         # no RRD footer: writing one keeps a manifest entry per chunk in memory until the
         # file is closed (measured: ~1.2 MB per 100 000 rows, 0.5 GB for a day); the file
         # stays a valid RRD, read by streaming (harness.record.reader)
         if live_view_url is None:
-            self.rec.save(str(path), default_blueprint=bp, write_footer=False)
+            save_with_blueprint(rec, path, bp, write_footer=False)
         else:
             # the file and a viewer we started bound to 127.0.0.1 (harness.live_view); we
             # never call serve_grpc, which binds every interface
-            self.rec.set_sinks(rr.FileSink(str(path), write_footer=False),
-                               rr.GrpcSink(live_view_url))
-            self.rec.send_blueprint(bp)
-        self.rec.send_recording_name(recording_name)
+            rec.set_sinks(rr.FileSink(str(path), write_footer=False),
+                          rr.GrpcSink(live_view_url))
+            send_blueprint(rec, bp)
+        rec.send_recording_name(recording_name)
         from harness.review.names import log_series_names
 
-        log_series_names(self.rec, self.channels)
+        log_series_names(rec, self.channels)
 
     def row(self, time_s: float) -> np.ndarray:
         """The next row to fill (a view); call ``commit()`` when written."""
@@ -164,7 +167,7 @@ class Recorder:
 
     def _send_one(self, block: _Block) -> None:
         c = block.next_channel
-        self.rec.send_columns(
+        self._stream().send_columns(
             self.channels[c],
             indexes=[rr.TimeColumn("time", duration=block.t)],
             columns=rr.Scalars.columns(scalars=block.data[:, c]),
@@ -178,17 +181,17 @@ class Recorder:
 
     def flush(self) -> None:
         """Hand everything logged so far to the file (blocks until written)."""
-        self.rec.flush()
+        self._stream().flush()
 
     def log_static_text(self, entity: str, text: str) -> None:
-        self.rec.log(entity, rr.TextDocument(text, media_type="text/markdown"), static=True)
+        self._stream().log(entity, rr.TextDocument(text, media_type="text/markdown"), static=True)
 
     def log_event(self, time_s: float, entity: str, text: str, level: str = "WARN") -> None:
         """A TextLog under ``/events/...`` and a marker on every plot at ``time_s``, on the
         plot's signal at the last recorded row (harness.review.events)."""
         from harness.review.events import log_event
 
-        log_event(self.rec, time_s, entity, text, level, self.latest_values())
+        log_event(self._stream(), time_s, entity, text, level, self.latest_values())
 
     def queue_event(self, time_s: float, entity: str, text: str, level: str = "WARN",
                     series: str | None = None, name: str | None = None) -> None:
@@ -209,7 +212,7 @@ class Recorder:
         from harness.review.events import log_event
 
         time_s, entity, text, level, values, series, name = event
-        log_event(self.rec, time_s, entity, text, level, values, name=name, series=series)
+        log_event(self._stream(), time_s, entity, text, level, values, name=name, series=series)
 
     def latest_values(self) -> dict[str, float]:
         """Every channel's value in the last committed row (empty before the first)."""
@@ -226,7 +229,7 @@ class Recorder:
     def send_layout(self, blueprint: rrb.Blueprint) -> None:
         """Replace the recording's layout (made default and active), e.g. at the end of a
         run when the plots' ranges are known."""
-        self.rec.send_blueprint(blueprint, make_active=True, make_default=True)
+        send_blueprint(self._stream(), blueprint, make_active=True, make_default=True)
 
     def log_summary(self, summary: dict) -> None:
         """The run's summary as a markdown table at ``/run/summary``."""
@@ -245,8 +248,20 @@ class Recorder:
         self._closed = True
         self._complete_block()
         self.drain()
-        self.rec.flush()
-        self.rec.disconnect()
+        rec = self._stream()
+        rec.flush()
+        rec.disconnect()
+        # a finished stream keeps its two threads and buffers until destroyed, and rerun
+        # destroys it only when a sweep finds it unreferenced: drop ours, then sweep (a
+        # process making many runs stays flat; benchmarks/bench_many_runs.py)
+        del rec
+        self.rec = None
+        sweep_orphans()
+
+    def _stream(self) -> rr.RecordingStream:
+        if self.rec is None:
+            raise RuntimeError(f"{self.path}: the recording is closed")
+        return self.rec
 
     def tail_time(self) -> np.ndarray:
         """Times of the retained tail (the last ``retain_rows`` rows at least, when set)."""
