@@ -108,9 +108,12 @@ def memory_run(seconds: float, rate_hz: float, out: Path) -> dict[str, Any]:
             "virtual_rig_timing": summary.get("virtual_rig_timing")}
 
 
+RIG = "sgsrt"  # --rig: the rig file whose device binding the harness blocks run over
+
+
 def harness_block(seconds: float, rate_hz: float, out: Path) -> Any:
     run = load_run("slew-rw", {"duration_s": seconds, "rate_hz": rate_hz,
-                               "actuators": list(ACTUATORS),
+                               "actuators": list(ACTUATORS), "rig": RIG,
                                "monitor": {"realtime_grace_s": 1.0}})
     return execute_run(run, out_dir=out, clock="realtime", show_progress=False)
 
@@ -124,8 +127,13 @@ def main() -> int:
     ap.add_argument("--work-us", type=float, default=DEFAULT_WORK_S * 1e6)
     ap.add_argument("--memory-run-s", type=float, default=0.0,
                     help="also one continuous real-time run this long, its memory sampled")
+    ap.add_argument("--rig", default="sgsrt",
+                    help="rig file of the harness blocks (e.g. sgsrt-canopen: the CANopen "
+                    "devices' PDOs and SYNC instead of the sgsrt DBC)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
+    global RIG
+    RIG = args.rig
     pairs = max(1, round(args.duration_s / (2 * args.block_s)))
     floor = FloorResult(args.rate_hz)
     h_lat, h_work = LatencyHistogram(), LatencyHistogram()

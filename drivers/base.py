@@ -29,6 +29,7 @@ class DeviceDriver:
     counters: FrameCounters = field(default_factory=FrameCounters)
     last_tick: int = -(10**9)
     values: dict[str, float] = field(default_factory=dict)
+    multi_frame: bool = False  # the binding spreads its telemetry over several frames
 
     name = "device"
     telemetry_frame = ""
@@ -41,24 +42,37 @@ class DeviceDriver:
         return self.protocol[self.telemetry_frame]
 
     def handle(self, data: bytes | bytearray, tick: int) -> bool:
-        """Decode a telemetry payload received during ``tick``; False if malformed."""
+        """Decode an sgsrt telemetry payload received during ``tick``; False if malformed.
+        (The harness decodes through the rig's binding and calls ``update``.)"""
         try:
-            self.values = self.telemetry_codec.decode(data)
+            values = self.telemetry_codec.decode(data)
         except FrameError as exc:
-            self.counters.malformed += 1
-            self.counters.last_error = str(exc)
+            self.malformed(str(exc))
             return False
+        self.update(values, tick)
+        return True
+
+    def malformed(self, reason: str) -> None:
+        self.counters.malformed += 1
+        self.counters.last_error = reason
+
+    def update(self, values: dict[str, float], tick: int) -> None:
+        """New telemetry quantities (``drivers.binding.quantities``, SI) from one frame
+        received during ``tick``. A device with several frames merges them."""
+        if self.multi_frame:  # one frame of several: keep the others' values
+            self.values = {**self.values, **values}
+        else:
+            self.values = values
         self.counters.received += 1
-        if self.sequence is not None:
+        if self.sequence is not None and self.sequence[0] in values:
             name, modulus = self.sequence
-            new = int(self.values.get(name, 0))
+            new = int(values[name])
             last = getattr(self, "_last_seq", None)
             if last is not None and (new - last) % modulus != 1:
                 self.counters.sequence_errors += 1
-                self.counters.last_error = f"{self.telemetry_frame}: {name} went {last} -> {new}"
+                self.counters.last_error = f"{self.name}: {name} went {last} -> {new}"
             self._last_seq = new
         self.last_tick = tick
-        return True
 
     def is_stale(self, tick: int) -> bool:
         return tick - self.last_tick > self.stale_after_ticks

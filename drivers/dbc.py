@@ -1,16 +1,38 @@
-"""The rig's CAN protocol: `sgsrt.dbc` is the single source of truth for every frame.
+"""The rig's CAN protocol: a DBC is the single source of truth for every frame.
 
-cantools parses the DBC; for the 500 Hz loop each message is compiled into a small codec
-(`FrameCodec`) that packs the signals into one little-endian integer. The codecs are
-checked against cantools' own encoder/decoder in the tests. Physical values are clamped to
-the signal's DBC range before scaling, so an encode never overflows a field.
+`sgsrt.dbc` is the rig's own; `load_protocol(path)` reads any lab's DBC. cantools parses the
+DBC; for the 500 Hz loop each message is compiled into a small codec (`FrameCodec`) because
+cantools' own encode/decode cost more than the tick budget. The codecs are checked against
+cantools' encoder/decoder in the tests (tests/test_dbc.py).
+
+What a codec supports (docs/protocol.md): Intel (little-endian) and Motorola (big-endian)
+signals at any start bit and length, with cantools' start-bit convention (an Intel signal's
+start is its least significant bit, a Motorola signal's its most significant bit in the
+DBC's "sawtooth" numbering); signed and unsigned integers with scale and offset; IEEE
+single and double floats; standard and extended (29-bit) ids; simple multiplexing (one
+multiplexer signal selecting which signals are present). Extended multiplexing is refused.
+
+How it stays cheap: the payload read as one little-endian integer holds every Intel signal
+as a contiguous bit field, and read as one big-endian integer holds every Motorola signal
+as one, so each signal is a shift and a mask of one of those two integers. Each message's
+encode and decode are generated as straight-line Python (no per-signal loop, constants
+inlined) once, when the DBC is loaded.
+
+Encode clamps each physical value to the signal's DBC range and to what its raw field can
+hold, then rounds to the nearest step, so an encode never overflows a field; a missing
+signal encodes as 0 (clamped). A non-numeric or NaN value is a ValueError naming the
+signal.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
+from typing import cast
 
 import cantools
 
@@ -18,13 +40,18 @@ DBC_PATH = Path(__file__).with_name("sgsrt.dbc")
 
 
 class FrameError(ValueError):
-    """A frame cannot be decoded (wrong length or unknown id)."""
+    """A frame cannot be decoded or encoded (wrong length, unknown multiplexer value,
+    multiplexer value missing)."""
+
+
+class DbcError(ValueError):
+    """A DBC file cannot be read, parsed or compiled into codecs; names the file."""
 
 
 @dataclass(frozen=True)
 class SignalCodec:
     name: str
-    start: int
+    start: int  # cantools' start bit (Intel: the LSB; Motorola: the MSB, sawtooth numbering)
     length: int
     signed: bool
     scale: float
@@ -32,99 +59,316 @@ class SignalCodec:
     minimum: float
     maximum: float
     unit: str
+    byte_order: str = "little_endian"
+    is_float: bool = False
+    # simple multiplexing: the multiplexer signal itself, or the multiplexer values under
+    # which this signal is present (None: always present)
+    is_multiplexer: bool = False
+    multiplexer_ids: tuple[int, ...] | None = None
 
     @property
     def mask(self) -> int:
         return (1 << self.length) - 1
 
+    @property
+    def word_order(self) -> str:
+        """The byte order to read the payload in so that this signal is one bit field."""
+        return "big" if self.byte_order == "big_endian" else "little"
+
+    def shift(self, frame_length: int) -> int:
+        """The field's LSB in the payload read as one integer in ``word_order``:
+        raw = (int.from_bytes(data, word_order) >> shift) & mask (vectorised readers use
+        this; for Intel signals it is ``start``)."""
+        if self.byte_order != "big_endian":
+            return self.start
+        # Motorola: the MSB is bit start % 8 of byte start // 8; byte b of a big-endian
+        # integer of L bytes holds its bits 8 (L - 1 - b) .. 8 (L - 1 - b) + 7
+        msb = 8 * (frame_length - 1 - self.start // 8) + self.start % 8
+        return msb - self.length + 1
+
+
+_F32 = struct.Struct("<f")
+_F64 = struct.Struct("<d")
+
+
+def _number(x: float | int) -> str:
+    """A finite number as a Python literal (repr round-trips floats exactly)."""
+    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
+        raise ValueError(f"not a finite number: {x!r}")
+    return repr(x)
+
 
 class FrameCodec:
-    """Encode/decode one DBC message (Intel byte order signals only)."""
+    """Encode/decode one DBC message (see the module docstring for what is supported)."""
 
     def __init__(self, message: cantools.database.Message) -> None:
+        self._message = message
         self.name: str = message.name
         self.frame_id: int = message.frame_id
         self.length: int = message.length
         self.is_extended: bool = message.is_extended_frame
         self.comment: str = message.comment or ""
-        signals = []
-        for s in message.signals:
-            if s.byte_order != "little_endian":
-                raise ValueError(f"{message.name}.{s.name}: only little-endian signals supported")
-            signals.append(
-                SignalCodec(
-                    name=s.name,
-                    start=s.start,
-                    length=s.length,
-                    signed=s.is_signed,
-                    scale=float(s.scale),
-                    offset=float(s.offset),
-                    minimum=float(s.minimum if s.minimum is not None else -float("inf")),
-                    maximum=float(s.maximum if s.maximum is not None else float("inf")),
-                    unit=s.unit or "",
-                )
-            )
+        muxes = [s for s in message.signals if s.is_multiplexer]
+        if len(muxes) > 1 or any(s.multiplexer_ids is not None and s.is_multiplexer
+                                 for s in message.signals):
+            raise ValueError(f"{message.name}: extended multiplexing (more than one "
+                             f"multiplexer signal, or a multiplexed multiplexer) is not "
+                             f"supported; only simple multiplexing is")
+        signals = [self._signal(message, s) for s in message.signals]
         self.signals: tuple[SignalCodec, ...] = tuple(signals)
         self.signal_names: tuple[str, ...] = tuple(s.name for s in signals)
-        self._enc = [
-            (s.name, s.start, s.mask, s.scale, s.offset, s.minimum, s.maximum) for s in signals
-        ]
-        self._dec = [
-            (s.name, s.start, s.mask, s.signed, 1 << (s.length - 1), 1 << s.length, s.scale,
-             s.offset)
-            for s in signals
-        ]
+        mux = next((s for s in signals if s.is_multiplexer), None)
+        self.multiplexer: str | None = mux.name if mux is not None else None
+        self.multiplexer_ids: tuple[int, ...] = ()
+        if mux is not None:
+            choices = message.get_signal_by_name(mux.name).conversion.choices or {}
+            ids = {i for s in signals if s.multiplexer_ids for i in s.multiplexer_ids}
+            ids.update(int(k) for k in choices)  # cantools counts named values as ids too
+            self.multiplexer_ids = tuple(sorted(ids))
+            if not ids:  # nothing to select: a plain signal (as cantools decodes it)
+                self.multiplexer = None
+            elif mux.scale != 1 or mux.offset != 0 or mux.is_float:
+                raise ValueError(f"{message.name}.{mux.name}: a multiplexer signal must be an "
+                                 f"integer with scale 1 and offset 0")
+        self.source = self._generate()
+        namespace: dict[str, object] = {"FrameError": FrameError, "_F32": _F32, "_F64": _F64,
+                                        "_encode_error": self._encode_error}
+        exec(compile(self.source, f"<codec {self.name}>", "exec"), namespace)  # noqa: S102
+        # instance attributes, not methods: one call level less on the hot path
+        self.encode = cast(Callable[[dict[str, float]], bytes], namespace["encode"])
+        self.decode = cast(Callable[[bytes | bytearray], dict[str, float]], namespace["decode"])
 
-    def encode(self, values: dict[str, float]) -> bytes:
-        """Physical values -> payload. Missing signals encode as 0; values are clamped to the
-        DBC range and rounded to the nearest step."""
-        word = 0
-        for name, start, mask, scale, offset, lo, hi in self._enc:
-            v = values.get(name, 0.0)
-            if v < lo:
-                v = lo
-            elif v > hi:
-                v = hi
-            raw = round((v - offset) / scale)
-            word |= (raw & mask) << start
-        return word.to_bytes(self.length, "little")
+    def __reduce__(self) -> tuple[type[FrameCodec], tuple[cantools.database.Message]]:
+        # generated functions do not pickle: a process receiving a codec regenerates it
+        return FrameCodec, (self._message,)
 
-    def decode(self, data: bytes | bytearray) -> dict[str, float]:
-        if len(data) != self.length:
-            raise FrameError(
-                f"{self.name} (0x{self.frame_id:03X}): expected {self.length} data bytes, "
-                f"got {len(data)}"
-            )
-        word = int.from_bytes(data, "little")
-        out: dict[str, float] = {}
-        for name, start, mask, signed, half, full, scale, offset in self._dec:
-            raw = (word >> start) & mask
-            if signed and raw >= half:
-                raw -= full
-            out[name] = raw * scale + offset
-        return out
+    @staticmethod
+    def _signal(message: cantools.database.Message, s: cantools.database.Signal) -> SignalCodec:
+        where = f"{message.name}.{s.name}"
+        if s.is_float and s.length not in (32, 64):
+            raise ValueError(f"{where}: a float signal must be 32 or 64 bits, not {s.length}")
+        if s.multiplexer_signal is not None and s.multiplexer_ids is None:
+            raise ValueError(f"{where}: multiplexed by {s.multiplexer_signal} without ids")
+        for name, x in (("scale", s.scale), ("offset", s.offset)):
+            if not math.isfinite(x):
+                raise ValueError(f"{where}: {name} {x} is not finite")
+        if s.scale == 0:
+            raise ValueError(f"{where}: scale 0")
+        return SignalCodec(
+            name=s.name,
+            start=s.start,
+            length=s.length,
+            signed=s.is_signed,
+            scale=float(s.scale),
+            offset=float(s.offset),
+            minimum=s.minimum if s.minimum is not None else -math.inf,
+            maximum=s.maximum if s.maximum is not None else math.inf,
+            unit=s.unit or "",
+            byte_order=s.byte_order,
+            is_float=s.is_float,
+            is_multiplexer=s.is_multiplexer,
+            multiplexer_ids=tuple(s.multiplexer_ids) if s.multiplexer_ids is not None else None,
+        )
+
+    # -- code generation ---------------------------------------------------------------
+    # Every name in the generated source is ours; a DBC's signal names only appear as
+    # repr() string literals and its numbers as checked finite literals.
+
+    def _groups(self) -> list[tuple[int | None, list[SignalCodec]]]:
+        """(mux value, signals present under it); [(None, all)] without multiplexing."""
+        if self.multiplexer is None:
+            return [(None, list(self.signals))]
+        return [(i, [s for s in self.signals
+                     if s.multiplexer_ids is None or i in s.multiplexer_ids])
+                for i in self.multiplexer_ids]
+
+    def _range(self, s: SignalCodec) -> tuple[float | int | None, float | int | None]:
+        """The physical clamp: the DBC range within what the raw field holds."""
+        lo, hi = s.minimum, s.maximum
+        if not s.is_float:
+            raw_lo = -(1 << (s.length - 1)) if s.signed else 0
+            raw_hi = (1 << (s.length - 1)) - 1 if s.signed else (1 << s.length) - 1
+            a, b = raw_lo * s.scale + s.offset, raw_hi * s.scale + s.offset
+            if s.scale == 1 and s.offset == 0:  # exact ints, also beyond 2**53
+                a, b = raw_lo, raw_hi
+            lo, hi = max(lo, min(a, b)), min(hi, max(a, b))
+        return (lo if math.isfinite(lo) else None), (hi if math.isfinite(hi) else None)
+
+    def _encode_lines(self, s: SignalCodec, indent: str) -> list[str]:
+        lines = [f"{indent}v = values.get({s.name!r}, 0.0)"]
+        lo, hi = self._range(s)
+        if lo is not None and hi is not None:
+            lines += [f"{indent}if v < {_number(lo)}: v = {_number(lo)}",
+                      f"{indent}elif v > {_number(hi)}: v = {_number(hi)}"]
+        elif lo is not None:
+            lines.append(f"{indent}if v < {_number(lo)}: v = {_number(lo)}")
+        elif hi is not None:
+            lines.append(f"{indent}if v > {_number(hi)}: v = {_number(hi)}")
+        x = "v" if s.offset == 0 else f"(v - {_number(s.offset)})"
+        if s.is_float:
+            x = x if s.scale == 1 else f"{x} / {_number(s.scale)}"
+            f = "_F32" if s.length == 32 else "_F64"
+            raw = f"int.from_bytes({f}.pack({x}), 'little')"
+        elif s.scale == 1 and s.offset == 0:
+            raw = "round(v)"
+        else:
+            raw = f"round({x} / {_number(s.scale)})"
+        word = "wb" if s.byte_order == "big_endian" else "wl"
+        sh = s.shift(self.length)
+        lines.append(f"{indent}{word} |= ({raw} & {s.mask})" + (f" << {sh}" if sh else ""))
+        return lines
+
+    def _decode_expr(self, s: SignalCodec, var: str) -> list[str]:
+        """Lines that set ``var`` to the physical value."""
+        word = "wb" if s.byte_order == "big_endian" else "wl"
+        sh = s.shift(self.length)
+        field_ = f"(({word} >> {sh}) & {s.mask})" if sh else f"({word} & {s.mask})"
+        phys = f" * {_number(s.scale)}" + (f" + {_number(s.offset)}" if s.offset != 0 else "")
+        if s.is_float:
+            f = "_F32" if s.length == 32 else "_F64"
+            return [f"    {var} = {f}.unpack({field_}.to_bytes({s.length // 8}, 'little'))[0]"
+                    f"{phys}"]
+        if not s.signed:
+            return [f"    {var} = {field_}{phys}"]
+        return [f"    {var} = {field_}",
+                f"    if {var} >= {1 << (s.length - 1)}: {var} -= {1 << s.length}",
+                f"    {var} = {var}{phys}"]
+
+    def _generate(self) -> str:
+        n = self.length
+        orders = {s.byte_order for s in self.signals}
+        big, little = "big_endian" in orders, "little_endian" in orders
+        if big and little:  # each word's bytes OR-ed together in one order
+            ret = (f"return (wl | int.from_bytes(wb.to_bytes({n}, 'big'), 'little'))"
+                   f".to_bytes({n}, 'little')")
+        elif big:
+            ret = f"return wb.to_bytes({n}, 'big')"
+        else:
+            ret = f"return wl.to_bytes({n}, 'little')"
+        init = "wl = wb = 0"
+        mux = self.multiplexer
+        enc = ["def encode(values):", "    " + init, "    try:"]
+        if mux is None:
+            for s in self.signals:
+                enc += self._encode_lines(s, "        ")
+            if not self.signals:  # a frame with no signal (a bare request) is all zeros
+                enc.append("        pass")
+        else:
+            enc += [f"        m = values.get({mux!r})",
+                    "        if m is None:",
+                    f"            raise FrameError({f'{self.name}: multiplexer {mux} missing'!r})"]
+            for k, (i, sigs) in enumerate(self._groups()):
+                enc.append(f"        {'if' if k == 0 else 'elif'} m == {i}:")
+                for s in sigs:
+                    if s.name == mux:  # the value selected this branch: no clamp, no scale
+                        word = "wb" if s.byte_order == "big_endian" else "wl"
+                        enc.append(f"            {word} |= {(i & s.mask) << s.shift(n)}"
+                                   if i & s.mask else "            pass")
+                    else:
+                        enc += self._encode_lines(s, "            ")
+            enc += ["        else:",
+                    f"            raise FrameError({f'{self.name}: multiplexer {mux} = '!r} "
+                    f"+ repr(m) + {f' not one of {list(self.multiplexer_ids)} in the DBC'!r})"]
+        enc += ["    except (TypeError, ValueError, OverflowError, struct_error) as exc:",
+                "        if isinstance(exc, FrameError): raise",
+                "        raise _encode_error(values, exc) from exc",
+                "    " + ret]
+        where = f"{self.name} (0x{self.frame_id:03X})"
+        dec = ["def decode(data):",
+               f"    if len(data) != {n}:",
+               f"        raise FrameError({where + ': expected ' + str(n) + ' data bytes, got '!r}"
+               " + str(len(data)))"]
+        if little:
+            dec.append("    wl = int.from_bytes(data, 'little')")
+        if big:
+            dec.append("    wb = int.from_bytes(data, 'big')")
+        if mux is None:
+            for k, s in enumerate(self.signals):
+                dec += self._decode_expr(s, f"r{k}")
+            items = ", ".join(f"{s.name!r}: r{k}" for k, s in enumerate(self.signals))
+            dec.append(f"    return {{{items}}}")
+        else:
+            ms = next(s for s in self.signals if s.name == mux)
+            word = "wb" if ms.byte_order == "big_endian" else "wl"
+            dec.append(f"    m = ({word} >> {ms.shift(n)}) & {ms.mask}")
+            index = {s.name: k for k, s in enumerate(self.signals)}
+            for i, sigs in self._groups():
+                dec.append(f"    if m == {i}:")
+                body: list[str] = []
+                for s in sigs:
+                    if s.name != mux:
+                        body += self._decode_expr(s, f"r{index[s.name]}")
+                items = ", ".join(f"{s.name!r}: r{index[s.name]}" if s.name != mux
+                                  else f"{s.name!r}: {float(i)!r}" for s in sigs)
+                dec += ["    " + line for line in body]
+                dec.append(f"        return {{{items}}}")
+            dec.append(f"    raise FrameError({where + ': multiplexer ' + mux + ' = '!r} + str(m)"
+                       f" + {' not one of ' + str(list(self.multiplexer_ids)) + ' in the DBC'!r})")
+        return "\n".join(["from struct import error as struct_error", *enc, *dec, ""])
+
+    def _encode_error(self, values: dict[str, float], exc: Exception) -> ValueError:
+        """The first signal whose value cannot be encoded, named."""
+        for s in self.signals:
+            v = values.get(s.name, 0.0)
+            if not isinstance(v, int | float) or math.isnan(v):
+                return ValueError(f"{self.name}.{s.name}: cannot encode {v!r} {s.unit}".rstrip())
+            if s.is_float and s.length == 32 and abs(v) > 3.4e38:
+                return ValueError(f"{self.name}.{s.name}: {v!r} does not fit a 32-bit float")
+        return ValueError(f"{self.name}: cannot encode {values!r}: {exc}")
 
 
 @dataclass(frozen=True)
 class Protocol:
-    """Every frame of the rig, by name and by id."""
+    """Every frame of a DBC, by name and by id.
+
+    ``by_id`` holds the standard (11-bit) ids only, so that an extended frame is never taken
+    for the standard frame of equal id value; ``by_key[(id, is_extended)]`` and ``get`` hold
+    every frame."""
 
     database: cantools.database.Database
     by_name: dict[str, FrameCodec]
     by_id: dict[int, FrameCodec]
+    by_key: dict[tuple[int, bool], FrameCodec] = field(default_factory=dict)
 
     def __getitem__(self, name: str) -> FrameCodec:
         return self.by_name[name]
 
+    def get(self, arbitration_id: int, is_extended: bool = False) -> FrameCodec | None:
+        """The codec of a received frame (python-can's ``arbitration_id``,
+        ``is_extended_id``), or None."""
+        return self.by_key.get((arbitration_id, is_extended))
+
 
 @cache
-def load_protocol(path: str | None = None) -> Protocol:
-    db = cantools.database.load_file(str(path or DBC_PATH))
-    codecs = [FrameCodec(m) for m in db.messages]
+def load_protocol(path: str | Path | None = None) -> Protocol:
+    """The codecs of a DBC (the rig's own ``sgsrt.dbc`` by default). DbcError naming the
+    file if it cannot be read, parsed, or holds a message the codecs do not support."""
+    where = str(path or DBC_PATH)
+    try:
+        db = cantools.database.load_file(where, database_format="dbc")
+    except OSError as exc:
+        raise DbcError(f"{where}: cannot read the DBC ({exc.strerror or exc})") from exc
+    except Exception as exc:  # cantools raises its own errors and plain ones on bad input
+        raise DbcError(f"{where}: not a valid DBC: {exc}") from exc
+    codecs = []
+    by_key: dict[tuple[int, bool], FrameCodec] = {}
+    for m in db.messages:
+        try:
+            c = FrameCodec(m)
+        except ValueError as exc:
+            raise DbcError(f"{where}: {exc}") from exc
+        key = (c.frame_id, c.is_extended)
+        if key in by_key:
+            raise DbcError(f"{where}: {c.name} and {by_key[key].name} have the same "
+                           f"{'extended' if c.is_extended else 'standard'} id "
+                           f"0x{c.frame_id:X}")
+        by_key[key] = c
+        codecs.append(c)
     return Protocol(
         database=db,
         by_name={c.name: c for c in codecs},
-        by_id={c.frame_id: c for c in codecs},
+        by_id={c.frame_id: c for c in codecs if not c.is_extended},
+        by_key=by_key,
     )
 
 

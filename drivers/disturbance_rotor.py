@@ -14,12 +14,15 @@ class DisturbanceRotorDriver(DeviceDriver):
     telemetry_frame = "ROTOR_TLM"
     command_frame = "ROTOR_CMD"
 
-    def encode(self, speed_rad_s: float, enable: bool, counter: int) -> bytes:
+    def command_values(self, speed_rad_s: float, enable: bool) -> dict[str, float]:
         lim = self.max_speed_rad_s
         s = 0.0 if speed_rad_s != speed_rad_s else max(-lim, min(lim, speed_rad_s))
+        return {"speed_cmd": s if enable else 0.0, "enable": int(enable)}
+
+    def encode(self, speed_rad_s: float, enable: bool, counter: int) -> bytes:
+        """The sgsrt ROTOR_CMD payload."""
         return self.protocol[self.command_frame].encode(
-            {"speed_cmd": s if enable else 0.0, "enable": int(enable), "counter": counter & 0xFF}
-        )
+            {**self.command_values(speed_rad_s, enable), "counter": counter & 0xFF})
 
     @property
     def angle_rad(self) -> float:

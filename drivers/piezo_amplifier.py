@@ -20,8 +20,10 @@ class PiezoAmplifierDriver(DeviceDriver):
         lim = self.max_voltage_v
         return -lim if volts < -lim else lim if volts > lim else volts
 
+    def command_values(self, ch1_v: float, ch2_v: float) -> dict[str, float]:
+        return {"voltage_ch1": self.clamp(ch1_v), "voltage_ch2": self.clamp(ch2_v)}
+
     def encode(self, ch1_v: float, ch2_v: float, counter: int) -> bytes:
+        """The sgsrt PIEZO_CMD payload."""
         return self.protocol[self.command_frame].encode(
-            {"voltage_ch1": self.clamp(ch1_v), "voltage_ch2": self.clamp(ch2_v),
-             "counter": counter & 0xFF}
-        )
+            {**self.command_values(ch1_v, ch2_v), "counter": counter & 0xFF})

@@ -22,11 +22,14 @@ class ReactionWheelDriver(DeviceDriver):
             return 0.0
         return -limit if torque_n_m < -limit else limit if torque_n_m > limit else torque_n_m
 
+    def command_values(self, torque_n_m: float, enable: bool) -> dict[str, float]:
+        """The command quantities (``drivers.binding.quantities``)."""
+        return {"torque_cmd": self.clamp(torque_n_m) if enable else 0.0, "enable": int(enable)}
+
     def encode(self, torque_n_m: float, enable: bool, counter: int) -> bytes:
+        """The sgsrt WHEEL_CMD payload."""
         return self.protocol[self.command_frame].encode(
-            {"torque_cmd": self.clamp(torque_n_m) if enable else 0.0, "enable": int(enable),
-             "counter": counter & 0xFF}
-        )
+            {**self.command_values(torque_n_m, enable), "counter": counter & 0xFF})
 
     @property
     def speed_rad_s(self) -> float:

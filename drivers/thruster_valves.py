@@ -10,13 +10,16 @@ class ThrusterValvesDriver(DeviceDriver):
     telemetry_frame = "VALVE_TLM"
     command_frame = "VALVE_CMD"
 
-    def encode(self, direction: int, counter: int) -> bytes:
+    def command_values(self, direction: int) -> dict[str, float]:
         """direction +1 opens the positive-torque valve, -1 the negative, 0 closes both.
         Both valves are never opened together."""
         d = 0 if direction != direction else (1 if direction > 0 else -1 if direction < 0 else 0)
+        return {"valve_pos": int(d > 0), "valve_neg": int(d < 0)}
+
+    def encode(self, direction: int, counter: int) -> bytes:
+        """The sgsrt VALVE_CMD payload."""
         return self.protocol[self.command_frame].encode(
-            {"valve_pos": int(d > 0), "valve_neg": int(d < 0), "counter": counter & 0xFF}
-        )
+            {**self.command_values(direction), "counter": counter & 0xFF})
 
     @property
     def firings(self) -> int:

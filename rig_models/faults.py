@@ -30,9 +30,22 @@ FAULT_KINDS: dict[str, str] = {
     "piezo_overcurrent": "the piezo amplifier trips on over-current and outputs 0 V",
     "error_frames": "puts `value` error frames (default 2) on the bus every tick",
     "bus_off": "an error frame with the bus-off class, then no device answers",
+    # CANopen devices (a rig file binding the device to a node): faults CANopen's way
+    "node_heartbeat_lost": "the device's CANopen node stops its heartbeat (PDOs go on)",
+    "node_emcy": "the device's CANopen node sends an EMCY with error code `value` "
+                 "(default 0x5000, device hardware)",
+    "drive_fault": "the device's CiA 402 drive faults: EMCY 0x2310 (over-current), the status "
+                   "word's fault bit, no torque",
+    "node_reboot": "the device's CANopen node resets by itself: boot-up frame, pre-operational",
+    "node_stopped": "the device's CANopen node goes to NMT stopped by itself (no PDOs)",
+    "sdo_abort": "during set-up the device's node aborts the SDO to object `value` (default "
+                 "0x1017, the heartbeat time) with 0x08000020 (cannot store)",
 }
 DEVICE_FAULTS = {"drop_frames", "delay_frames", "corrupt_payload", "wrong_length",
-                 "stuck_sensor", "silent_sensor"}
+                 "stuck_sensor", "silent_sensor", "node_heartbeat_lost", "node_emcy",
+                 "drive_fault", "node_reboot", "node_stopped", "sdo_abort"}
+CANOPEN_FAULTS = {"node_heartbeat_lost", "node_emcy", "drive_fault", "node_reboot",
+                  "node_stopped", "sdo_abort"}
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ from typing import Any
 
 import yaml
 
+from drivers.binding import BindingError, RigBinding, absolutize, build_binding
 from rig_models.beam import BeamModes, BeamSpec, beam_modes
 from rig_models.flexible_hub import HubBeamModel, build_hub_beam
 from rig_models.piezo import PatchGains, PiezoPatch, patch_gains
@@ -88,7 +89,19 @@ RIG_SCHEMA: dict[str, Any] = {
                 ("thruster_valves", 5), ("piezo_amplifier", 1), ("disturbance_rotor", 5),
             )
         },
+        # the harness's SYNC and heartbeat frames: sgsrt's (default), or a DBC's
+        # {dbc, message, signal} / {dbc, message, counter, armed}, or canopen
+        "sync": Field("any", default=None),
+        "heartbeat": Field("any", default=None),
+        # CANopen: the harness's own node id (its heartbeat's COB-ID 0x700 + id)
+        "master_node_id": Field("int", default=127, minimum=1, maximum=127),
+        # CANopen: how long each node waits for the harness's heartbeat before its error
+        # behaviour makes it safe (its 0x1016 consumer time)
+        "heartbeat_consumer_ms": Field("int", "ms", default=200, minimum=1, maximum=65535),
     },
+    # how each device speaks on the bus (drivers/binding): sgsrt (default), dbc, canopen or
+    # none, checked by drivers.binding.build_binding (errors name the key)
+    "devices": Field("any", default=None),
     "watchdog": {
         "heartbeat_timeout_s": Field("number", "s", default=0.25, **POSITIVE),
     },
@@ -104,6 +117,15 @@ class RigConfig:
 
     source: str
     data: dict[str, Any]
+    base_dir: Path | None = None  # the rig file's folder: DBC/EDS paths are relative to it
+
+    @cached_property
+    def binding(self) -> RigBinding:
+        """How each device speaks on the bus (``drivers.binding``)."""
+        try:
+            return build_binding(self.data, self.base_dir)
+        except BindingError as exc:
+            raise ConfigError(f"{self.source}: {exc}") from exc
 
     def section(self, name: str) -> dict[str, Any]:
         return self.data[name]
@@ -191,12 +213,48 @@ def load_rig(name_or_path: str | Path = "sgsrt") -> RigConfig:
     if not path.exists():
         builtin = ", ".join(sorted(p.stem for p in RIGS_DIR.glob("*.yaml")))
         raise ConfigError(f"rig file {name_or_path}: not found (built-in rigs: {builtin})")
+    raw = _read_rig_yaml(path, ())
+    return rig_from_dict(raw, source=f"rig file {path.name}", base_dir=path.resolve().parent)
+
+
+def _read_rig_yaml(path: Path, seen: tuple[Path, ...]) -> Any:
+    """A rig file's data; ``extends: NAME`` takes another rig file's data as the base and
+    overrides it key by key (a rig that differs only in its device binding names the
+    physics once)."""
     try:
         raw = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise ConfigError(f"rig file {path}: not valid YAML: {exc}") from exc
-    return rig_from_dict(raw, source=f"rig file {path.name}")
+    except OSError as exc:
+        raise ConfigError(f"rig file {path}: cannot read: {exc}") from exc
+    if not isinstance(raw, dict) or "extends" not in raw:
+        return raw
+    base_name = raw.pop("extends")
+    if not isinstance(base_name, str):
+        raise ConfigError(f"rig file {path.name}: extends: expected a rig name or path, got "
+                          f"{base_name!r}")
+    base = rig_path(base_name)
+    if not base.is_absolute() and not base.exists() and (path.parent / base_name).exists():
+        base = path.parent / base_name
+    if not base.exists():
+        raise ConfigError(f"rig file {path.name}: extends: {base_name}: not found")
+    if base.resolve() in seen or base.resolve() == path.resolve():
+        raise ConfigError(f"rig file {path.name}: extends: {base_name}: a circle of extends")
+    return _merge(_read_rig_yaml(base, seen + (path.resolve(),)) or {}, raw)
 
 
-def rig_from_dict(raw: Any, source: str = "rig") -> RigConfig:
-    return RigConfig(source=source, data=validate(raw, RIG_SCHEMA, source))
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k),
+                                                                          dict) else v
+    return out
+
+
+def rig_from_dict(raw: Any, source: str = "rig", base_dir: Path | None = None) -> RigConfig:
+    """A validated rig; its device binding is built here too, so a bad binding is refused
+    before anything opens a bus."""
+    data = validate(raw, RIG_SCHEMA, source)
+    cfg = RigConfig(source=source, data=absolutize(data, base_dir), base_dir=base_dir)
+    cfg.binding  # noqa: B018 (built to be checked)
+    return cfg

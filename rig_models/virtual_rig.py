@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import can
 import numpy as np
 
+from drivers.binding.frames import CommandMap
 from drivers.dbc import FrameError, load_protocol
 from rig_models.devices import (
     Accelerometer,
@@ -230,18 +231,43 @@ class VirtualRig:
         self.longest_op_s = 0.0
         self.longest_op = ""
         self._hooks: list[Callable[[VirtualRig], None]] = []
-        p = self.protocol
-        self._handlers: dict[int, Callable[[bytes], None]] = {
-            p["SYNC"].frame_id: self._on_sync,
-            p["HEARTBEAT"].frame_id: self._on_heartbeat,
-            p["WHEEL_CMD"].frame_id: self._on_wheel_cmd,
-            p["VALVE_CMD"].frame_id: self._on_valve_cmd,
-            p["PIEZO_CMD"].frame_id: self._on_piezo_cmd,
-            p["ROTOR_CMD"].frame_id: self._on_rotor_cmd,
-        }
-        self._codec_by_id = p.by_id
-        self._tlm = {name: p[name] for name in
-                     ("HUB_TLM", "ACCEL_TLM", "WHEEL_TLM", "VALVE_TLM", "PIEZO_TLM", "ROTOR_TLM")}
+        # the devices speak the rig file's binding (sgsrt, any DBC, CANopen): the same maps
+        # the harness uses, in the other direction
+        b = self.binding = rig.binding
+        self._handlers: dict[tuple[int, bool], Callable[[bytes], None]] = {
+            b.sync.key: self._on_sync}
+        if b.heartbeat is not None:
+            self._handlers[b.heartbeat.key] = self._on_heartbeat
+        apply = {"reaction_wheel": self._wheel_cmd, "thruster_valves": self._valve_cmd,
+                 "piezo_amplifier": self._piezo_cmd, "disturbance_rotor": self._rotor_cmd}
+        self._apply = apply
+        for key, cmaps in b.commands_by_key().items():
+            if b.kinds[cmaps[0].device] != "canopen":  # a CANopen node takes its own RPDOs
+                self._handlers[key] = self._command_handler(cmaps, apply)
+        self._tlm = {d: maps for d, maps in b.telemetry.items()
+                     if maps and b.kinds[d] != "canopen"}
+        self.protocol_kinds = b.kinds
+        # CANopen devices: a node per the rig file's binding, from the same EDS files
+        self.co_devices = None
+        self.wall_clock = False  # own process: the nodes' heartbeat timers on the wall clock
+        if b.canopen is not None:
+            from rig_models.canopen.rig_devices import CanopenDevices
+
+            self._co_tpdo_device = {m.key[0]: d for d, maps in b.telemetry.items()
+                                    if b.kinds[d] == "canopen" for m in maps}
+            self.co_devices = CanopenDevices(b.canopen, self._send_raw)
+            self._co_actuators = tuple(d for d in apply if b.kinds[d] == "canopen")
+            self._co_sensors = frozenset(d for d, k in b.kinds.items() if k == "canopen")
+            if all(k in ("canopen", "none") for k in b.kinds.values()):
+                # the nodes' own heartbeat consumers and error behaviour make them safe
+                self.watchdog_timeout_s = float("inf")
+            self.co_devices.boot(self.time_s)
+            self._co_faults_done: set[int] = set()
+            for f in self.injector.faults:  # set-up faults: armed before the master asks
+                node = self.co_devices.node_of(f.device)
+                if f.kind == "sdo_abort" and node is not None:
+                    node.sdo_abort_next(int(f.value) if f.value is not None else 0x1017,
+                                        0x08000020)
 
     # ------------------------------------------------------------------ bus side
     def service(self) -> int:
@@ -255,11 +281,35 @@ class VirtualRig:
             self.handle(msg)
             n += 1
 
+    def _send_raw(self, can_id: int, data: bytes) -> None:
+        """A CANopen node's frame onto the bus; a TPDO through the frame faults of its
+        device, as the sgsrt devices' telemetry goes."""
+        payloads = [data]
+        if self.injector.faults:
+            device = self._co_tpdo_device.get(can_id)
+            if device is not None:
+                payloads = self.injector.telemetry(self.time_s, self.tick, device, data)
+        for payload in payloads:
+            self.bus.send(can.Message(arbitration_id=can_id, data=payload,
+                                      is_extended_id=False))
+            self.counters.frames_out += 1
+
+    def co_now(self) -> float:
+        """The CANopen nodes' time: the rig's in lockstep, the wall clock in its own
+        process (a harness that stops sending SYNC must still time out as a consumer)."""
+        return time.monotonic() if self.wall_clock else self.time_s
+
     def handle(self, msg: can.Message) -> None:
         self.counters.frames_in += 1
         if msg.is_error_frame or msg.is_remote_frame:
             return
-        handler = self._handlers.get(msg.arbitration_id)
+        key = (msg.arbitration_id, msg.is_extended_id)
+        handler = self._handlers.get(key)
+        co = self.co_devices
+        if co is not None and not msg.is_extended_id and key != self.binding.sync.key:
+            co.handle(msg.arbitration_id, bytes(msg.data), self.co_now())
+            if handler is None:
+                return
         if handler is None:
             self.counters.unknown += 1
             return
@@ -276,15 +326,17 @@ class VirtualRig:
         collector disabled (``gc.disable()`` by the caller), generations 0-1 are collected
         right after a SYNC's answer about once a second, in the slack before the next one,
         so a collection never delays an answer and cyclic garbage cannot pile up."""
-        sync_id = self.protocol["SYNC"].frame_id
+        sync_key = self.binding.sync.key
         collect = not gc.isenabled()
         next_collect = time.monotonic() + 1.0
         clock, cpu = time.time, time.thread_time
         self.time_ops = timing is not None
+        self.wall_clock = True
         while not stop():
             msg = self.bus.recv(poll_s)
             if msg is not None:
-                if msg.arbitration_id == sync_id and not msg.is_error_frame:
+                if ((msg.arbitration_id, msg.is_extended_id) == sync_key
+                        and not msg.is_error_frame):
                     woke, ran = clock(), cpu()
                     if timing is None:
                         self.handle(msg)
@@ -303,6 +355,8 @@ class VirtualRig:
                         next_collect = time.monotonic() + 1.0
                 else:
                     self.handle(msg)
+            if self.co_devices is not None:
+                self.co_devices.poll(self.co_now())
             if (not self.safe and
                     time.monotonic() - self.last_heartbeat_wall > self.watchdog_timeout_s):
                 self.make_safe(watchdog=True)
@@ -310,18 +364,25 @@ class VirtualRig:
                 # state once, unprompted, so the trip is seen on the bus without a SYNC
                 self._sample_and_send(max(self.tick, 0))
 
-    def _send(self, name: str, values: dict[str, float], device: str = "") -> None:
-        t0 = time.perf_counter() if self.time_ops else 0.0
-        codec = self._tlm[name]
-        data = codec.encode(values)
-        payloads = [data] if not self.injector.faults else self.injector.telemetry(
-            self.time_s, self.tick, device, data)
-        for payload in payloads:
-            self.bus.send(can.Message(arbitration_id=codec.frame_id, data=payload,
-                                      is_extended_id=False))
-            self.counters.frames_out += 1
-        if self.time_ops:
-            self._note_op(name, time.perf_counter() - t0)
+    def _send(self, device: str, values: dict[str, float]) -> None:
+        """The device's telemetry frames (one, or several pages) from its quantities."""
+        maps = self._tlm.get(device)
+        if maps is None:  # a CANopen device (its node sends), or none
+            if self.co_devices is not None and device in self._co_sensors:
+                self.co_devices.write_telemetry(device, values)
+            return
+        for tmap in maps:
+            t0 = time.perf_counter() if self.time_ops else 0.0
+            data = tmap.encode(values)
+            payloads = [data] if not self.injector.faults else self.injector.telemetry(
+                self.time_s, self.tick, device, data)
+            key = tmap.key
+            for payload in payloads:
+                self.bus.send(can.Message(arbitration_id=key[0], data=payload,
+                                          is_extended_id=key[1]))
+                self.counters.frames_out += 1
+            if self.time_ops:
+                self._note_op(tmap.codec.name, time.perf_counter() - t0)
 
     def _note_op(self, name: str, seconds: float) -> None:
         if seconds > self.longest_op_s:
@@ -343,7 +404,38 @@ class VirtualRig:
             self.bus.send(can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True,
                                       data=bytes(8), is_extended_id=False))
 
+    def _apply_canopen_faults(self) -> None:
+        """Faults CANopen's way, once each at its time, on the device's node."""
+        from rig_models.canopen.node import NmtState
+        from rig_models.faults import CANOPEN_FAULTS
+
+        co = self.co_devices
+        done = self._co_faults_done
+        for i, f in enumerate(self.injector.faults):
+            if f.kind not in CANOPEN_FAULTS or f.kind == "sdo_abort" or i in done:
+                continue
+            if not f.active(self.time_s):
+                continue
+            done.add(i)
+            node = co.node_of(f.device) if co is not None else None
+            if node is None:
+                continue  # not a CANopen device: nothing of this kind to inject
+            if f.kind == "node_heartbeat_lost":
+                node.stop_heartbeat()
+            elif f.kind == "node_emcy":
+                node.emcy(int(f.value) if f.value is not None else 0x5000)
+            elif f.kind == "drive_fault":
+                drive = co.drive(f.device)
+                if drive is not None:
+                    drive.inject_fault(0x2310)
+            elif f.kind == "node_reboot":
+                node.reboot()
+            elif f.kind == "node_stopped":
+                node.force_nmt(NmtState.STOPPED)
+
     def _apply_device_faults(self) -> None:
+        if self.co_devices is not None:
+            self._apply_canopen_faults()
         inj, t = self.injector, self.time_s
         if inj.active(t, "wheel_fault") and not self.wheel.fault:
             self.wheel.fault = True
@@ -356,39 +448,40 @@ class VirtualRig:
             self.piezo.make_safe()
 
     # ------------------------------------------------------------------ commands
-    def _decode(self, name: str, data: bytes) -> dict[str, float]:
-        return self.protocol[name].decode(data)
-
     def _on_heartbeat(self, data: bytes) -> None:
-        v = self._decode("HEARTBEAT", data)
+        armed = self.binding.heartbeat.decode_armed(data)  # type: ignore[union-attr]
         self.last_heartbeat_s = self.time_s
         self.last_heartbeat_wall = time.monotonic()
-        self.armed = bool(v["armed"])
+        self.armed = armed
         self.safe = False
         if not self.armed:
             self.make_safe()
             self.safe = False
 
-    def _on_wheel_cmd(self, data: bytes) -> None:
-        v = self._decode("WHEEL_CMD", data)
-        if self.armed:
-            self.wheel.command(v["torque_cmd"], bool(v["enable"]))
+    def _command_handler(self, cmaps: tuple[CommandMap, ...],
+                         apply: dict[str, Callable[[dict[str, float]], None]]
+                         ) -> Callable[[bytes], None]:
+        def handler(data: bytes) -> None:
+            for cmap in cmaps:
+                values = cmap.decode(data)
+                if values is not None:
+                    if self.armed:
+                        apply[cmap.device](values)
+                    return
+        return handler
 
-    def _on_valve_cmd(self, data: bytes) -> None:
-        v = self._decode("VALVE_CMD", data)
-        if self.armed:
-            pos, neg = int(v["valve_pos"]), int(v["valve_neg"])
-            self.valves.command(0 if pos and neg else pos - neg)
+    def _wheel_cmd(self, v: dict[str, float]) -> None:
+        self.wheel.command(v.get("torque_cmd", 0.0), bool(v.get("enable", 1)))
 
-    def _on_piezo_cmd(self, data: bytes) -> None:
-        v = self._decode("PIEZO_CMD", data)
-        if self.armed:
-            self.piezo.command(v["voltage_ch1"], v["voltage_ch2"])
+    def _valve_cmd(self, v: dict[str, float]) -> None:
+        pos, neg = int(v.get("valve_pos", 0)), int(v.get("valve_neg", 0))
+        self.valves.command(0 if pos and neg else pos - neg)
 
-    def _on_rotor_cmd(self, data: bytes) -> None:
-        v = self._decode("ROTOR_CMD", data)
-        if self.armed:
-            self.rotor.command(v["speed_cmd"], bool(v["enable"]))
+    def _piezo_cmd(self, v: dict[str, float]) -> None:
+        self.piezo.command(v.get("voltage_ch1", 0.0), v.get("voltage_ch2", 0.0))
+
+    def _rotor_cmd(self, v: dict[str, float]) -> None:
+        self.rotor.command(v.get("speed_cmd", 0.0), bool(v.get("enable", 1)))
 
     def make_safe(self, watchdog: bool = False) -> None:
         self.wheel.make_safe()
@@ -407,6 +500,12 @@ class VirtualRig:
 
     def step(self) -> None:
         """Advance the physics by one step with the actuators' current commands."""
+        if self.co_devices is not None and not self.safe:
+            co = self.co_devices
+            for device in self._co_actuators:
+                values = co.commands(device)
+                if values is not None:
+                    self._apply[device](values)
         hub_torque = self.wheel.step() + self.valves.step() + self.rotor.step()
         u = self.u
         u[0] = hub_torque
@@ -427,7 +526,7 @@ class VirtualRig:
             hook(self)
 
     def _on_sync(self, data: bytes) -> None:
-        tick = int(self._decode("SYNC", data)["tick"])
+        tick = self.binding.sync.decode(data)
         if self.tick >= 0:
             steps = tick - self.tick
             if steps <= 0 or steps > 10_000:
@@ -446,6 +545,11 @@ class VirtualRig:
             self._apply_device_faults()
             self._send_fault_frames()
         self._sample_and_send(tick)
+        if self.co_devices is not None:
+            now = self.co_now()
+            self.co_devices.poll(now)
+            # the nodes count this SYNC and send their TPDOs of the values just written
+            self.co_devices.handle(self.binding.sync.key[0], data, now)
 
     def _sample_and_send(self, tick: int) -> None:
         y = self.plant.c @ self.x + self.plant.d @ self.u
@@ -457,39 +561,37 @@ class VirtualRig:
         div = self.divider
         if tick % div["hub_sensor"] == 0:
             angle, rate = self.hub_sensor.sample(y[0], y[1])
-            self._send("HUB_TLM", {"angle": angle, "rate": rate}, "hub_sensor")
+            self._send("hub_sensor", {"angle": angle, "rate": rate})
         if tick % div["accelerometer"] == 0:
             extra = 0.0
             if self.injector.faults:
                 f = self.injector.active(self.time_s, "accel_saturation")
                 extra = 0.0 if f is None else (f.value if f.value is not None else 30.0)
             a = self.accel.sample(y[2] + extra)
-            self._send("ACCEL_TLM", {"accel": a, "sample_counter": self.accel.counter,
-                                     "saturated": int(self.accel.saturated)},
-                       "accelerometer")
+            self._send("accelerometer", {"accel": a, "sample_counter": self.accel.counter,
+                                         "saturated": int(self.accel.saturated)})
         w = self.wheel
         if tick % div["reaction_wheel"] == 0:
             self.wheel_counter = (self.wheel_counter + 1) & 0xFF
-            self._send("WHEEL_TLM", {
+            self._send("reaction_wheel", {
                 "speed": w.speed_rad_s, "torque": w.torque_n_m, "enabled": int(w.enabled),
                 "fault": int(w.fault), "speed_limited": int(w.speed_limited),
-                "torque_limited": int(w.torque_limited), "counter": self.wheel_counter},
-                "reaction_wheel")
+                "torque_limited": int(w.torque_limited), "counter": self.wheel_counter})
         if tick % div["thruster_valves"] == 0:
             v = self.valves
-            self._send("VALVE_TLM", {
+            self._send("thruster_valves", {
                 "valve_pos_open": int(v.state > 0), "valve_neg_open": int(v.state < 0),
                 "fault": int(v.fault), "firings": v.firings & 0xFFFF, "on_time": v.on_time_s,
-                "counter": tick & 0xFF}, "thruster_valves")
+                "counter": tick & 0xFF})
         if tick % div["piezo_amplifier"] == 0:
             sensed = [float(g.sensor @ self.x[1 : 1 + n])
                       + self.piezo_noise_v * self.noise.normal() for g in self.piezo_gains]
             sensed += [0.0, 0.0]
-            self._send("PIEZO_TLM", {"sensor_ch1": sensed[0], "sensor_ch2": sensed[1],
-                                     "overcurrent": int(self.piezo.overcurrent),
-                                     "counter": tick & 0xFF}, "piezo_amplifier")
+            self._send("piezo_amplifier", {"sensor_ch1": sensed[0], "sensor_ch2": sensed[1],
+                                           "overcurrent": int(self.piezo.overcurrent),
+                                           "counter": tick & 0xFF})
         if tick % div["disturbance_rotor"] == 0:
             r = self.rotor
-            self._send("ROTOR_TLM", {"angle": r.angle_rad % (2 * math.pi), "speed": r.speed_rad_s,
-                                     "enabled": int(r.enabled), "counter": tick & 0xFF},
-                       "disturbance_rotor")
+            self._send("disturbance_rotor", {
+                "angle": r.angle_rad % (2 * math.pi), "speed": r.speed_rad_s,
+                "enabled": int(r.enabled), "counter": tick & 0xFF})

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from drivers.binding import RigBinding
 from drivers.dbc import Protocol, frame_bits_worst_case
 
 
@@ -50,5 +51,29 @@ def compute_bus_load(
         codec = protocol[name]
         bits = fps * frame_bits_worst_case(codec.length, codec.is_extended)
         rows.append((name, fps, bits))
+        total_bits += bits
+    return BusLoad(sum(r[1] for r in rows), total_bits, bitrate_bit_s, tuple(rows))
+
+
+def binding_bus_load(binding: RigBinding, rate_hz: float, sync_divider: dict[str, int],
+                     actuators: tuple[str, ...] | list[str], heartbeat_hz: float,
+                     bitrate_bit_s: int) -> BusLoad:
+    """The same worst case for any binding (sgsrt, a DBC, CANopen PDOs): every frame the
+    binding sends, at its device's rate."""
+    rows = []
+    total_bits = 0.0
+    for f in binding.frames():
+        if f.kind == "sync":
+            fps = rate_hz
+        elif f.kind == "heartbeat":
+            fps = heartbeat_hz
+        elif f.kind == "cmd":
+            if f.device not in actuators:
+                continue
+            fps = rate_hz
+        else:
+            fps = rate_hz / sync_divider[f.device]
+        bits = fps * frame_bits_worst_case(f.codec.length, f.codec.is_extended)
+        rows.append((f.name, fps, bits))
         total_bits += bits
     return BusLoad(sum(r[1] for r in rows), total_bits, bitrate_bit_s, tuple(rows))

@@ -13,7 +13,9 @@ import can
 
 from drivers.accelerometer import AccelerometerDriver
 from drivers.base import DeviceDriver
-from drivers.dbc import Protocol
+from drivers.binding import RigBinding
+from drivers.binding.frames import TelemetryMap
+from drivers.dbc import FrameError, Protocol
 from drivers.disturbance_rotor import DisturbanceRotorDriver
 from drivers.hub_sensor import HubSensorDriver
 from drivers.piezo_amplifier import PiezoAmplifierDriver
@@ -38,6 +40,11 @@ class BusCounters:
 
 
 class RigInterface:
+    """Every device of the rig on one bus, through the rig file's binding (sgsrt, any DBC,
+    CANopen): SYNC and heartbeat out, telemetry decoded into the drivers' quantities,
+    commands encoded from RigCommand. ``protocol`` is the sgsrt protocol the drivers' own
+    ``handle``/``encode`` helpers use; the frames come from ``rig.binding``."""
+
     def __init__(
         self,
         bus: can.BusABC,
@@ -49,6 +56,7 @@ class RigInterface:
     ) -> None:
         self.bus = bus
         self.protocol = protocol
+        self.binding: RigBinding = rig.binding
         self.can_log = can_log
         self.actuators = actuators
         self.dry_run = dry_run
@@ -63,26 +71,46 @@ class RigInterface:
         self.rotor = DisturbanceRotorDriver(
             protocol, max_speed_rad_s=rig.section("disturbance_rotor")["max_speed_rad_s"])
         div = rig.data["bus"]["sync_divider"]
-        self.drivers: dict[str, DeviceDriver] = {
+        every: dict[str, DeviceDriver] = {
             "hub_sensor": self.hub, "accelerometer": self.accel, "reaction_wheel": self.wheel,
             "thruster_valves": self.valves, "piezo_amplifier": self.piezo,
             "disturbance_rotor": self.rotor,
         }
+        b = self.binding
+        # a device the rig does not have (binding none) is neither expected nor stale
+        self.drivers: dict[str, DeviceDriver] = {n: every[n] for n in b.bound}
         for name, drv in self.drivers.items():
             drv.stale_after_ticks = 2 * div[name] + 1
-        self.divider = div
-        self._by_id: dict[int, DeviceDriver] = {
-            protocol[d.telemetry_frame].frame_id: d for d in self.drivers.values()
-        }
-        self._ids = {name: protocol[name].frame_id for name in
-                     ("SYNC", "HEARTBEAT", "WHEEL_CMD", "VALVE_CMD", "PIEZO_CMD", "ROTOR_CMD")}
+            drv.sequence = b.sequence.get(name)
+            drv.multi_frame = len(b.telemetry[name]) > 1
+        self.divider = {n: div[n] for n in self.drivers}
+        # frames due per tick: each distinct telemetry frame (or multiplexed page) once, at
+        # its device's divider (a CANopen TPDO may carry two devices' quantities)
+        groups: dict[int, set[tuple[tuple[int, bool], int | None]]] = {}
+        for n in self.drivers:
+            for m in b.telemetry[n]:
+                groups.setdefault(div[n], set()).add((m.key, m.mux))
+        self._due_groups = tuple((d, len(keys)) for d, keys in groups.items())
+        # (id, extended) -> [(frame map, its driver)]
+        self._by_key: dict[tuple[int, bool], tuple[tuple[TelemetryMap, DeviceDriver], ...]] = {
+            k: tuple((m, every[m.device]) for m in maps)
+            for k, maps in b.telemetry_by_key().items()}
+        self._fast = {k[0]: v[0] for k, v in self._by_key.items()
+                      if len(v) == 1 and not k[1] and v[0][0].identity}
+        self._commands = b.commands
+        # CANopen: the nodes' heartbeats, boot-ups and EMCYs are watched here (the frames
+        # are not telemetry); a fault among them waits in protocol_events for the monitor
+        self.co = b.canopen
+        self.protocol_events: list[tuple[str, str, str]] = []
+        self._hb_tick: dict[int, int] = {}
+        self._hb_timeout_ticks: dict[int, int] = {}
         self._counter = 0
         self._hb_counter = 0
         self.state = RigState()
 
     # ------------------------------------------------------------------ sending
-    def _send(self, name: str, data: bytes) -> None:
-        msg = can.Message(arbitration_id=self._ids[name], data=data, is_extended_id=False,
+    def _send_key(self, key: tuple[int, bool], data: bytes) -> None:
+        msg = can.Message(arbitration_id=key[0], data=data, is_extended_id=key[1],
                           timestamp=time.time(), is_rx=False)
         try:
             self.bus.send(msg)
@@ -94,13 +122,19 @@ class RigInterface:
             self.can_log.log(msg)
 
     def send_sync(self, tick: int) -> None:
-        self._send("SYNC", self.protocol["SYNC"].encode({"tick": tick & 0xFFFFFFFF}))
+        sync = self.binding.sync
+        self._send_key(sync.key, sync.encode(tick))
 
     def send_heartbeat(self, armed: bool) -> None:
         self._hb_counter = (self._hb_counter + 1) & 0xFF
         armed = armed and not self.dry_run
-        self._send("HEARTBEAT", self.protocol["HEARTBEAT"].encode(
-            {"counter": self._hb_counter, "armed": int(armed)}))
+        hb = self.binding.heartbeat
+        if hb is not None:
+            self._send_key(hb.key, hb.encode(self._hb_counter, armed))
+
+    def _send_command(self, device: str, values: dict[str, float], counter: int) -> None:
+        for cmap in self._commands[device]:
+            self._send_key(cmap.key, cmap.encode(values, counter))
 
     def command(self, cmd: RigCommand) -> RigCommand:
         """Send the command frames of the run's actuators; return what was really sent
@@ -110,34 +144,48 @@ class RigInterface:
         self._counter = (self._counter + 1) & 0xFF
         c = self._counter
         sent = RigCommand()
-        if "reaction_wheel" in self.actuators:
+        acts = self.actuators
+        if "reaction_wheel" in acts:
             sent.wheel_torque_n_m = self.wheel.clamp(cmd.wheel_torque_n_m)
-            self._send("WHEEL_CMD", self.wheel.encode(cmd.wheel_torque_n_m, True, c))
-        if "thruster_valves" in self.actuators:
+            self._send_command("reaction_wheel",
+                               self.wheel.command_values(cmd.wheel_torque_n_m, True), c)
+        if "thruster_valves" in acts:
             sent.valve_direction = cmd.valve_direction
-            self._send("VALVE_CMD", self.valves.encode(cmd.valve_direction, c))
-        if "piezo_amplifier" in self.actuators:
+            self._send_command("thruster_valves",
+                               self.valves.command_values(cmd.valve_direction), c)
+        if "piezo_amplifier" in acts:
             sent.piezo_v = (self.piezo.clamp(cmd.piezo_v[0]), self.piezo.clamp(cmd.piezo_v[1]))
-            self._send("PIEZO_CMD", self.piezo.encode(cmd.piezo_v[0], cmd.piezo_v[1], c))
-        if "disturbance_rotor" in self.actuators:
+            self._send_command("piezo_amplifier",
+                               self.piezo.command_values(cmd.piezo_v[0], cmd.piezo_v[1]), c)
+        if "disturbance_rotor" in acts:
             sent.rotor_speed_rad_s, sent.rotor_enable = cmd.rotor_speed_rad_s, cmd.rotor_enable
-            self._send("ROTOR_CMD", self.rotor.encode(cmd.rotor_speed_rad_s, cmd.rotor_enable, c))
+            self._send_command("disturbance_rotor", self.rotor.command_values(
+                cmd.rotor_speed_rad_s, cmd.rotor_enable), c)
         return sent
 
     def command_safe(self) -> None:
         """Wheel torque zero (disabled), valves closed, piezo 0 V, rotor stopped: sent to
-        every actuator, whatever the run used."""
+        every actuator the rig has, whatever the run used."""
         if self.dry_run:
             return
         c = self._counter = (self._counter + 1) & 0xFF
-        self._send("WHEEL_CMD", self.wheel.encode(0.0, False, c))
-        self._send("VALVE_CMD", self.valves.encode(0, c))
-        self._send("PIEZO_CMD", self.piezo.encode(0.0, 0.0, c))
-        self._send("ROTOR_CMD", self.rotor.encode(0.0, False, c))
+        safe = {"reaction_wheel": self.wheel.command_values(0.0, False),
+                "thruster_valves": self.valves.command_values(0),
+                "piezo_amplifier": self.piezo.command_values(0.0, 0.0),
+                "disturbance_rotor": self.rotor.command_values(0.0, False)}
+        for device, values in safe.items():
+            if device in self.drivers:
+                self._send_command(device, values, c)
+        if self.co is not None:
+            # CANopen: drives disabled and outputs 0 by the PDOs above, then every node to
+            # pre-operational (no PDO accepted any more)
+            from drivers.binding.canopen_master import NMT_PREOP, nmt_frame
+
+            self._send_key((0, False), nmt_frame(NMT_PREOP, 0).data)
 
     # ------------------------------------------------------------------ receiving
     def expected_frames(self, tick: int) -> int:
-        return sum(1 for name, d in self.divider.items() if tick % d == 0)
+        return sum(n for d, n in self._due_groups if tick % d == 0)
 
     def receive(self, tick: int, timeout_s: float, lockstep: bool = False) -> int:
         """Read telemetry until every device due at ``tick`` has answered or the timeout
@@ -159,10 +207,10 @@ class RigInterface:
                 got += 1
 
     def feed(self, msg: can.Message, tick: int) -> bool:
-        """One received frame: logged, counted, and decoded by its device's driver (as
-        received during ``tick``). True if a driver accepted it as telemetry; error frames,
-        unknown ids and malformed frames are counted, never raised. ``harness replay`` feeds
-        a CAN log's frames through here."""
+        """One received frame: logged, counted, and decoded through the binding into its
+        device's driver (as received during ``tick``). True if a driver accepted it as
+        telemetry; error frames, unknown ids and malformed frames are counted, never raised.
+        ``harness replay`` feeds a CAN log's frames through here."""
         self.counters.received += 1
         if self.can_log is not None:
             self.can_log.log(msg)
@@ -171,12 +219,100 @@ class RigInterface:
             if msg.arbitration_id & CAN_ERR_BUSOFF:
                 self.counters.bus_off = True
             return False
-        drv = self._by_id.get(msg.arbitration_id)
-        if drv is None:
+        if not msg.is_extended_id:
+            fast = self._fast.get(msg.arbitration_id)
+            if fast is not None:  # one identity-mapped frame (the sgsrt protocol)
+                tmap, drv = fast
+                try:
+                    values = tmap.codec.decode(msg.data)
+                except FrameError as exc:
+                    drv.malformed(str(exc))
+                    return False
+                drv.update(values, tick)
+                return True
+        maps = self._by_key.get((msg.arbitration_id, msg.is_extended_id))
+        if maps is None:
+            if self.co is not None and not msg.is_extended_id and self._canopen_service(
+                    msg, tick):
+                return False
             self.counters.unknown += 1
             self.counters.last_unknown_id = msg.arbitration_id
             return False
-        return drv.handle(msg.data, tick)
+        accepted = False
+        for tmap, drv in maps:  # every device the frame (or this mux page of it) serves
+            try:
+                values = tmap.decode(msg.data)
+            except FrameError as exc:
+                drv.malformed(str(exc))
+                return False
+            if values is not None:
+                drv.update(values, tick)
+                accepted = True
+        if accepted:
+            return True
+        self.counters.unknown += 1  # a multiplexed page no device is bound to
+        self.counters.last_unknown_id = msg.arbitration_id
+        return False
+
+    # ------------------------------------------------------------------ CANopen
+    def watch_heartbeats(self, dt_s: float, start_tick: int = 0, grace_ticks: int = 0) -> None:
+        """From ``start_tick`` on, each node must send its heartbeat within 3 of its periods
+        (at least 2 ticks, and at least ``grace_ticks``: the monitor's real-time grace on a
+        slow host): a node silent for longer is a fault (``protocol_fault``)."""
+        if self.co is None:
+            return
+        for nid, node in self.co.nodes.items():
+            self._hb_tick.setdefault(nid, start_tick)
+            self._hb_timeout_ticks[nid] = max(2, grace_ticks,
+                                              round(3 * node.heartbeat_ms * 1e-3 / dt_s))
+
+    def _canopen_service(self, msg: can.Message, tick: int) -> bool:
+        """A CANopen service frame of a node (heartbeat, boot-up, EMCY, SDO): True if it is
+        one. Boot-up mid-run, a node not operational, and an EMCY are faults."""
+        from drivers.binding.canopen import EMCY_BASE, emcy_meaning
+        from drivers.binding.canopen_master import heartbeat_state
+
+        cid, data = msg.arbitration_id, bytes(msg.data)
+        co = self.co
+        nid = cid & 0x7F
+        if nid not in co.nodes:
+            return cid in (0x000, 0x080)  # NMT, SYNC: the master's own
+        fn = cid & 0x780
+        device = co.device_of_node(nid)
+        if fn == 0x700:
+            self._hb_tick[nid] = tick
+            state = data[0] & 0x7F if data else -1
+            if state == 0:
+                self.protocol_events.append((device, "node rebooted", (
+                    f"node {nid} sent a boot-up frame: it reset mid-run (its outputs and "
+                    "set-up are lost)")))
+            elif state != 0x05:
+                self.protocol_events.append((device, "NMT state", (
+                    f"node {nid} reports NMT state {heartbeat_state(data)}, not "
+                    "OPERATIONAL")))
+            return True
+        if fn == EMCY_BASE and cid != EMCY_BASE:
+            if len(data) >= 3:
+                code, reg = int.from_bytes(data[:2], "little"), data[2]
+                if code != 0:  # 0x0000: error reset
+                    self.protocol_events.append((device, "EMCY", (
+                        f"node {nid}: {emcy_meaning(code, reg)}")))
+            return True
+        return fn in (0x580, 0x600)
+
+    def protocol_fault(self, tick: int) -> tuple[str, str, str] | None:
+        """The first protocol fault so far (CANopen): an EMCY, a boot-up, a node not
+        operational, or a heartbeat missing past its consumer time."""
+        if self.protocol_events:
+            return self.protocol_events[0]
+        for nid, last in self._hb_tick.items():
+            limit = self._hb_timeout_ticks.get(nid)
+            if limit is not None and tick - last > limit:
+                node = self.co.nodes[nid]
+                return (self.co.device_of_node(nid), "heartbeat lost", (
+                    f"node {nid}: no heartbeat for {tick - last} ticks (its period is "
+                    f"{node.heartbeat_ms} ms; the consumer time is 3 periods)"))
+        return None
 
     def snapshot(self, tick: int, time_s: float) -> RigState:
         s = self.state

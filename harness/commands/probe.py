@@ -108,6 +108,7 @@ def to_dict(result: ProbeResult) -> dict[str, Any]:
         "unknown_ids": result.unknown, "error_frames": result.error_frames,
         "bus_off": result.bus_off,
         "devices": [dict(asdict(d), status=d.status, ok=d.ok) for d in result.devices],
+        "canopen_nodes": result.nodes, "setup_error": result.setup_error,
     }
 
 
@@ -116,6 +117,15 @@ def _values(values: dict[str, float]) -> str:
 
 
 def print_report(r: ProbeResult) -> None:
+    if r.setup_error:
+        print(f"{r.bus}: CANopen set-up failed: {r.setup_error}")
+        return
+    for n in r.nodes:
+        print(f"CANopen node {n['node_id']} ({', '.join(n['devices'])}): device type "
+              f"{n['device_type']}, vendor {n.get('vendor_id', '?')}, product "
+              f"{n.get('product_code', '?')}, revision {n.get('revision', '?')}; mapping "
+              "written: " + "; ".join(f"{k} {' '.join(v)}" for k, v in
+                                       {**n['tpdos'], **n['rpdos']}.items()))
     print(f"{r.bus}: {r.ticks} SYNCs counted at {r.rate_hz:g} Hz")
     print(f"{'device':<18} {'frame':<10} {'id':>5} {'div':>3} {'due':>5} {'got':>5} "
           f"{'missed':>6} {'frames':>6} {'bad':>4} {'seq':>4}  status")

@@ -38,6 +38,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=Path("logs"), help="parent directory of the "
                    "run directory (default: ./logs)")
     p.add_argument("--duration-s", type=float, help="override the run's duration (s)")
+    p.add_argument("--rig", metavar="R", help="run on this rig file (built-in name or path) "
+                   "instead of the run file's, e.g. sgsrt-canopen (the lab's CANopen devices)")
     p.add_argument("--variant", action="append", metavar="NAME",
                    help="run only this variant of a run file with variants (e.g. beta-0.8 of "
                    "case-a); repeatable. Default: every variant in turn")
@@ -68,6 +70,8 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
     codes: list[int] = []
     try:
         overrides = {"duration_s": args.duration_s} if args.duration_s else None
+        if args.rig:
+            overrides = {**(overrides or {}), "rig": args.rig}
         if args.view and "127.0.0.1" not in args.view and "localhost" not in args.view:
             raise ConfigError(f"--view {args.view}: the live view stays on 127.0.0.1")
         base = load_run(args.run, overrides)

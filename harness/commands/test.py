@@ -28,6 +28,7 @@ import argparse
 import os
 import signal
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from harness.bus import BusSpecError, parse_bus
@@ -56,6 +57,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="parent of the suite's output folder (default ./logs)")
     p.add_argument("--bus", help="run every test on this bus; a real one (socketcan:can0, "
                    "socketcand:HOST:PORT) means the lab rig: probe first, one test at a time")
+    p.add_argument("--rig", metavar="R",
+                   help="run every test on this rig file (built-in name or path) instead of "
+                        "the run files' own, e.g. sgsrt-canopen: the same tests over the "
+                        "lab's CANopen devices")
     p.add_argument("--workers", type=int, help="local processes (default: every core; 1 runs "
                    "in this process)")
     p.add_argument("--cluster", metavar="tcp://HOST:8786",
@@ -86,6 +91,15 @@ def cmd_test(args: argparse.Namespace) -> int:
         return 2
     try:
         suites = [load_suite(s) for s in args.suites]
+        if args.rig:
+            from rig_models.rig_file import load_rig
+
+            load_rig(args.rig)  # a bad rig file is bad input, before anything runs
+            for suite in suites:
+                suite.cases[:] = [
+                    replace(c, overrides={**c.overrides, "rig": args.rig}) if c.kind == "run"
+                    else replace(c, probe={**c.probe, "rig": args.rig}) if c.kind == "probe"
+                    else c for c in suite.cases]
         real_bus = False
         if args.bus:
             real_bus = not parse_bus(args.bus).in_process

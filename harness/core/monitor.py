@@ -18,6 +18,10 @@ rotor in the default rig file):
 | flags | accelerometer saturated, wheel fault, piezo over-current | d |
 | overspeed | wheel speed beyond 1.02 x its limit | 1 |
 | valve stuck | open while commanded closed past closing delay + min on-time | that + 2 d + 1 |
+| EMCY (CANopen) | a node's emergency frame (code and register named), a drive fault | 1 |
+| node rebooted (CANopen) | a node's boot-up frame mid-run | 1 |
+| NMT state (CANopen) | a node's heartbeat says it is not operational | its heartbeat period |
+| heartbeat lost (CANopen) | no heartbeat for 3 periods (or the real-time grace) | 3 periods + 1 |
 | limits | hub angle, rate, wheel speed or tip acceleration beyond the run's `limits` | 1 |
 
 On the real-time clock, frames may arrive a few ticks late with nothing wrong (a busy
@@ -183,8 +187,11 @@ class FaultMonitor:
                               math.radians(lim["max_rate_deg_s"]) * inside,
                               lim["max_wheel_speed_rad_s"] * inside,
                               lim["max_tip_accel_m_s2"] * inside)
-        self._checks = (self._bus, self._silent_and_lost, self._accelerometer, self._hub,
-                        self._wheel, self._valves, self._piezo, self._limits)
+        # the bus protocol's own fault reports only where the interface has them (CANopen)
+        self._protocol_fault = getattr(interface, "protocol_fault", None)
+        self._checks = ((self._protocol,) if self._protocol_fault is not None else ()) + (
+            self._bus, self._silent_and_lost, self._accelerometer, self._hub, self._wheel,
+            self._valves, self._piezo, self._limits)
         self._accel_offset: int | None = None
         self._accel_last: tuple[int, int] | None = None  # (counter, tick of that counter)
         self._accel_same = 0
@@ -313,6 +320,16 @@ class FaultMonitor:
                 return event
         return None
 
+    def _protocol(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
+        """The bus protocol's own fault reports (CANopen: EMCY, boot-up, NMT state,
+        heartbeat lost), by node and device."""
+        get = self._protocol_fault
+        found = get(tick) if get is not None else None
+        if found is None:
+            return None
+        device, kind, message = found
+        return self._event(tick, device, kind, message)
+
     def _event(self, tick: int, device: str, kind: str, message: str) -> FaultEvent:
         return FaultEvent(tick, tick * self.dt_s, device, kind, message)
 
@@ -378,7 +395,9 @@ class FaultMonitor:
         if abs(v.get("accel", 0.0)) > self.accel_range + 0.01:
             return self._event(tick, "accelerometer", "implausible",
                                f"{v['accel']:+.3f} m/s^2 beyond its range")
-        counter = int(v.get("sample_counter", 0))
+        if "sample_counter" not in v:
+            return None  # its binding carries no sample counter (a CANopen analog input)
+        counter = int(v["sample_counter"])
         if self._accel_last is not None and counter == self._accel_last[0]:
             self._accel_same += 1
             if self._accel_same >= 2:

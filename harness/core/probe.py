@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import can
 
@@ -74,9 +75,15 @@ class ProbeResult:
     last_unknown_id: int
     error_frames: int
     bus_off: bool
+    # CANopen: every node as set-up found it (identity, device type, the PDO mapping written
+    # from the rig file); a set-up failure instead of the SYNC count
+    nodes: list[dict[str, Any]] = field(default_factory=list)
+    setup_error: str = ""
 
     @property
     def ok(self) -> bool:
+        if self.setup_error:
+            return False
         return (all(d.ok for d in self.devices) and self.unknown == 0
                 and self.error_frames == 0 and not self.bus_off)
 
@@ -96,6 +103,18 @@ def probe(bus: can.BusABC, rig: RigConfig, rate_hz: float, duration_s: float, *,
         raise ValueError(f"settle_s: expected a number >= 0 (s), got {settle_s}")
     protocol = load_protocol()
     iface = RigInterface(bus, protocol, rig, None, (), dry_run=True)
+    nodes: list[dict[str, Any]] = []
+    if iface.co is not None:
+        # CANopen nodes: set up (NMT, identity, PDO mapping) but, dry run, no drive enabled
+        from drivers.binding.canopen_master import CanopenMaster, SetupError
+
+        master = CanopenMaster(bus, iface.co, dry_run=True)
+        try:
+            nodes = master.setup(pump=pump)
+        except SetupError as exc:
+            return ProbeResult(bus=bus_name, rate_hz=rate_hz, ticks=0, devices=[], unknown=0,
+                               last_unknown_id=0, error_frames=0, bus_off=False,
+                               setup_error=str(exc))
     dt_s = 1.0 / rate_hz
     clock: LockstepClock | RealTimeClock = RealTimeClock(dt_s) if realtime else LockstepClock(dt_s)
     n_settle = round(settle_s * rate_hz)
@@ -122,10 +141,16 @@ def probe(bus: can.BusABC, rig: RigConfig, rate_hz: float, duration_s: float, *,
             if tick % iface.divider[name] == 0:
                 due[name] += 1
                 answered[name] += drv.last_tick == tick
+    if iface.co is not None:
+        from drivers.binding.canopen_master import NMT_PREOP, nmt_frame
+
+        bus.send(nmt_frame(NMT_PREOP, 0))
+        if pump is not None:
+            pump()
+    first = {n: iface.binding.telemetry[n][0].codec for n in iface.drivers}
     devices = [
         DeviceReport(
-            device=name, frame=drv.telemetry_frame,
-            frame_id=protocol[drv.telemetry_frame].frame_id,
+            device=name, frame=first[name].name, frame_id=first[name].frame_id,
             sync_divider=iface.divider[name], due=due[name], received=answered[name],
             missing=due[name] - answered[name], malformed=drv.counters.malformed,
             sequence_errors=drv.counters.sequence_errors, frames=drv.counters.received,
@@ -136,4 +161,4 @@ def probe(bus: can.BusABC, rig: RigConfig, rate_hz: float, duration_s: float, *,
     c = iface.counters
     return ProbeResult(bus=bus_name, rate_hz=rate_hz, ticks=n_ticks - n_settle, devices=devices,
                        unknown=c.unknown, last_unknown_id=c.last_unknown_id,
-                       error_frames=c.error_frames, bus_off=c.bus_off)
+                       error_frames=c.error_frames, bus_off=c.bus_off, nodes=nodes)

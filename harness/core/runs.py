@@ -170,7 +170,8 @@ def run_from_dict(raw: Any, source: str = "run", base_dir: Path | None = None,
         if not isinstance(data["rig_overrides"], dict):
             raise ConfigError(f"{source}: rig_overrides: expected a mapping")
         rig = rig_from_dict(_deep_merge(rig.data, data["rig_overrides"]),
-                            source=f"{rig.source} + rig_overrides of {source}")
+                            source=f"{rig.source} + rig_overrides of {source}",
+                            base_dir=rig.base_dir)
     _check_expect(data, rig, source, base_dir, check_files)
     return RunConfig(source=source, data=data, rig=rig)
 

@@ -23,7 +23,7 @@ import yaml
 
 from drivers.dbc import load_protocol
 from harness.bus import BusSpec, open_bus, parse_bus
-from harness.bus.load import compute_bus_load
+from harness.bus.load import binding_bus_load, compute_bus_load
 from harness.bus.rig_interface import RigInterface
 from harness.bus.rig_process import RigProcess
 from harness.core.clock import LockstepClock, RealTimeClock, RealTimeSetup, choose_cpus
@@ -74,10 +74,14 @@ class RunResult:
 
 
 def bus_load_of(run: RunConfig):  # noqa: ANN201 - BusLoad
-    return compute_bus_load(
-        load_protocol(), run.data["rate_hz"], run.rig.data["bus"]["sync_divider"],
-        [COMMAND_FRAMES[a] for a in run.actuators], run.data["heartbeat_hz"],
-        run.rig.data["bus"]["bitrate_bit_s"])
+    if run.rig.binding.is_sgsrt():
+        return compute_bus_load(
+            load_protocol(), run.data["rate_hz"], run.rig.data["bus"]["sync_divider"],
+            [COMMAND_FRAMES[a] for a in run.actuators], run.data["heartbeat_hz"],
+            run.rig.data["bus"]["bitrate_bit_s"])
+    return binding_bus_load(
+        run.rig.binding, run.data["rate_hz"], run.rig.data["bus"]["sync_divider"],
+        run.actuators, run.data["heartbeat_hz"], run.rig.data["bus"]["bitrate_bit_s"])
 
 
 def make_run_dir(out: Path, name: str) -> Path:
@@ -343,6 +347,9 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                                  dry_run=dry_run)
         heartbeat_every = max(1, round(run.data["rate_hz"] / run.data["heartbeat_hz"]))
         monitor = make_monitor(run, interface, realtime=clock_name == "realtime")
+        if interface.co is not None:
+            canopen_setup(interface, pump, can_log, dry_run, show_progress)
+            interface.watch_heartbeats(dt_s, grace_ticks=monitor.realtime_grace)
         monitor.on_warning = _warning_logger(recorder, show_progress)
         reference = getattr(controller, "reference", None)
         recorder.log_static_text("/run/config", "```yaml\n" + yaml.safe_dump(
@@ -381,12 +388,28 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
             rig_thread.join(timeout=2.0)
         can_log.close()
         _log_bus(recorder, can_log.path, dt_s, clock_name == "realtime",
-                 run.rig.data["bus"]["sync_divider"])
+                 run.rig.data["bus"]["sync_divider"], run.rig.binding)
         recorder.close()
         harness_bus.shutdown()
         if rig_bus is not None:
             rig_bus.shutdown()
     return RunResult(run_dir, summary, stats, recorder, rig)
+
+
+def canopen_setup(interface: RigInterface, pump: Callable[[], object] | None,
+                  can_log: CanLog | None, dry_run: bool, show_progress: bool) -> list[Any]:
+    """CANopen nodes to operational with the binding's PDOs, before the first tick
+    (``drivers.binding.canopen_master``); a failure refuses the run, naming the node."""
+    from drivers.binding.canopen_master import CanopenMaster, SetupError
+
+    master = CanopenMaster(interface.bus, interface.co, dry_run=dry_run,
+                           log=can_log.log if can_log is not None else None)
+    try:
+        return master.setup(pump=pump, progress=(
+            (lambda m: print(f"harness: {m}", file=sys.stderr)) if show_progress else None))
+    except SetupError as exc:
+        raise RunRefused(f"CANopen set-up failed: {exc}; every node sent to "
+                         "pre-operational") from exc
 
 
 def _warning_logger(recorder: Recorder, show: bool) -> Callable[[MonitorWarning], None]:
@@ -447,12 +470,18 @@ def _final_layout(recorder: Recorder, run: RunConfig, run_dir: Path,
 
 
 def _log_bus(recorder: Recorder, blf: Path, dt_s: float, realtime: bool,
-             dividers: dict[str, int]) -> None:
-    """The CAN log decoded into the recording (harness.review.bus), after the run."""
+             dividers: dict[str, int], binding: Any = None) -> None:
+    """The CAN log decoded into the recording, after the run: the sgsrt protocol by
+    harness.review.bus, any other binding (a DBC, CANopen) by harness.review.bus_binding."""
     try:
         if not blf.exists():
             return
-        bus = write_bus(recorder.rec, blf, dt_s, realtime, dividers)
+        if binding is not None and not binding.is_sgsrt():
+            from harness.review.bus_binding import write_bus_binding
+
+            bus = write_bus_binding(recorder.rec, blf, dt_s, realtime, dividers, binding)
+        else:
+            bus = write_bus(recorder.rec, blf, dt_s, realtime, dividers)
         for t_s, text in bus.warnings:
             log_event(recorder.rec, t_s, "/events/can_log", text, "WARN")
         if bus.late_or_missing > len(bus.warnings):

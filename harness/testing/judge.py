@@ -283,50 +283,86 @@ class BaselineCache:
         return self._runs[base](entity)
 
 
-SAFE_CHECKS = {
-    "WHEEL_CMD": (("torque_cmd", "wheel torque"), ("enable", "wheel enable")),
-    "VALVE_CMD": (("valve_pos", "positive valve"), ("valve_neg", "negative valve")),
-    "PIEZO_CMD": (("voltage_ch1", "piezo ch1 voltage"), ("voltage_ch2", "piezo ch2 voltage")),
-    "ROTOR_CMD": (("speed_cmd", "rotor speed"), ("enable", "rotor enable")),
-    "HEARTBEAT": (("armed", "heartbeat armed"),),
+# what each device's last command must say for the rig to be left safe (quantities of
+# drivers.binding.quantities: the same whatever the protocol)
+SAFE_QUANTITIES = {
+    "reaction_wheel": (("torque_cmd", "wheel torque"), ("enable", "wheel enable")),
+    "thruster_valves": (("valve_pos", "positive valve"), ("valve_neg", "negative valve")),
+    "piezo_amplifier": (("voltage_ch1", "piezo ch1 voltage"),
+                        ("voltage_ch2", "piezo ch2 voltage")),
+    "disturbance_rotor": (("speed_cmd", "rotor speed"), ("enable", "rotor enable")),
 }
+NMT_SAFE = {0x80: "pre-operational", 0x02: "stopped"}
 
 
-def left_safe_problems(blf: Path) -> list[str]:
-    """What the CAN log's last command frame of each device (and last heartbeat) leaves
-    unsafe: wheel torque 0 and disabled, valves closed, piezo 0 V, rotor stopped and
-    disabled, heartbeat disarmed. A frame never sent is nothing commanded."""
+def left_safe_problems(blf: Path, rig_data: Mapping[str, Any] | None = None) -> list[str]:
+    """What the CAN log's last command frame of each device leaves unsafe, decoded through
+    the run's rig binding (``rig_data``: config.yaml's rig; sgsrt's when absent): wheel
+    torque 0 and disabled, valves closed, piezo 0 V, rotor stopped and disabled; the
+    heartbeat disarmed (sgsrt, a DBC) or every CANopen node sent to pre-operational (or
+    stopped) after the last command. A frame never sent is nothing commanded."""
     import can
 
-    from drivers.dbc import FrameError, load_protocol
+    from drivers.binding import BindingError, build_binding
+    from drivers.dbc import FrameError
 
     if not blf.is_file():
         raise MissingData(f"{blf} does not exist")
-    protocol = load_protocol()
-    ids = {protocol[name].frame_id: name for name in SAFE_CHECKS}
-    last: dict[str, bytes] = {}
+    try:
+        binding = build_binding(rig_data or {"bus": {}})
+    except BindingError as exc:
+        raise MissingData(f"the run's rig binding: {exc}") from exc
+    cmd_keys = binding.commands_by_key()
+    hb = binding.heartbeat if binding.canopen is None else None
+    last: dict[tuple[int, bool], bytes] = {}
+    last_nmt: int | None = None
+    commanded_after_nmt = False
     try:
         for msg in can.LogReader(str(blf)):
-            if not msg.is_error_frame and msg.arbitration_id in ids:
-                last[ids[msg.arbitration_id]] = bytes(msg.data)
+            if msg.is_error_frame:
+                continue
+            key = (msg.arbitration_id, msg.is_extended_id)
+            if key in cmd_keys or (hb is not None and key == hb.key):
+                last[key] = bytes(msg.data)
+                commanded_after_nmt = True
+            elif binding.canopen is not None and key == (0, False) and len(msg.data) >= 1:
+                last_nmt, commanded_after_nmt = msg.data[0], False
     except Exception as exc:  # python-can raises many kinds for a damaged file
         raise MissingData(f"{blf}: cannot read ({type(exc).__name__}: {exc})") from exc
     problems = []
-    for name, checks in SAFE_CHECKS.items():
-        if name not in last:
+    for key, cmaps in cmd_keys.items():
+        if key not in last:
             continue
+        for cmap in cmaps:
+            try:
+                values = cmap.decode(last[key])
+            except FrameError:
+                problems.append(f"last {cmap.codec.name} undecodable ({last[key].hex()})")
+                continue
+            if values is None:
+                continue
+            for quantity, what in SAFE_QUANTITIES.get(cmap.device, ()):
+                if quantity in values and values[quantity] != 0:
+                    problems.append(f"last {cmap.codec.name}: {what} {values[quantity]:g}")
+    if hb is not None and hb.key in last:
         try:
-            values = protocol[name].decode(last[name])
+            if hb.decode_armed(last[hb.key]):
+                problems.append(f"last {hb.codec.name}: heartbeat armed 1")
         except FrameError:
-            problems.append(f"last {name} undecodable ({last[name].hex()})")
-            continue
-        for signal, what in checks:
-            if values[signal] != 0:
-                problems.append(f"last {name}: {what} {values[signal]:g}")
+            problems.append(f"last {hb.codec.name} undecodable ({last[hb.key].hex()})")
+    if binding.canopen is not None and last:
+        if last_nmt not in NMT_SAFE or commanded_after_nmt:
+            problems.append("CANopen: the nodes were not sent to pre-operational (or stopped) "
+                            "after the last command")
     return problems
 
 
 # ----------------------------------------------------------------------------- judging
+def _rig_data(cfg: Mapping[str, Any]) -> Mapping[str, Any] | None:
+    rig = cfg.get("rig") if isinstance(cfg, Mapping) else None
+    return rig if isinstance(rig, Mapping) else None
+
+
 def _load_yaml(path: Path) -> Any:
     try:
         return yaml.safe_load(path.read_text())
@@ -393,7 +429,7 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
     wanted = {c.target for c in criteria if c.kind == "baseline"}
     source = ChannelSource(run_dir / "run.rrd")
     facts = Facts(summary, source, BaselineCache(wanted),
-                  lambda: left_safe_problems(run_dir / "can.blf"), source.blocks)
+                  lambda: left_safe_problems(run_dir / "can.blf", _rig_data(cfg)), source.blocks)
     note = ""
     if summary.get("dry_run"):  # nothing was commanded: only the safe state and the checks
         criteria = [c for c in criteria if c.kind == "left_safe"]

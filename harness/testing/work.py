@@ -152,7 +152,7 @@ def run_probe(opts: dict[str, Any], bus: str | None, rig: str = "sgsrt") -> dict
     spec = parse_bus(bus or "virtual:sgsrt")
     if spec.in_process:
         spec = parse_bus(private_channel())
-    rig_cfg = load_rig(rig)
+    rig_cfg = load_rig(opts.get("rig", rig))
     rate = float(opts.get("rate_hz", 100.0))
     buses = [open_bus(spec)]
     try:

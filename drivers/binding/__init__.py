@@ -1,0 +1,492 @@
+"""The device binding: which frames (or CANopen objects) carry each device's quantities.
+
+A layer of its own between the bus and the drivers' typed values: the drivers, RigState
+and RigCommand see only quantities (``drivers.binding.quantities``), in SI; a rig file says
+how each device speaks:
+
+- ``sgsrt`` (the default): this project's ``drivers/sgsrt.dbc``;
+- ``dbc``: any DBC file, with a map from each quantity to a message and signal and the
+  conversion to SI (``scale``/``offset``, or a sensor's ``sensitivity``), both byte orders,
+  extended ids, multiplexed messages, optional alive counters;
+- ``canopen``: a node id, an EDS/DCF file and a CiA profile (``drivers.binding.canopen``);
+- ``none``: the rig has no such device (a run that needs it is refused).
+
+The same binding serves the harness (decode telemetry, encode commands) and the virtual rig
+(the reverse), so CI tests the protocol the lab runs. Frame and signal names live in rig
+files and DBC/EDS files, never in code (the sgsrt defaults below are the one exception: they
+ARE the sgsrt protocol).
+
+May import: ``drivers.dbc``, ``drivers.canopen_pdo``, ``canopen`` (EDS parsing only). Never
+``harness`` or ``rig_models``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from drivers.binding.frames import (
+    BindingError,
+    CommandMap,
+    HeartbeatMap,
+    SignalMap,
+    SyncMap,
+    TelemetryMap,
+)
+from drivers.binding.quantities import (
+    COMMANDS,
+    DEVICES,
+    REQUIRED_COMMANDS,
+    REQUIRED_TELEMETRY,
+    TELEMETRY,
+)
+from drivers.dbc import DBC_PATH, FrameCodec, Protocol, load_protocol
+
+__all__ = ["BindingError", "RigBinding", "absolutize", "build_binding", "resolve_file", "KINDS"]
+
+KINDS = ("sgsrt", "dbc", "canopen", "none")
+DRIVERS_DIR = Path(__file__).resolve().parent.parent
+
+# the sgsrt protocol: device -> (telemetry message, command message)
+SGSRT_FRAMES: dict[str, tuple[str, str | None]] = {
+    "hub_sensor": ("HUB_TLM", None),
+    "accelerometer": ("ACCEL_TLM", None),
+    "reaction_wheel": ("WHEEL_TLM", "WHEEL_CMD"),
+    "thruster_valves": ("VALVE_TLM", "VALVE_CMD"),
+    "piezo_amplifier": ("PIEZO_TLM", "PIEZO_CMD"),
+    "disturbance_rotor": ("ROTOR_TLM", "ROTOR_CMD"),
+}
+# sgsrt telemetry counters checked for sequence by the drivers: none. The drivers' class
+# attributes meant to check the wheel's and accelerometer's never took effect (a dataclass
+# field's default shadowed them), and the monitor judges lost frames (2 of the last 20) and
+# the accelerometer's sample counter (stuck, late) itself; a per-frame sequence fault would
+# make one lost frame fatal. A DBC binding opts in per device (a counter with ``modulus``).
+SGSRT_SEQUENCE: dict[str, tuple[str, int]] = {}
+
+
+@dataclass(frozen=True)
+class FrameInfo:
+    """One frame of the binding, for replay and review: its name, device and direction."""
+
+    key: tuple[int, bool]
+    name: str
+    device: str  # a device, or "harness" for SYNC / heartbeat
+    kind: str  # "tlm", "cmd", "sync", "heartbeat"
+    codec: FrameCodec
+
+
+@dataclass
+class RigBinding:
+    """Every device's frames, both directions, built from a rig file."""
+
+    kinds: dict[str, str]
+    sync: Any  # SyncMap, or canopen.CanopenSync
+    heartbeat: Any  # HeartbeatMap, canopen.CanopenHeartbeat, or None
+    telemetry: dict[str, tuple[TelemetryMap, ...]]
+    commands: dict[str, tuple[CommandMap, ...]]
+    sequence: dict[str, tuple[str, int]] = field(default_factory=dict)
+    files: dict[str, str] = field(default_factory=dict)  # device -> DBC/EDS path
+    canopen: Any = None  # drivers.binding.canopen.CanopenBus when a device binds canopen
+
+    @property
+    def bound(self) -> tuple[str, ...]:
+        """The devices the rig has (binding other than ``none``)."""
+        return tuple(d for d in DEVICES if self.kinds[d] != "none")
+
+    def telemetry_by_key(self) -> dict[tuple[int, bool], tuple[TelemetryMap, ...]]:
+        out: dict[tuple[int, bool], list[TelemetryMap]] = {}
+        for maps in self.telemetry.values():
+            for m in maps:
+                out.setdefault(m.key, []).append(m)
+        return {k: tuple(v) for k, v in out.items()}
+
+    def commands_by_key(self) -> dict[tuple[int, bool], tuple[CommandMap, ...]]:
+        out: dict[tuple[int, bool], list[CommandMap]] = {}
+        for maps in self.commands.values():
+            for m in maps:
+                out.setdefault(m.key, []).append(m)
+        return {k: tuple(v) for k, v in out.items()}
+
+    def frames(self) -> list[FrameInfo]:
+        """Every frame the binding knows (a multiplexed message once per device)."""
+        out = [FrameInfo(self.sync.key, self.sync.codec.name, "harness", "sync",
+                         self.sync.codec)]
+        if self.heartbeat is not None:
+            out.append(FrameInfo(self.heartbeat.key, self.heartbeat.codec.name, "harness",
+                                 "heartbeat", self.heartbeat.codec))
+        seen: set[tuple[tuple[int, bool], str]] = set()
+        for kind, table in (("tlm", self.telemetry), ("cmd", self.commands)):
+            for device, maps in table.items():
+                for m in maps:
+                    if (m.key, device) not in seen:
+                        seen.add((m.key, device))
+                        out.append(FrameInfo(m.key, m.codec.name, device, kind, m.codec))
+        return out
+
+    def is_sgsrt(self) -> bool:
+        return all(k in ("sgsrt", "none") for k in self.kinds.values())
+
+
+def resolve_file(value: Any, key: str, base_dir: Path | None, subdir: str = "") -> Path:
+    """A DBC/EDS path of a rig file: absolute, relative to the rig file's folder, or a file
+    shipped in ``drivers/`` (``drivers/eds/`` for EDS files)."""
+    if not isinstance(value, str) or not value:
+        raise BindingError(f"{key}: expected a file path, got {value!r}")
+    p = Path(value)
+    candidates = [p] if p.is_absolute() else (
+        ([base_dir / p] if base_dir is not None else []) + [DRIVERS_DIR / subdir / p,
+                                                            DRIVERS_DIR / p])
+    for c in candidates:
+        if c.is_file():
+            return c.resolve()
+    raise BindingError(f"{key}: file {value!r} not found (looked in: "
+                       f"{', '.join(str(c.parent) for c in candidates)})")
+
+
+def absolutize(data: Mapping[str, Any], base_dir: Path | None) -> dict[str, Any]:
+    """A copy of rig data whose DBC/EDS paths relative to the rig file's folder are made
+    absolute, so the data stays valid wherever it goes (a run's config.yaml, a rig
+    process, rig overrides). Anything else is left for ``build_binding`` to judge."""
+    out = dict(data)
+    if base_dir is None:
+        return out
+
+    def fix(cfg: Any) -> Any:
+        if not isinstance(cfg, Mapping):
+            return cfg
+        cfg = dict(cfg)
+        for k in ("dbc", "eds"):
+            v = cfg.get(k)
+            if isinstance(v, str) and v and not Path(v).is_absolute() and (base_dir / v).is_file():
+                cfg[k] = str((base_dir / v).resolve())
+        return cfg
+
+    if isinstance(out.get("devices"), Mapping):
+        out["devices"] = {d: fix(c) for d, c in out["devices"].items()}
+    if isinstance(out.get("bus"), Mapping):
+        out["bus"] = dict(out["bus"], **{k: fix(out["bus"][k]) for k in ("sync", "heartbeat")
+                                         if k in out["bus"]})
+    return out
+
+
+def _mapping(value: Any, key: str) -> Mapping[str, Any]:
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise BindingError(f"{key}: expected a mapping, got {value!r}")
+    return value
+
+
+def _number(value: Any, key: str, positive: bool = False) -> float:
+    import math
+
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise BindingError(f"{key}: expected a number, got {value!r}")
+    try:
+        v = float(value)
+    except OverflowError:
+        raise BindingError(f"{key}: expected a finite number, got {value!r}") from None
+    if not math.isfinite(v) or (positive and v == 0.0):
+        raise BindingError(f"{key}: expected a finite{' non-zero' if positive else ''} number, "
+                           f"got {value!r}")
+    return v
+
+
+def _load_dbc(path: Path, key: str) -> Protocol:
+    try:
+        return load_protocol(str(path))
+    except BindingError:
+        raise
+    except Exception as exc:  # cantools raises many kinds for a bad file
+        raise BindingError(f"{key}: {path.name}: cannot load the DBC ({exc})") from exc
+
+
+def _message(protocol: Protocol, name: Any, key: str, path: Path) -> FrameCodec:
+    if not isinstance(name, str) or name not in protocol.by_name:
+        known = ", ".join(sorted(protocol.by_name))
+        raise BindingError(f"{key}.message: {name!r} is not a message of {path.name} "
+                           f"(messages: {known})")
+    return protocol.by_name[name]
+
+
+def _signal(codec: FrameCodec, name: Any, key: str) -> str:
+    if not isinstance(name, str) or name not in codec.signal_names:
+        raise BindingError(f"{key}.signal: {name!r} is not a signal of {codec.name} "
+                           f"(signals: {', '.join(codec.signal_names)})")
+    return name
+
+
+_SIGNAL_KEYS = {"message", "signal", "scale", "offset", "sensitivity", "mux", "modulus"}
+
+
+def _signal_map(quantity: str, spec: Any, key: str, protocol: Protocol, path: Path
+                ) -> tuple[FrameCodec, SignalMap, int | None, int | None]:
+    spec = _mapping(spec, key)
+    unknown = sorted(set(spec) - _SIGNAL_KEYS)
+    if unknown:
+        raise BindingError(f"{key}.{unknown[0]}: unknown key (expected one of: "
+                           f"{', '.join(sorted(_SIGNAL_KEYS))})")
+    codec = _message(protocol, spec.get("message"), key, path)
+    signal = _signal(codec, spec.get("signal"), key)
+    if "sensitivity" in spec and "scale" in spec:
+        raise BindingError(f"{key}: give scale (SI per DBC unit) or sensitivity (DBC unit per "
+                           "SI unit), not both")
+    if "sensitivity" in spec:
+        scale = 1.0 / _number(spec["sensitivity"], f"{key}.sensitivity", positive=True)
+    else:
+        scale = _number(spec.get("scale", 1.0), f"{key}.scale", positive=True)
+    offset = _number(spec.get("offset", 0.0), f"{key}.offset")
+    mux = spec.get("mux")
+    mux_signal = getattr(codec, "multiplexer", None)
+    if mux is not None:
+        if mux_signal is None:
+            raise BindingError(f"{key}.mux: {codec.name} is not multiplexed")
+        if isinstance(mux, bool) or not isinstance(mux, int):
+            raise BindingError(f"{key}.mux: expected an integer, got {mux!r}")
+        sig = next(s for s in codec.signals if s.name == signal)
+        pages = getattr(sig, "multiplexer_ids", None)
+        if pages is not None and mux not in pages:
+            raise BindingError(f"{key}: signal {signal} is not on {codec.name}'s page "
+                               f"{mux_signal} = {mux} (it is on {list(pages)})")
+    elif mux_signal is not None:
+        raise BindingError(f"{key}.mux: {codec.name} is multiplexed by {mux_signal}: say "
+                           "which page (mux value) carries this quantity")
+    modulus = spec.get("modulus")
+    if modulus is not None and (isinstance(modulus, bool) or not isinstance(modulus, int)
+                                or modulus < 2):
+        raise BindingError(f"{key}.modulus: expected an integer >= 2, got {modulus!r}")
+    return codec, SignalMap(quantity, signal, scale, offset), mux, modulus
+
+
+def _signal_length(codec: FrameCodec, name: str) -> int:
+    return next(s.length for s in codec.signals if s.name == name)
+
+
+def _dbc_device(device: str, cfg: Mapping[str, Any], key: str, base_dir: Path | None
+                ) -> tuple[tuple[TelemetryMap, ...], tuple[CommandMap, ...],
+                           tuple[str, int] | None, str]:
+    allowed = {"binding", "dbc", "telemetry", "commands"}
+    unknown = sorted(set(cfg) - allowed)
+    if unknown:
+        raise BindingError(f"{key}.{unknown[0]}: unknown key (expected one of: "
+                           f"{', '.join(sorted(allowed))})")
+    path = resolve_file(cfg.get("dbc"), f"{key}.dbc", base_dir)
+    protocol = _load_dbc(path, f"{key}.dbc")
+    tlm_cfg = _mapping(cfg.get("telemetry"), f"{key}.telemetry")
+    groups: dict[tuple[str, int | None], list[SignalMap]] = {}
+    codecs: dict[str, FrameCodec] = {}
+    sequence: tuple[str, int] | None = None
+    for q, spec in tlm_cfg.items():
+        qkey = f"{key}.telemetry.{q}"
+        if q not in TELEMETRY[device]:
+            raise BindingError(f"{qkey}: unknown quantity of {device} (expected one of: "
+                               f"{', '.join(TELEMETRY[device])})")
+        codec, sm, mux, modulus = _signal_map(q, spec, qkey, protocol, path)
+        if q in ("counter", "sample_counter"):  # a counter wraps at its signal's width
+            sm = SignalMap(sm.quantity, sm.signal, sm.scale, sm.offset,
+                           modulus or 1 << _signal_length(codec, sm.signal))
+        codecs[codec.name] = codec
+        groups.setdefault((codec.name, mux), []).append(sm)
+        if q == "counter" and modulus is not None:
+            sequence = (q, modulus)
+    missing = [q for q in REQUIRED_TELEMETRY[device] if q not in tlm_cfg]
+    if missing:
+        raise BindingError(f"{key}.telemetry.{missing[0]}: missing; the harness needs "
+                           f"{', '.join(REQUIRED_TELEMETRY[device])} of the {device}")
+    tlm = tuple(TelemetryMap(device, codecs[name], tuple(fields), mux)
+                for (name, mux), fields in groups.items())
+    cmds: tuple[CommandMap, ...] = ()
+    if device in COMMANDS:
+        cmd_cfg = dict(_mapping(cfg.get("commands"), f"{key}.commands"))
+        counter_cfg = cmd_cfg.pop("counter", None)
+        cgroups: dict[tuple[str, int | None], list[SignalMap]] = {}
+        for q, spec in cmd_cfg.items():
+            qkey = f"{key}.commands.{q}"
+            if q not in COMMANDS[device]:
+                raise BindingError(f"{qkey}: unknown command of {device} (expected one of: "
+                                   f"{', '.join(list(COMMANDS[device]) + ['counter'])})")
+            codec, sm, mux, _ = _signal_map(q, spec, qkey, protocol, path)
+            codecs[codec.name] = codec
+            cgroups.setdefault((codec.name, mux), []).append(sm)
+        missing = [q for q in REQUIRED_COMMANDS[device] if q not in cmd_cfg]
+        if missing:
+            raise BindingError(f"{key}.commands.{missing[0]}: missing; the harness commands "
+                               f"{', '.join(REQUIRED_COMMANDS[device])} of the {device}")
+        counter: dict[str, tuple[str, int]] = {}
+        if counter_cfg is not None:
+            ckey = f"{key}.commands.counter"
+            codec, sm, _, modulus = _signal_map("counter", counter_cfg, ckey, protocol, path)
+            if (codec.name, None) not in cgroups and not any(n == codec.name for n, _ in cgroups):
+                raise BindingError(f"{ckey}.message: {codec.name} carries no command of the "
+                                   f"{device}")
+            counter[codec.name] = (sm.signal, modulus or 1 << _signal_length(codec, sm.signal))
+        cmds = tuple(CommandMap(device, codecs[name], tuple(fields), counter.get(name), mux)
+                     for (name, mux), fields in cgroups.items())
+    elif cfg.get("commands"):
+        raise BindingError(f"{key}.commands: the {device} takes no commands")
+    return tlm, cmds, sequence, str(path)
+
+
+def _sgsrt_device(device: str, protocol: Protocol
+                  ) -> tuple[tuple[TelemetryMap, ...], tuple[CommandMap, ...]]:
+    tlm_name, cmd_name = SGSRT_FRAMES[device]
+    codec = protocol[tlm_name]
+    tlm = (TelemetryMap(device, codec, tuple(SignalMap(s, s) for s in codec.signal_names)),)
+    cmds: tuple[CommandMap, ...] = ()
+    if cmd_name is not None:
+        c = protocol[cmd_name]
+        cmds = (CommandMap(device, c, tuple(SignalMap(s, s) for s in c.signal_names
+                                            if s != "counter"), counter=("counter", 256)),)
+    return tlm, cmds
+
+
+def _sync_and_heartbeat(bus: Mapping[str, Any], base_dir: Path | None, sgsrt: Protocol
+                        ) -> tuple[SyncMap, HeartbeatMap | None, bool]:
+    """(SYNC, heartbeat, whether the SYNC is sgsrt's)."""
+    sync_cfg = bus.get("sync")
+    hb_cfg = bus.get("heartbeat")
+    if sync_cfg is None or sync_cfg == "sgsrt":
+        sync, sgsrt_sync = SyncMap(sgsrt["SYNC"], "tick"), True
+    else:
+        cfg = _mapping(sync_cfg, "bus.sync")
+        unknown = sorted(set(cfg) - {"dbc", "message", "signal"})
+        if unknown:
+            raise BindingError(f"bus.sync.{unknown[0]}: unknown key (expected dbc, message, "
+                               "signal)")
+        path = resolve_file(cfg.get("dbc"), "bus.sync.dbc", base_dir)
+        p = _load_dbc(path, "bus.sync.dbc")
+        codec = _message(p, cfg.get("message"), "bus.sync", path)
+        sync, sgsrt_sync = SyncMap(codec, _signal(codec, cfg.get("signal"), "bus.sync")), False
+    if hb_cfg is None or hb_cfg == "sgsrt":
+        hb = HeartbeatMap(sgsrt["HEARTBEAT"], "counter", "armed")
+    else:
+        cfg = _mapping(hb_cfg, "bus.heartbeat")
+        unknown = sorted(set(cfg) - {"dbc", "message", "counter", "armed"})
+        if unknown:
+            raise BindingError(f"bus.heartbeat.{unknown[0]}: unknown key (expected dbc, "
+                               "message, counter, armed)")
+        path = resolve_file(cfg.get("dbc"), "bus.heartbeat.dbc", base_dir)
+        p = _load_dbc(path, "bus.heartbeat.dbc")
+        codec = _message(p, cfg.get("message"), "bus.heartbeat", path)
+        counter = cfg.get("counter")
+        if counter is not None:
+            _signal(codec, counter, "bus.heartbeat.counter")
+        armed = _signal(codec, cfg.get("armed"), "bus.heartbeat.armed")
+        hb = HeartbeatMap(codec, counter, armed)
+    return sync, hb, sgsrt_sync
+
+
+def build_binding(data: Mapping[str, Any], base_dir: Path | None = None) -> RigBinding:
+    """The binding of a validated rig file's data (``devices:`` and ``bus.sync`` /
+    ``bus.heartbeat``). Raises BindingError naming the key."""
+    sgsrt = load_protocol(str(DBC_PATH))
+    devices = _mapping(data.get("devices"), "devices")
+    unknown = sorted(set(devices) - set(DEVICES))
+    if unknown:
+        raise BindingError(f"devices.{unknown[0]}: unknown device (expected one of: "
+                           f"{', '.join(DEVICES)})")
+    kinds: dict[str, str] = {}
+    telemetry: dict[str, tuple[TelemetryMap, ...]] = {}
+    commands: dict[str, tuple[CommandMap, ...]] = {}
+    sequence: dict[str, tuple[str, int]] = {}
+    files: dict[str, str] = {}
+    co_cfgs: dict[str, Mapping[str, Any]] = {}
+    for device in DEVICES:
+        key = f"devices.{device}"
+        cfg = devices.get(device)
+        if cfg is None or cfg == "sgsrt":
+            cfg = {"binding": "sgsrt"}
+        elif cfg == "none":
+            cfg = {"binding": "none"}
+        cfg = _mapping(cfg, key)
+        kind = cfg.get("binding", "sgsrt")
+        if kind not in KINDS:
+            raise BindingError(f"{key}.binding: expected one of {', '.join(KINDS)}, got "
+                               f"{kind!r}")
+        kinds[device] = kind
+        if kind == "none":
+            telemetry[device], commands[device] = (), ()
+        elif kind == "sgsrt":
+            if set(cfg) - {"binding"}:
+                raise BindingError(f"{key}.{sorted(set(cfg) - {'binding'})[0]}: unknown key "
+                                   "(an sgsrt device takes only binding: sgsrt)")
+            telemetry[device], commands[device] = _sgsrt_device(device, sgsrt)
+            if device in SGSRT_SEQUENCE:
+                sequence[device] = SGSRT_SEQUENCE[device]
+            files[device] = str(DBC_PATH)
+        elif kind == "dbc":
+            tlm, cmds, seq, path = _dbc_device(device, cfg, key, base_dir)
+            telemetry[device], commands[device] = tlm, cmds
+            if seq is not None:
+                sequence[device] = seq
+            files[device] = path
+        else:
+            co_cfgs[device] = cfg
+    bus = _mapping(data.get("bus"), "bus")
+    canopen_bus = None
+    if co_cfgs:
+        from drivers.binding.canopen import (  # EDS parsing: only when a device binds it
+            CanopenHeartbeat,
+            CanopenSync,
+            build_canopen,
+        )
+
+        canopen_bus, tlm_maps, cmd_maps, co_files = build_canopen(
+            co_cfgs, bus.get("sync_divider") or {}, int(bus.get("master_node_id", 127)),
+            base_dir, int(bus.get("heartbeat_consumer_ms", 200)))
+        telemetry.update(tlm_maps)
+        commands.update(cmd_maps)
+        files.update(co_files)
+        if bus.get("sync") not in (None, "canopen"):
+            raise BindingError("bus.sync: CANopen devices answer the CiA 301 SYNC: drop "
+                               "bus.sync (or say canopen)")
+        sync: Any = CanopenSync()
+        heartbeat: Any = CanopenHeartbeat(canopen_bus.master_id)
+        sgsrt_sync = False
+    else:
+        if bus.get("sync") == "canopen":
+            raise BindingError("bus.sync: canopen, but no device binds canopen")
+        sync, heartbeat, sgsrt_sync = _sync_and_heartbeat(bus, base_dir, sgsrt)
+    sg = [d for d, k in kinds.items() if k == "sgsrt"]
+    if sg and not sgsrt_sync:
+        raise BindingError(f"bus.sync: {', '.join(sg)} bind sgsrt, whose devices answer the "
+                           "sgsrt SYNC only: bind them to the DBC or to CANopen too (or "
+                           "none)")
+    binding = RigBinding(kinds, sync, heartbeat, telemetry, commands, sequence, files,
+                         canopen_bus)
+    _check_distinct(binding)
+    return binding
+
+
+def _check_distinct(b: RigBinding) -> None:
+    """No frame means two things: a telemetry page is one device's, a command frame is not
+    also telemetry, SYNC and heartbeat are frames of their own."""
+    owner: dict[tuple[tuple[int, bool], int | None], str] = {}
+    for device, maps in b.telemetry.items():
+        for m in maps:
+            k = (m.key, m.mux)
+            if k in owner and owner[k] != device:
+                raise BindingError(f"devices.{device}.telemetry: {m.codec.name}"
+                                   f"{'' if m.mux is None else f' (mux {m.mux})'} already "
+                                   f"carries the {owner[k]}'s telemetry")
+            owner[k] = device
+    tlm_keys = {k for k, _ in owner}
+    for device, cmaps in b.commands.items():
+        for c in cmaps:
+            if c.key in tlm_keys:
+                raise BindingError(f"devices.{device}.commands: {c.codec.name} "
+                                   f"(0x{c.key[0]:X}) is also a telemetry frame")
+    special = [b.sync.key] + ([b.heartbeat.key] if b.heartbeat is not None else [])
+    for device, cmaps in b.commands.items():
+        for c in cmaps:
+            if c.key in special:
+                raise BindingError(f"devices.{device}.commands: {c.codec.name} has the id of "
+                                   "the SYNC or heartbeat")
+    if b.heartbeat is not None and b.heartbeat.key == b.sync.key:
+        raise BindingError("bus.heartbeat: the same frame id as bus.sync")
+    for k in tlm_keys:
+        if k in special:
+            raise BindingError(f"devices: a telemetry frame (0x{k[0]:X}) has the id of the SYNC "
+                               "or heartbeat")

@@ -1,0 +1,157 @@
+"""Frame maps: one DBC message (or one multiplexed page of it) <-> one device's quantities.
+
+The same map serves both ends of the bus: the harness decodes telemetry and encodes
+commands with it, the virtual rig encodes telemetry and decodes commands with it, so CI runs
+exactly the frames a lab's devices speak. A quantity in SI is ``physical * scale + offset``
+of its DBC signal (``physical`` being the DBC's own scaled value, in the DBC's unit).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from drivers.dbc import FrameCodec
+
+
+class BindingError(ValueError):
+    """A rig file's device binding is wrong; the message starts with the key path."""
+
+
+@dataclass(frozen=True)
+class SignalMap:
+    quantity: str
+    signal: str
+    scale: float = 1.0  # SI per DBC unit
+    offset: float = 0.0  # SI at a DBC value of 0
+    modulus: int = 0  # a counter: sent modulo this (its signal's width)
+
+    @property
+    def identity(self) -> bool:
+        return (self.scale == 1.0 and self.offset == 0.0 and self.quantity == self.signal
+                and not self.modulus)
+
+
+def _mux_signal(codec: FrameCodec) -> str | None:
+    return getattr(codec, "multiplexer", None)
+
+
+class TelemetryMap:
+    """One telemetry frame of one device (a multiplexed message: one mux value of it)."""
+
+    __slots__ = ("device", "codec", "mux", "mux_signal", "fields", "identity", "_dec", "_enc",
+                 "key", "_wrap")
+
+    def __init__(self, device: str, codec: FrameCodec, fields: tuple[SignalMap, ...],
+                 mux: int | None = None) -> None:
+        self.device = device
+        self.codec = codec
+        self.mux = mux
+        self.mux_signal = _mux_signal(codec) if mux is not None else None
+        self.fields = fields
+        self.key = (codec.frame_id, codec.is_extended)
+        # the sgsrt DBC's frames carry exactly the quantities, by name, in SI: its maps pass
+        # the codec's dict through (one dict per frame, no copy: the tick budget)
+        self.identity = (mux is None and all(f.identity for f in fields)
+                         and {f.signal for f in fields} == set(codec.signal_names))
+        self._dec = tuple((f.quantity, f.signal, f.scale, f.offset) for f in fields)
+        self._enc = tuple((f.quantity, f.signal, 1.0 / f.scale, f.offset) for f in fields)
+        self._wrap = tuple((f.quantity, f.modulus) for f in fields if f.modulus)
+
+    def decode(self, data: bytes | bytearray) -> dict[str, float] | None:
+        """Payload -> quantities; None when it is another mux page of the message. Raises
+        FrameError on a wrong length."""
+        v = self.codec.decode(data)
+        if self.identity:
+            return v
+        if self.mux is not None and v.get(self.mux_signal) != self.mux:  # type: ignore[arg-type]
+            return None
+        return {q: v[s] * a + b for q, s, a, b in self._dec if s in v}
+
+    def encode(self, quantities: dict[str, float]) -> bytes:
+        if self.identity:
+            return self.codec.encode(quantities)
+        if self._wrap:
+            quantities = {**quantities, **{q: quantities.get(q, 0) % m for q, m in self._wrap}}
+        values = {s: (quantities.get(q, 0.0) - b) * inv for q, s, inv, b in self._enc}
+        if self.mux is not None:
+            values[self.mux_signal] = self.mux  # type: ignore[index]
+        return self.codec.encode(values)
+
+
+class CommandMap:
+    """One command frame of one device; an optional alive counter the sender fills in."""
+
+    __slots__ = ("device", "codec", "mux", "mux_signal", "fields", "counter", "key",
+                 "_enc", "_dec")
+
+    def __init__(self, device: str, codec: FrameCodec, fields: tuple[SignalMap, ...],
+                 counter: tuple[str, int] | None = None, mux: int | None = None) -> None:
+        self.device = device
+        self.codec = codec
+        self.fields = fields
+        self.counter = counter
+        self.mux = mux
+        self.mux_signal = _mux_signal(codec) if mux is not None else None
+        self.key = (codec.frame_id, codec.is_extended)
+        self._enc = tuple((f.quantity, f.signal, 1.0 / f.scale, f.offset) for f in fields)
+        self._dec = tuple((f.quantity, f.signal, f.scale, f.offset) for f in fields)
+
+    def encode(self, quantities: dict[str, float], counter: int) -> bytes:
+        values = {s: (quantities.get(q, 0.0) - b) * inv for q, s, inv, b in self._enc}
+        if self.counter is not None:
+            name, modulus = self.counter
+            values[name] = counter % modulus
+        if self.mux is not None:
+            values[self.mux_signal] = self.mux  # type: ignore[index]
+        return self.codec.encode(values)
+
+    def decode(self, data: bytes | bytearray) -> dict[str, float] | None:
+        v = self.codec.decode(data)
+        if self.mux is not None and v.get(self.mux_signal) != self.mux:  # type: ignore[arg-type]
+            return None
+        return {q: v[s] * a + b for q, s, a, b in self._dec if s in v}
+
+
+class SyncMap:
+    """The harness's SYNC frame of a DBC: a tick counter signal."""
+
+    __slots__ = ("codec", "signal", "modulus", "key")
+
+    def __init__(self, codec: FrameCodec, signal: str) -> None:
+        self.codec = codec
+        self.signal = signal
+        sig = next(s for s in codec.signals if s.name == signal)
+        self.modulus = 1 << sig.length
+        self.key = (codec.frame_id, codec.is_extended)
+
+    def encode(self, tick: int) -> bytes:
+        return self.codec.encode({self.signal: tick % self.modulus})
+
+    def decode(self, data: bytes | bytearray) -> int:
+        return int(self.codec.decode(data)[self.signal])
+
+
+class HeartbeatMap:
+    """The harness's heartbeat of a DBC: an alive counter and an ``armed`` flag; with none
+    for ``heartbeat_timeout_s`` (or armed 0) every device keeps its actuators safe."""
+
+    __slots__ = ("codec", "counter", "armed", "modulus", "key")
+
+    def __init__(self, codec: FrameCodec, counter: str | None, armed: str) -> None:
+        self.codec = codec
+        self.counter = counter
+        self.armed = armed
+        self.modulus = 256
+        if counter is not None:
+            sig = next(s for s in codec.signals if s.name == counter)
+            self.modulus = 1 << sig.length
+        self.key = (codec.frame_id, codec.is_extended)
+
+    def encode(self, counter: int, armed: bool) -> bytes:
+        values = {self.armed: int(armed)}
+        if self.counter is not None:
+            values[self.counter] = counter % self.modulus
+        return self.codec.encode(values)
+
+    def decode_armed(self, data: bytes | bytearray) -> bool:
+        return bool(self.codec.decode(data)[self.armed])

@@ -1,0 +1,311 @@
+"""Device profiles on a VirtualNode: CiA 402 drive, CiA 401 I/O module, CiA 406 encoder.
+
+Raw CANopen values in and out, no physics: the lead's virtual-rig glue calls these each
+physics step and maps raw values to SI with the rig file (per mille of 0x6076 rated torque,
+0.001 rad/s velocity counts, 10/32768 V analog counts, 1e-7 rad encoder counts: the EDS files
+and docs/canopen.md say which).
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+
+from rig_models.canopen.node import (
+    ABORT_VALUE_RANGE,
+    EMCY_HEARTBEAT,
+    EMCY_RESET,
+    ERR_GENERIC,
+    ERR_PROFILE,
+    NmtState,
+    VirtualNode,
+    error_register_bits,
+)
+
+MODE_CSV = 9
+MODE_CST = 10
+_MODE_NAMES = {"csv": MODE_CSV, "cst": MODE_CST}
+# 0x6502 bit of each mode (CiA 402 6.2.4)
+_MODE_BITS = {MODE_CSV: 1 << 8, MODE_CST: 1 << 9}
+
+
+class DriveState(Enum):
+    """CiA 402 power drive system states, with their statusword bits (bits 0-3, 5, 6)."""
+
+    NOT_READY_TO_SWITCH_ON = 0x00
+    SWITCH_ON_DISABLED = 0x40
+    READY_TO_SWITCH_ON = 0x21
+    SWITCHED_ON = 0x23
+    OPERATION_ENABLED = 0x27
+    QUICK_STOP_ACTIVE = 0x07
+    FAULT_REACTION_ACTIVE = 0x0F
+    FAULT = 0x08
+
+
+# the power stage is on: what an abort connection (0x6007) has to act on
+_POWERED = (DriveState.READY_TO_SWITCH_ON, DriveState.SWITCHED_ON,
+            DriveState.OPERATION_ENABLED, DriveState.QUICK_STOP_ACTIVE)
+_VOLTAGE_ENABLED = 0x10
+_REMOTE = 0x200
+_FOLLOWS_COMMAND = 0x1000  # CSV/CST: the drive follows the command value
+
+
+def _require(node: VirtualNode, objects: list[tuple[int, int]], profile: str) -> None:
+    missing = [f"0x{i:04X}:{s:02X}" for i, s in objects if not node.has(i, s)]
+    if missing:
+        raise ValueError(f"{node.eds_path.name}: not a {profile} device, it lacks "
+                         + ", ".join(missing))
+
+
+def _clamp(v: int, lo: int, hi: int) -> int:
+    return lo if v < lo else hi if v > hi else v
+
+
+class Cia402Drive:
+    """CiA 402 drive in cyclic synchronous torque ('cst', 10) or velocity ('csv', 9) mode.
+
+    The controlword state machine runs on every master write of 0x6040 (SDO or RPDO). A
+    fault passes through 'fault reaction active' (drive already torque-free) to 'fault' at
+    the next SYNC. The abort connection option 0x6007 (0 none, 1 fault, 2 disable voltage,
+    3 quick stop) is applied, while the power stage is on, on a heartbeat consumer timeout,
+    on NMT stopped and on a reset communication (a reset node resets the drive anyway).
+    """
+
+    def __init__(self, node: VirtualNode, mode: str | int) -> None:
+        _require(node, [(0x6040, 0), (0x6041, 0), (0x6060, 0), (0x6061, 0), (0x603F, 0),
+                        (0x6007, 0), (0x6502, 0)], "CiA 402")
+        if isinstance(mode, str):
+            if mode.lower() not in _MODE_NAMES:
+                raise ValueError(f"mode: {mode!r} is not 'cst' or 'csv'")
+            mode = _MODE_NAMES[mode.lower()]
+        supported = node.get(0x6502)
+        if mode not in _MODE_BITS or not supported & _MODE_BITS[mode]:
+            raise ValueError(f"mode: {mode} is not supported by {node.eds_path.name} "
+                             f"(0x6502 = 0x{supported:X})")
+        objects = [(0x6071, 0), (0x6072, 0), (0x6077, 0)] if mode == MODE_CST else [(0x60FF, 0)]
+        _require(node, objects + [(0x606C, 0)], f"CiA 402 mode {mode}")
+        self.node = node
+        self.mode = mode
+        self._last_cw = 0
+        self._reset()
+        node.add_write_listener(0x6040, 0, self._on_controlword)
+        node.add_write_listener(0x6060, 0, self._on_mode)
+        node.add_validator(0x6060, 0, self._check_mode)
+        node.add_reset_listener(self._reset)
+        node.add_sync_listener(self._on_sync)
+        node.on_comm_error.append(lambda _producer: self._abort_connection())
+        node.add_nmt_listener(self._on_nmt)
+
+    # ------------------------------------------------------------------ state
+    def _reset(self) -> None:
+        # not ready to switch on -> switch on disabled happens by itself after the self-test
+        self.state = DriveState.SWITCH_ON_DISABLED
+        self._last_cw = self.node.get(0x6040)
+        self.node.set(0x6061, 0, self.node.get(0x6060))
+        self._publish()
+
+    def _publish(self) -> None:
+        sw = self.state.value | _REMOTE
+        if self.state in _POWERED or self.state == DriveState.FAULT_REACTION_ACTIVE:
+            sw |= _VOLTAGE_ENABLED
+        if self.state == DriveState.OPERATION_ENABLED and self.node.get(0x6061) == self.mode:
+            sw |= _FOLLOWS_COMMAND
+        self.node.set(0x6041, 0, sw)
+
+    @property
+    def statusword(self) -> int:
+        return self.node.get(0x6041)
+
+    @property
+    def operation_enabled(self) -> bool:
+        return self.state == DriveState.OPERATION_ENABLED
+
+    @property
+    def quick_stop_active(self) -> bool:
+        return self.state == DriveState.QUICK_STOP_ACTIVE
+
+    @property
+    def faulted(self) -> bool:
+        return self.state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
+
+    def _check_mode(self, value: int) -> int | None:
+        bit = _MODE_BITS.get(value)
+        if bit is None or not self.node.get(0x6502) & bit:
+            return ABORT_VALUE_RANGE
+        return None
+
+    def _on_mode(self, _key: tuple[int, int], value: int) -> None:
+        # an RPDO bypasses the SDO validator: an unsupported mode is not displayed
+        if self._check_mode(value) is None:
+            self.node.set(0x6061, 0, value)
+        self._publish()
+
+    def _on_controlword(self, _key: tuple[int, int], cw: int) -> None:
+        s = self.state
+        rising_fault_reset = bool(cw & 0x80) and not self._last_cw & 0x80
+        self._last_cw = cw
+        if s == DriveState.FAULT:
+            if rising_fault_reset:
+                self._clear_fault()
+        elif s == DriveState.FAULT_REACTION_ACTIVE:
+            pass
+        elif not cw & 0x02:  # disable voltage
+            self.state = DriveState.SWITCH_ON_DISABLED
+        elif not cw & 0x04:  # quick stop (active low)
+            self.state = (DriveState.QUICK_STOP_ACTIVE if s == DriveState.OPERATION_ENABLED
+                          else s if s == DriveState.QUICK_STOP_ACTIVE
+                          else DriveState.SWITCH_ON_DISABLED)
+        elif cw & 0x0F == 0x06:  # shutdown
+            if s in (DriveState.SWITCH_ON_DISABLED, DriveState.SWITCHED_ON,
+                     DriveState.OPERATION_ENABLED):
+                self.state = DriveState.READY_TO_SWITCH_ON
+        elif cw & 0x0F == 0x07:  # switch on / disable operation
+            if s in (DriveState.READY_TO_SWITCH_ON, DriveState.OPERATION_ENABLED):
+                self.state = DriveState.SWITCHED_ON
+        elif cw & 0x0F == 0x0F:  # switch on + enable operation
+            if s in (DriveState.READY_TO_SWITCH_ON, DriveState.SWITCHED_ON,
+                     DriveState.QUICK_STOP_ACTIVE):
+                self.state = DriveState.OPERATION_ENABLED
+        self._publish()
+
+    def _on_sync(self, _now_s: float) -> None:
+        if self.state == DriveState.FAULT_REACTION_ACTIVE:
+            self.state = DriveState.FAULT
+            self._publish()
+
+    def _on_nmt(self, _old: NmtState, new: NmtState) -> None:
+        if new in (NmtState.STOPPED, NmtState.INITIALISING):
+            self._abort_connection()
+
+    def _abort_connection(self) -> None:
+        if self.state not in _POWERED:
+            return
+        option = self.node.get(0x6007)
+        if option == 1:
+            self.inject_fault(EMCY_HEARTBEAT)
+        elif option == 2:
+            self.state = DriveState.SWITCH_ON_DISABLED
+        elif option == 3:
+            if self.state == DriveState.OPERATION_ENABLED:
+                self.state = DriveState.QUICK_STOP_ACTIVE
+            elif self.state != DriveState.QUICK_STOP_ACTIVE:
+                self.state = DriveState.SWITCH_ON_DISABLED
+        self._publish()
+
+    def inject_fault(self, error_code: int = 0x2310) -> None:
+        """A drive fault (default 0x2310 continuous overcurrent): fault bit, 0x603F, EMCY,
+        torque off at once; 'fault' from the next SYNC until a fault reset (bit 7)."""
+        if self.faulted:
+            return
+        self.state = DriveState.FAULT_REACTION_ACTIVE
+        self.node.set(0x603F, 0, error_code)
+        self.node.set_error_bits(error_register_bits(error_code) | ERR_PROFILE)
+        self._publish()
+        self.node.emcy(error_code)
+
+    def _clear_fault(self) -> None:
+        self.state = DriveState.SWITCH_ON_DISABLED
+        self.node.set(0x603F, 0, 0)
+        self.node.clear_error_bits(0xFF & ~ERR_GENERIC & ~0x10)
+        self.node.emcy(EMCY_RESET)
+
+    # ------------------------------------------------------------------ commands/actuals
+    def _commanding(self) -> bool:
+        return (self.state == DriveState.OPERATION_ENABLED
+                and self.node.get(0x6061) == self.mode)
+
+    def torque_command_per_mille(self) -> int:
+        """Target torque 0x6071 limited to +-0x6072, or 0 unless operation enabled in CST."""
+        if self.mode != MODE_CST or not self._commanding():
+            return 0
+        limit = self.node.get(0x6072)
+        return _clamp(self.node.get(0x6071), -limit, limit)
+
+    def target_velocity_raw(self) -> int:
+        """Target velocity 0x60FF, or 0 unless operation enabled in CSV."""
+        if self.mode != MODE_CSV or not self._commanding():
+            return 0
+        return self.node.get(0x60FF)
+
+    def set_actuals(self, torque_per_mille: int, velocity_raw: int) -> None:
+        """Torque actual 0x6077 (if the drive has it) and velocity actual 0x606C, saturated
+        to their types."""
+        if self.node.has(0x6077):
+            self.node.set(0x6077, 0, _clamp(int(torque_per_mille), -32768, 32767))
+        self.node.set(0x606C, 0, _clamp(int(velocity_raw), -(1 << 31), (1 << 31) - 1))
+
+
+class Cia401Io:
+    """CiA 401 I/O module: 8-bit digital outputs/inputs, 16-bit analog outputs/inputs.
+
+    On a communication error (heartbeat consumer timeout) and when the node leaves
+    operational (NMT stop, pre-operational, reset communication), outputs whose error mode
+    is set (0x6206 bit, 0x6443 = 1) take their error values (0x6207, 0x6444) in the object
+    dictionary; the master's next write replaces them."""
+
+    def __init__(self, node: VirtualNode) -> None:
+        _require(node, [(0x6200, 1), (0x6206, 1), (0x6207, 1), (0x6401, 1), (0x6411, 1),
+                        (0x6443, 1), (0x6444, 1)], "CiA 401")
+        self.node = node
+        self.n_digital_out = node.get(0x6200, 0)
+        self.n_analog_in = node.get(0x6401, 0)
+        self.n_analog_out = node.get(0x6411, 0)
+        self.n_digital_in = node.get(0x6000, 0) if node.has(0x6000, 1) else 0
+        self.error_applied = 0
+        node.on_comm_error.append(lambda _producer: self.apply_error_values())
+        node.add_nmt_listener(self._on_nmt)
+
+    def _on_nmt(self, old: NmtState, new: NmtState) -> None:
+        if old == NmtState.OPERATIONAL and new in (NmtState.STOPPED, NmtState.PRE_OPERATIONAL,
+                                                   NmtState.INITIALISING):
+            self.apply_error_values()
+
+    def apply_error_values(self) -> None:
+        node = self.node
+        for i in range(1, self.n_digital_out + 1):
+            mask = node.get(0x6206, i)
+            node.set(0x6200, i, (node.get(0x6200, i) & ~mask) | (node.get(0x6207, i) & mask))
+        for i in range(1, self.n_analog_out + 1):
+            if node.get(0x6443, i):
+                node.set(0x6411, i, _clamp(node.get(0x6444, i), -32768, 32767))
+        self.error_applied += 1
+
+    def digital_outputs(self, group: int = 1) -> int:
+        """Output byte `group` (0x6200:group), bit 0 = output 1."""
+        return self.node.get(0x6200, group)
+
+    def analog_outputs(self) -> list[int]:
+        return [self.node.get(0x6411, i) for i in range(1, self.n_analog_out + 1)]
+
+    def set_analog_inputs(self, counts: list[int] | tuple[int, ...]) -> None:
+        """Analog inputs 0x6401:1.. in counts, saturated to INTEGER16 (an ADC clips)."""
+        if len(counts) > self.n_analog_in:
+            raise ValueError(f"{len(counts)} analog inputs, the module has {self.n_analog_in}")
+        for i, c in enumerate(counts, start=1):
+            self.node.set(0x6401, i, _clamp(int(c), -32768, 32767))
+
+    def set_digital_inputs(self, value: int, group: int = 1) -> None:
+        if not 1 <= group <= self.n_digital_in:
+            raise ValueError(f"digital input group {group}: the module has "
+                             f"{self.n_digital_in}")
+        self.node.set(0x6000, group, int(value) & 0xFF)
+
+
+class Cia406Encoder:
+    """CiA 406 multi-turn absolute rotary encoder: position 0x6004, speed 0x6030:1."""
+
+    def __init__(self, node: VirtualNode) -> None:
+        _require(node, [(0x6004, 0), (0x6030, 1)], "CiA 406")
+        self.node = node
+        self._signed = node.variable(0x6004).data_type in (0x2, 0x3, 0x4)
+
+    def set_position(self, counts: int) -> None:
+        """Position in counts; beyond the 32-bit range it wraps as the encoder's multi-turn
+        counter does (the master unwraps)."""
+        v = int(counts) & 0xFFFFFFFF
+        if self._signed and v >= 1 << 31:
+            v -= 1 << 32
+        self.node.set(0x6004, 0, v)
+
+    def set_speed(self, counts_per_s: int) -> None:
+        """Speed in position counts per second, saturated to INTEGER32."""
+        self.node.set(0x6030, 1, _clamp(int(counts_per_s), -(1 << 31), (1 << 31) - 1))
