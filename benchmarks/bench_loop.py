@@ -68,9 +68,9 @@ def bench_lockstep(repeats: int, out: Path) -> dict[str, float]:
             "ours_over_stock": float(np.median(np.array(ours) / np.array(stock)))}
 
 
-def floor_tick_us(run_name: str, n_ticks: int, out: Path) -> float:
+def floor_tick_us(run_name: str, n_ticks: int, out: Path) -> tuple[float, float]:
     """Microseconds per floor tick (see the module docstring) over ``n_ticks`` ticks of the
-    run's rate, frames and actuators."""
+    run's rate, frames and actuators: (wall, CPU of the process, Rerun's threads incl.)."""
     from drivers.dbc import load_protocol
     from harness.bus import open_bus, parse_bus
     from harness.core.loop import CHANNELS
@@ -101,8 +101,8 @@ def floor_tick_us(run_name: str, n_ticks: int, out: Path) -> float:
     send_h, send_r = harness_bus.send, rig_bus.send
     recv_h, recv_r = harness_bus.recv, rig_bus.recv
     values: dict[int, dict[str, float]] = {}
-    perf = time.perf_counter
-    t0 = perf()
+    perf, cpu = time.perf_counter, time.process_time
+    t0, c0 = perf(), cpu()
     for tick in range(n_ticks):
         if tick % heartbeat_every == 0:
             send_h(Message(arbitration_id=heartbeat.frame_id, is_extended_id=False,
@@ -128,30 +128,59 @@ def floor_tick_us(run_name: str, n_ticks: int, out: Path) -> float:
         row[:] = y[0]
         recorder.commit()
         recorder.drain()
-    elapsed = perf() - t0
+    elapsed, elapsed_cpu = perf() - t0, cpu() - c0
     recorder.close()
     harness_bus.shutdown()
     rig_bus.shutdown()
-    return 1e6 * elapsed / n_ticks
+    return 1e6 * elapsed / n_ticks, 1e6 * elapsed_cpu / n_ticks
 
 
 def bench_floor(repeats: int, out: Path, run_name: str = "slew-rw") -> dict[str, float]:
     """The floor tick and the harness's tick (whole lockstep runs of ``run_name``),
-    interleaved run by run; the ratio is taken pair by pair (same machine load)."""
+    interleaved run by run; the ratio is taken pair by pair (same machine load). Both in
+    wall time and in the process's CPU time over the loop only (Rerun's threads included;
+    on a shared machine CPU time is the steadier of the two)."""
+    import harness.core.session as session
+
+    own_loop = session.run_loop
+    loop_cpu: list[float] = []
+
+    def timed_loop(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        c0 = time.process_time()
+        try:
+            return own_loop(*args, **kwargs)
+        finally:
+            loop_cpu.append(time.process_time() - c0)
+
     floor: list[float] = []
+    floor_cpu: list[float] = []
     harness: list[float] = []
+    harness_cpu: list[float] = []
     rtf: list[float] = []
-    for _ in range(repeats):
-        res = execute_run(load_run(run_name), out_dir=out, show_progress=False)
-        ticks = res.summary["ticks"]
-        harness.append(1e6 * res.stats.wall_s / ticks)
-        rtf.append(res.summary["real_time_factor"])
-        del res
-        floor.append(floor_tick_us(run_name, ticks, out))
+    session.run_loop = timed_loop
+    try:
+        for _ in range(repeats):
+            res = execute_run(load_run(run_name), out_dir=out, show_progress=False)
+            ticks = res.summary["ticks"]
+            harness.append(1e6 * res.stats.wall_s / ticks)
+            harness_cpu.append(1e6 * loop_cpu[-1] / ticks)
+            rtf.append(res.summary["real_time_factor"])
+            del res
+            wall_us, cpu_us = floor_tick_us(run_name, ticks, out)
+            floor.append(wall_us)
+            floor_cpu.append(cpu_us)
+    finally:
+        session.run_loop = own_loop
     ratio = np.array(harness) / np.array(floor)
+    ratio_cpu = np.array(harness_cpu) / np.array(floor_cpu)
     return {"floor_us": float(np.median(floor)), "harness_us": float(np.median(harness)),
             "ratio": float(np.median(ratio)), "ratio_min": float(np.min(ratio)),
-            "ratio_max": float(np.max(ratio)), "real_time_factor": float(np.median(rtf)),
+            "ratio_max": float(np.max(ratio)),
+            "floor_cpu_us": float(np.median(floor_cpu)),
+            "harness_cpu_us": float(np.median(harness_cpu)),
+            "ratio_cpu": float(np.median(ratio_cpu)), "ratio_cpu_min": float(np.min(ratio_cpu)),
+            "ratio_cpu_max": float(np.max(ratio_cpu)),
+            "real_time_factor": float(np.median(rtf)),
             "real_time_factor_max": float(np.max(rtf))}
 
 
@@ -280,9 +309,12 @@ def main() -> int:
 
 def _floor_row(f: dict[str, float], repeats: int) -> str:
     return (f"| slew-rw lockstep tick / floor tick (sgsrt, interleaved, median of {repeats}) "
-            f"| {f['harness_us']:.1f} us / {f['floor_us']:.1f} us, ratio {f['ratio']:.2f} "
-            f"(min {f['ratio_min']:.2f}, max {f['ratio_max']:.2f}); real-time factor "
-            f"{f['real_time_factor']:.1f}x (max {f['real_time_factor_max']:.1f}x) |")
+            f"| wall {f['harness_us']:.1f} / {f['floor_us']:.1f} us, ratio {f['ratio']:.2f} "
+            f"(min {f['ratio_min']:.2f}, max {f['ratio_max']:.2f}); CPU "
+            f"{f['harness_cpu_us']:.1f} / {f['floor_cpu_us']:.1f} us, ratio "
+            f"{f['ratio_cpu']:.2f} (min {f['ratio_cpu_min']:.2f}, max "
+            f"{f['ratio_cpu_max']:.2f}); real-time factor {f['real_time_factor']:.1f}x "
+            f"(max {f['real_time_factor_max']:.1f}x) |")
 
 
 def _warnings_row(w: dict[str, float], repeats: int) -> str:
