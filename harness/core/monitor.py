@@ -189,9 +189,11 @@ class FaultMonitor:
                               lim["max_tip_accel_m_s2"] * inside)
         # the bus protocol's own fault reports only where the interface has them (CANopen)
         self._protocol_fault = getattr(interface, "protocol_fault", None)
-        self._checks = ((self._protocol,) if self._protocol_fault is not None else ()) + (
-            self._bus, self._silent_and_lost, self._accelerometer, self._hub, self._wheel,
-            self._valves, self._piezo, self._limits)
+        self._enabled = bool(monitor["enabled"])
+        # the devices whose telemetry check() looks at (None: not on this rig's bus)
+        self._device_drivers = tuple(interface.drivers.get(name) for name in (
+            "accelerometer", "hub_sensor", "reaction_wheel", "thruster_valves",
+            "piezo_amplifier"))
         self._accel_offset: int | None = None
         self._accel_last: tuple[int, int] | None = None  # (counter, tick of that counter)
         self._accel_same = 0
@@ -310,15 +312,47 @@ class FaultMonitor:
 
     # ------------------------------------------------------------------
     def check(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
-        if not self.cfg["enabled"]:
+        if not self._enabled:
             return None
         if self.warnings_on:
             self._warnings(tick, state, sent)
-        for check in self._checks:
-            event = check(tick, state, sent)
+        # driven by what changed: a device's checks run only in a tick its telemetry came
+        # (or, for the valves, a tick they were commanded open), the limits' messages only
+        # past a limit; the order of the checks (the first event wins) is unchanged
+        if self._protocol_fault is not None:
+            event = self._protocol(tick, state, sent)
             if event is not None:
                 return event
-        return None
+        event = self._bus(tick, state, sent) or self._silent_and_lost(tick, state, sent)
+        if event is not None:
+            return event
+        accel, hub, wheel, valves, piezo = self._device_drivers
+        if accel is not None and accel.last_tick == tick:
+            event = self._accelerometer(tick, state, sent)
+            if event is not None:
+                return event
+        if hub is not None and hub.last_tick == tick and tick != self._hub_tick:
+            event = self._hub(tick, state, sent)
+            if event is not None:
+                return event
+        if wheel is not None and wheel.last_tick == tick and tick != self._wheel_tick:
+            event = self._wheel(tick, state, sent)
+            if event is not None:
+                return event
+        if sent.valve_direction != 0 or (valves is not None and valves.last_tick == tick):
+            event = self._valves(tick, state, sent)
+            if event is not None:
+                return event
+        if piezo is not None and piezo.last_tick == tick:
+            event = self._piezo(tick, state, sent)
+            if event is not None:
+                return event
+        bounds = self._limit_bounds
+        if (abs(state.hub_angle_rad) <= bounds[0] and abs(state.hub_rate_rad_s) <= bounds[1]
+                and abs(state.wheel_speed_rad_s) <= bounds[2]
+                and abs(state.tip_accel_m_s2) <= bounds[3]):
+            return None
+        return self._limits(tick, state, sent)
 
     def _protocol(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
         """The bus protocol's own fault reports (CANopen: EMCY, boot-up, NMT state,
