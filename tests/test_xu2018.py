@@ -40,7 +40,7 @@ def test_cases_part_orders_beta(paper_suites):
     """The study's cases part on the nine case runs paper003's suite made (100 s each;
     shared for the session by conftest's paper_suites, so no case runs twice)."""
     def suite_run(run, out_dir):  # noqa: ANN001, ANN202 - the suite's run of this case
-        found = sorted(paper_suites.out.glob(f"*-paper003/*-{run.name}/summary.json"))
+        found = sorted(paper_suites.out.glob(f"*/*-{run.name}/summary.json"))
         assert len(found) == 1, f"{run.name}: {found}"
         return json.loads(found[0].read_text()), found[0].parent
 
