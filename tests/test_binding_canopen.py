@@ -238,14 +238,24 @@ def test_canopen_run_completes_and_is_left_safe(tmp_path):
         assert len(state) > 10 and state[-1] == 5.0
 
 
-@pytest.mark.parametrize("kind, device, expect_kind, bound_s", [
+CO_CASES = [
     # a heartbeat missing past 3 periods (50 ms each), seen by the next tick
     ("node_heartbeat_lost", "hub_sensor", "heartbeat lost", 0.15 + 0.05 + 0.002),
     ("node_emcy", "accelerometer", "EMCY", 0.002),          # the tick it arrives
     ("drive_fault", "reaction_wheel", "EMCY", 0.002),       # its EMCY, the same tick
     ("node_reboot", "thruster_valves", "node rebooted", 0.002),
     ("node_stopped", "hub_sensor", "NMT state", 0.05 + 0.002),  # its next heartbeat
-])
+]
+
+
+def test_every_canopen_fault_kind_has_a_case():
+    from rig_models.faults import CANOPEN_FAULTS
+
+    # sdo_abort: test_sdo_abort_during_setup_refuses_the_run_naming_node_and_code
+    assert {c[0] for c in CO_CASES} | {"sdo_abort"} == CANOPEN_FAULTS
+
+
+@pytest.mark.parametrize("kind, device, expect_kind, bound_s", CO_CASES)
 def test_canopen_fault_detected_within_bound_and_left_safe(tmp_path, kind, device,
                                                            expect_kind, bound_s):
     at = 1.0

@@ -121,6 +121,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             print(yaml.safe_dump(plan_run_dict(result), sort_keys=False))
         return 0
     data = _jsonable(result.to_dict())
+    if result.folder is not None:
+        from harness.history.record import record_calibration  # results database (issue 22)
+
+        record_calibration(result.folder, data)
     if args.json:
         print(json.dumps(data, indent=2))
     else:

@@ -202,6 +202,10 @@ def cmd_identify(args: argparse.Namespace) -> int:
     except (ValueError, OSError) as exc:
         print(f"harness identify: {exc}", file=sys.stderr)
         return 2
+    if run_dir is not None:
+        from harness.history.record import record_identify  # the results database (issue 22)
+
+        record_identify(run_dir, out)
     if args.json:
         print(json.dumps(out, indent=2, default=float))
         return 0

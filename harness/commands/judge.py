@@ -42,6 +42,9 @@ def cmd_judge(args: argparse.Namespace) -> int:
         print(f"harness judge: {exc}", file=sys.stderr)
         return 2
     path = write_verdict(verdict, args.run_dir)
+    from harness.history.record import record_verdict  # the results database (issue 22)
+
+    record_verdict(args.run_dir, verdict.to_dict())
     if args.json:
         print(json.dumps(verdict.to_dict(), indent=2))
         print(format_block(verdict, path), file=sys.stderr)

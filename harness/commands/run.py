@@ -165,6 +165,9 @@ def _judge(run_dir: Path, summary: dict | None) -> int:
         return 4
     path = write_verdict(verdict, run_dir)
     print(format_block(verdict, path), file=sys.stderr)
+    from harness.history.record import record_verdict  # the results database (issue 22)
+
+    record_verdict(run_dir, verdict.to_dict())
     if summary is not None:
         summary["verdict"] = verdict.verdict
     return verdict.exit_code

@@ -235,6 +235,9 @@ def write_reports(out_dir: Path, records: list[dict[str, Any]], *, not_run: list
         "counts": _counts(records), "refused": refused, "preflight": preflight,
         "not_run": not_run, "tests": records,
     }
+    from harness.history.record import record_suite  # the results database (issue 22)
+
+    record_suite(out_dir, doc)  # adds each criterion's recent values ("trend") to doc
     (out_dir / "results.json").write_text(json.dumps(doc, indent=2, default=_json_default))
     (out_dir / "report.md").write_text(_markdown(doc))
     (out_dir / "report.html").write_text(_html(doc, out_dir))
@@ -248,7 +251,11 @@ def _json_default(v: Any) -> Any:
 
 
 def _criteria_rows(criteria: list[dict[str, Any]]) -> list[list[str]]:
-    return [[c.get("name", ""), c.get("kind", ""), _fmt(c.get("value")), c.get("unit", ""),
+    from harness.history.record import trend_text
+
+    return [[c.get("name", ""), c.get("kind", ""), _fmt(c.get("value")) + (
+                f" (recent: {trend_text(c['trend'])})" if c.get("trend") else ""),
+             c.get("unit", ""),
              _limit(c.get("limit")), _fmt(c.get("margin")), c.get("verdict", ""),
              c.get("message", "")] for c in criteria]
 

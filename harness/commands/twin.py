@@ -1,0 +1,62 @@
+"""`harness twin RUN_DIR [--rig R] [--json]`: how far the rig has moved from its model.
+
+Replays the run's own recorded commands (wheel torque, valves, piezo voltages) through the
+virtual rig's physics built from the same rig file (its config.yaml's, or ``--rig``'s), and
+reports per sensor channel the mismatch with the recording: the residual's rms, its worst
+sample and that sample's time, and the rms over the channel's noise in the rig file (about
+1 when the rig matches its model). Beside it the run's identified modes against the
+model's. The bus is bypassed: the twin checks the physics, not the protocol (see
+docs/history.md). Exit 0, 2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("twin", help="a run's commands through the model: the twin's residual",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run_dir", type=Path, help="a recorded run directory")
+    p.add_argument("--rig", help="the rig file the twin is built from (default: the run's)")
+    p.add_argument("--json", action="store_true", help="JSON on stdout")
+    p.set_defaults(func=cmd_twin)
+
+
+def cmd_twin(args: argparse.Namespace) -> int:
+    from harness.history.twin import TwinError, twin_residual
+
+    try:
+        out = twin_residual(args.run_dir, args.rig)
+    except TwinError as exc:
+        print(f"harness twin: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return 0
+    print(f"twin of {out['run_dir']} on {out['rig']} ({out['ticks']} ticks at "
+          f"{out['rate_hz']:g} Hz)")
+    print(f"{'channel':<22} {'rms':>10} {'worst':>10} {'at (s)':>8} {'recorded rms':>12} "
+          f"{'rms / noise':>11}")
+    for r in out["channels"]:
+        ratio = "-" if r["rms_over_noise"] is None else f"{r['rms_over_noise']:.2f}"
+        print(f"{r['channel']:<22} {r['rms']:>10.3g} {r['worst']:>10.3g} "
+              f"{r['worst_time_s']:>8.3f} {r['recorded_rms']:>12.3g} {ratio:>11}")
+    if out["worst_channel"]:
+        w = next(r for r in out["channels"] if r["channel"] == out["worst_channel"])
+        print(f"largest residual over its noise: {w['channel']}, worst {w['worst']:.3g} at "
+              f"t = {w['worst_time_s']:.3f} s ({w['rms_over_noise']:.2f} x the noise rms)")
+    if out["identified_modes"]:
+        print("identified modes against the model's:")
+        for m in out["identified_modes"]:
+            sig = m["sigma_omega_rad_s"]
+            s = f" +- {sig:.3g}" if sig else ""
+            cs = "" if m["change_sigmas"] is None else f", {m['change_sigmas']:+.1f} sigma"
+            print(f"  mode {m['model_mode']}: {m['omega_rad_s']:.4f}{s} rad/s, model "
+                  f"{m['model_omega_rad_s']:.4f} rad/s ({m['change_percent']:+.2f} %{cs})")
+    for n in out["notes"]:
+        print(f"note: {n}")
+    return 0
