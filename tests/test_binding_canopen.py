@@ -270,13 +270,25 @@ def test_canopen_fault_detected_within_bound_and_left_safe(tmp_path, kind, devic
 
 
 def test_sdo_abort_during_setup_refuses_the_run_naming_node_and_code(tmp_path):
-    with pytest.raises(RunRefused, match=r"node 2 \(reaction_wheel\): writing 0x1017\.0 "
-                                         r"\(heartbeat producer time\): SDO abort 0x08000020"):
-        _run(tmp_path, [FaultSpec("sdo_abort", 0.0, device="reaction_wheel")])
-    # nothing of the run was sent: no SYNC, no PDO, only set-up (and its pre-operational)
-    (blf,) = tmp_path.glob("*/can.blf")
-    ids = {m.arbitration_id for m in can.LogReader(str(blf))}
-    assert 0x080 not in ids and 0x202 not in ids
+    ch = _channel()
+    spy = can.Bus(interface="virtual", channel=ch)  # every frame of the attempt, both ways
+    try:
+        run = run_from_dict(dict(RUN, bus=f"virtual:{ch}"))
+        with pytest.raises(RunRefused, match=r"node 2 \(reaction_wheel\): writing 0x1017\.0 "
+                                             r"\(heartbeat producer time\): SDO abort "
+                                             r"0x08000020"):
+            execute_run(run, out_dir=tmp_path, show_progress=False,
+                        faults=[FaultSpec("sdo_abort", 0.0, device="reaction_wheel")])
+        ids = []
+        while (m := spy.recv(0.0)) is not None:
+            ids.append((m.arbitration_id, bytes(m.data)))
+    finally:
+        spy.shutdown()
+    # nothing of the run was sent: no SYNC, no PDO; only set-up, then every node to
+    # pre-operational; and a refused run leaves no folder
+    assert all(cid != 0x080 and not 0x180 <= cid < 0x580 for cid, _ in ids)
+    assert (0x000, bytes((0x80, 0))) in ids
+    assert not any(tmp_path.iterdir())
 
 
 # ----------------------------------------------------------------------------- left safe

@@ -319,9 +319,32 @@ def _check_wheel_result(code: int, data: dict) -> dict:
 
 
 @pytest.mark.slow
+def _check_calibration_rrd(path: Path, data: dict) -> None:
+    """calibration.rrd (issue 21): the identified modes, every candidate's predicted residual,
+    the measured ones and the verified unshaped/shaped pair, in one layout."""
+    from harness.review.calibration import CANDIDATES_VIEW, SPECTRUM_VIEW, VERIFIED_VIEW
+    from harness.review.reader import entities, read_blueprints, read_text
+
+    have = entities(path)
+    n = len(data["identified_modes"])
+    assert {f"/final/mode_{i + 1}" for i in range(n)} <= have and "/final/spectrum" in have
+    predicted = [c for c in data["candidates"] if c["feasible"]]
+    assert {f"/candidates/{c['key']}" for c in predicted} <= have
+    measured = [c for c in data["candidates"] if c.get("measured")]
+    assert measured and {f"/measured/{c['key']}" for c in measured} <= have
+    assert {"/verified/unshaped/raw", "/verified/shaped/raw",
+            "/verified/shaped/fitted"} <= have
+    modes = read_text(path, "/calibration/modes")
+    assert modes.count("## Mode ") == n and "- model (mode" in modes
+    assert data["recommended"] in read_text(path, "/calibration/result")
+    names = {v.name for v in read_blueprints(path)[-1]}
+    assert {SPECTRUM_VIEW, VERIFIED_VIEW, CANDIDATES_VIEW + ": predicted"} <= names
+
+
 def test_calibrate_sgsrt_wheel_end_to_end(tmp_path: Path, capsys) -> None:
     code, data = _calibrate_json(tmp_path, capsys, "--max-verify", "2")
     _check_wheel_result(code, data)
+    _check_calibration_rrd(Path(data["folder"]) / "calibration.rrd", data)
     ident = [m["omega_rad_s"] for m in data["identified_modes"]]
     wn, _ = load_rig("sgsrt").plant.hub_free_modal_damping()
     assert ident == pytest.approx(list(wn), rel=0.01)
@@ -329,7 +352,7 @@ def test_calibrate_sgsrt_wheel_end_to_end(tmp_path: Path, capsys) -> None:
     from harness.testing import judge_run
 
     run = load_run(data["run_file"])
-    assert "residual_below_unshaped" in run.data["expect"]
+    assert "residual_within_calibration" in run.data["expect"]
     result = execute_run(run, out_dir=tmp_path / "rerun", show_progress=False)
     assert result.summary["stopped_by"] == "completed"
     assert judge_run(result.run_dir).verdict == "PASS"

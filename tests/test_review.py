@@ -94,20 +94,28 @@ def test_no_plot_mixes_units_or_scales():
     assert set(CHANNELS) <= set(by_channel)  # every recorded channel has a plot
 
 
-@pytest.mark.parametrize(("lo", "hi", "want"), [
-    (-4.2e-4, 3.5e-4, (-1e-3, 1e-3)), (-0.09, 0.09, (-0.1, 0.1)), (-260.0, 0.0, (-300.0, 0.0)),
-    (0.0, 20.0, (0.0, 20.0)), (0.0, 0.0, (0.0, 1.0)), (19.99985, 19.99985, None)])
-def test_nice_range_puts_labelled_ticks_at_its_ends(lo, hi, want):
-    a, b = L.nice_range(lo, hi)
-    assert a <= lo and b >= hi and b > a
-    def multiple(x: float, step: float) -> bool:
-        return abs(x / step - round(x / step)) < 1e-6
-
-    # both ends on one power of ten, few enough steps apart for the viewer to label them
-    assert any(multiple(a, 10.0 ** k) and multiple(b, 10.0 ** k)
-               and (b - a) / 10.0 ** k <= L.MAX_STEPS + 1e-9 for k in range(-12, 12))
-    if want is not None:
-        assert (a, b) == pytest.approx(want)
+def test_y_axis_is_the_data_with_a_small_margin_and_the_judged_band():
+    """A 5 deg slew is not drawn on +-10, nor a 0.02 deg error on +-100 (issue 21): the axis
+    is the data's span plus a margin, widened only to a criterion's band on that channel."""
+    angle = L.axis_range(L.PLOTS["angle"], {"/attitude/angle_deg": [0.0, 5.0],
+                                            "/attitude/reference_deg": [0.0, 5.0]})
+    assert angle[0] < 0.0 < 5.0 < angle[1] and angle[1] - angle[0] < 5.0 * 1.2
+    error = L.axis_range(L.PLOTS["error"], {"/attitude/error_deg": [-0.02, 0.03]})
+    assert error[1] - error[0] < 0.05 * 1.2
+    # the settle band of +-0.1 deg judges the error: the axis shows it
+    run = {"run": {"controller": {"type": "pd_wheel"}, "duration_s": 30.0,
+                   "expect": {"s": {"settles": "/attitude/error_deg", "band_deg": 0.1},
+                              "t": {"channel": "/tip/accel_m_s2", "max_abs_m_s2": 0.05},
+                              "r": {"channel": "/tip/accel_m_s2", "reduce": "rms",
+                                    "max_m_s2": 0.001}}}}
+    bands = L.criterion_bands(run)
+    assert bands == {"/attitude/error_deg": [-0.1, 0.1], "/tip/accel_m_s2": [-0.05, 0.05]}
+    banded = L.axis_range(L.PLOTS["error"], {"/attitude/error_deg": [-0.02, 0.03]}, bands)
+    assert banded[0] < -0.1 and 0.1 < banded[1] < 0.13
+    # counts from zero, a flat signal still gets a span
+    assert L.axis_range(L.PLOTS["firings"], {"/thrusters/firings": [3.0, 7.0]})[0] < 0.0
+    flat = L.axis_range(L.PLOTS["rate"], {"/attitude/rate_deg_s": [2.0, 2.0]})
+    assert flat[0] < 2.0 < flat[1]
 
 
 @pytest.fixture(scope="module")
@@ -147,6 +155,55 @@ def test_faulted_run_recording_holds_event_markers_summary_config_bus(faulted):
     names = {v.name for v in saved[-1]}
     assert TEXT_VIEWS <= names and L.PLOTS["error"].title in names
     assert (faulted.run_dir / L.LAYOUT_FILE).exists()
+
+
+def test_time_plots_keep_peaks_and_draw_discrete_signals_whole(faulted):
+    """Issue 21: zoomed out, the viewer averaged a 44 ms work peak to 22 ms and drew a
+    -1/0/+1 valve at -0.5. Every continuous series is aggregated MinMax, every discrete one
+    not at all (stepped), in the recording itself and as each plot's default in the layout
+    run.rrd carries; the same quantity has one colour, distinct within each plot."""
+    from harness.review.names import series_colour
+    from harness.review.reader import read_series_styles
+
+    rrd = faulted.run_dir / "run.rrd"
+    min_max, off, step_after = 5, 1, 2  # Rerun 0.41's enum numbers
+    styles = read_series_styles(rrd)
+    for c in ("/timing/work_ms", "/tip/accel_m_s2", "/attitude/angle_deg",
+              "/bus/accelerometer/tlm/accel_m_s2", "/bus/reaction_wheel/tlm/torque_n_m"):
+        assert styles[c]["aggregation_policy"] == min_max, c
+    for c in ("/thrusters/valve_cmd", "/thrusters/valve_state", "/thrusters/firings",
+              "/timing/frames_rx", "/bus/late_or_missing"):
+        assert styles[c]["aggregation_policy"] == off, c
+        assert styles[c]["interpolation_mode"] == step_after, c
+    final = read_blueprints(rrd)[-1]
+    by_name = {v.name: dict(v.defaults) for v in final}
+    agg = "SeriesLines:aggregation_policy"
+    assert by_name[L.PLOTS["timing"].title][agg] == min_max
+    assert by_name[L.PLOTS["tip"].title][agg] == min_max
+    assert by_name[L.PLOTS["valves"].title][agg] == off
+    assert by_name[L.PLOTS["firings"].title][agg] == off
+    assert all(agg in by_name[p.title] for p in (*L.PLOTS.values(), *L.BUS_PLOTS))
+    # colours: distinct within a plot, the bus's copy of a quantity in the loop's colour
+    for plot in (*L.PLOTS.values(), *L.BUS_PLOTS):
+        colours = [series_colour(c) for c in plot.channels]
+        assert None not in colours and len(set(colours)) == len(colours), plot.key
+    assert styles["/bus/reaction_wheel/cmd/torque_cmd_n_m"]["colors"] == \
+        styles["/wheel/torque_cmd_n_m"]["colors"]
+    assert styles["/piezo/cmd_ch1_v"]["colors"] != styles["/piezo/cmd_ch2_v"]["colors"]
+
+
+def test_time_axes_end_where_the_run_ended(faulted):
+    """A faulted run's plots end at the fault, not half empty to the configured end."""
+    import json
+
+    saved = json.loads((faulted.run_dir / L.LAYOUT_FILE).read_text())
+    assert saved["end_s"] == pytest.approx(faulted.summary["simulated_time_s"], abs=0.01)
+    assert saved["end_s"] < 2.0  # the 3 s run stopped at the fault near 1 s
+    for view in L.blueprint_views(L.blueprint_for_run_dir(faulted.run_dir)):
+        axis = getattr(view, "properties", {}).get("TimeAxis")
+        if axis is not None:
+            end_ns = axis.view_range.as_arrow_array().to_pylist()[0]["end"]
+            assert saved["end_s"] < end_ns * 1e-9 < saved["end_s"] * 1.05, view.name
 
 
 def test_bus_frames_sit_at_their_tick(faulted):
@@ -222,17 +279,42 @@ def test_identify_rrd_spectrum_marks_every_mode_with_the_runs_layout(faulted, tm
     path = write_identify_rrd(faulted.run_dir / "identify.rrd", faulted.run_dir, result,
                               cfg={"run": {}})
     have = entities(path)
-    for view in ("/identify/spectrum/", ):
-        marks = sorted(e for e in have if e.startswith(view + "mode_"))
-        assert len(marks) == 3, marks
-        for m, (w, _, _) in zip(marks, modes, strict=True):
-            f_hz = float(m.split("_")[2])
-            assert f_hz == pytest.approx(w / (2 * np.pi), rel=0.01)
-    assert "/identify/spectrum/amplitude" in have and "/identify/spectrum/fft_peaks" in have
-    assert "| 3 |" in read_text(path, "/identify/modes")
+    # short legend names (the entity path is the legend), one per mode
+    marks = sorted(e for e in have if e.startswith("/final/mode_"))
+    assert marks == [f"/final/mode_{i}" for i in (1, 2, 3)]
+    assert "/final/spectrum" in have and "/final/fft_peaks" in have
+    assert max(len(e) for e in have if e.startswith("/final/")) <= 16
+    # the modes view: undamped and damped frequency labelled, damping, 1 sigma
+    text = read_text(path, "/identify/modes")
+    assert "f: undamped natural frequency" in text and "fd: damped frequency" in text
+    for i, (w, z, _) in enumerate(modes):
+        block = text.split(f"## Mode {i + 1} ")[1].split("## ")[0]
+        f_hz = float(block.split("- f = ")[1].split()[0])
+        fd_hz = float(block.split("- fd = ")[1].split()[0])
+        assert f_hz == pytest.approx(w / (2 * np.pi), rel=0.01)
+        assert fd_hz == pytest.approx(w * np.sqrt(1 - z * z) / (2 * np.pi), rel=0.01)
+        assert fd_hz < f_hz and "+-" in block.split("- f = ")[1].splitlines()[0]
+        assert float(block.split("- zeta = ")[1].split()[0]) == pytest.approx(z, rel=0.1)
+    # every mode's marker its own colour, none the spectrum's
+    from harness.review.spectrum import MODE_COLOURS, SPECTRUM_COLOUR
+
+    assert len(set(MODE_COLOURS)) == len(MODE_COLOURS) and SPECTRUM_COLOUR not in MODE_COLOURS
     ours = read_blueprints(faulted.run_dir / "run.rrd")[-1]
     theirs = read_blueprints(path)[-1]
     assert sorted(v.name for v in ours) == sorted(v.name for v in theirs)
+
+
+def test_modes_view_compares_with_the_model():
+    from harness.review.spectrum import modes_markdown
+
+    m = {"freq_hz": 1.0, "omega_rad_s": 2 * np.pi, "sigma_omega_rad_s": 0.01,
+         "damping_ratio": 0.02, "sigma_damping": 0.001, "fft_peak_omega_rad_s": 6.28,
+         "model_mode": 1, "model_omega_rad_s": 2 * np.pi * 1.02, "model_damping_ratio": 0.01,
+         "source": {"experiment": "final free decay"}}
+    text = modes_markdown([m], ["a note"])
+    assert "- model (mode 1): f = 1.0200 Hz, zeta = 0.0100" in text
+    assert "- identified - model: f -1.96 %, zeta +100.00 %" in text
+    assert "- from: final free decay" in text and "- a note" in text
 
 
 def test_sweep_rrd_has_its_layout(tmp_path):
@@ -251,6 +333,35 @@ def test_sweep_rrd_has_its_layout(tmp_path):
     assert len(curves) == 4 and all("(" in v.name for v in curves)
     assert sum(v.kind == "Tensor" for v in views.values()) == 2
     assert "Sweep" in views
+
+
+def test_sweep_rrd_shows_the_whole_range_one_colour_per_beta_and_scaled_maps(tmp_path):
+    """Issue 21: half the lambda range (the resonance included) was off screen, the maps
+    had no colour scale and a beta's colour changed between plots."""
+    from harness.commands.sweep import save_plots, save_rrd, sweep_blueprint
+    from harness.review.reader import read_series_styles
+
+    lambdas = np.linspace(0.3, 3.2, 30)
+    betas = np.array([0.3, 0.6, 1.0])
+    amps = np.random.default_rng(0).uniform(0.01, 1.0, (30, 3, 2))
+    save_plots(tmp_path / "maps.png", tmp_path / "curves.png", lambdas, betas, amps, "hub_free")
+    path = tmp_path / "sweep.rrd"
+    save_rrd(path, "sweep-test", lambdas, betas, amps, maps_png=tmp_path / "maps.png")
+    styles = read_series_styles(path)
+    for b in ("0.30", "0.60", "1.00"):
+        colours = {str(styles[f"/sweep/{k}/{o}/beta_{b}"]["colors"])
+                   for k in ("curves", "log10") for o in ("tip_accel_m_s2", "tip_deflection_m")}
+        assert len(colours) == 1, b  # one colour for a beta everywhere
+    assert len({str(styles[f"/sweep/curves/tip_accel_m_s2/beta_{b}"]["colors"])
+                for b in ("0.30", "0.60", "1.00")}) == 3
+    assert "/sweep/maps" in entities(path)  # the maps with their colour bars
+    views = {v.name: v for v in read_blueprints(path)[-1]}
+    assert any(v.kind == "2D" and v.origin == "/sweep/maps" for v in views.values())
+    for view in L.blueprint_views(sweep_blueprint(lambdas, True)):
+        axis = getattr(view, "properties", {}).get("TimeAxis")
+        if isinstance(view, rrb.TimeSeriesView):
+            rng = axis.view_range.as_arrow_array().to_pylist()[0]
+            assert rng["start"] <= 300 and rng["end"] >= 3200, view.name
 
 
 def test_legend_goes_where_it_hides_no_curve():
@@ -310,6 +421,125 @@ def test_judged_run_verdict_rrd_has_layout_events_and_markers(faulted, tmp_path)
     ours = read_blueprints(faulted.run_dir / "run.rrd")[-1]
     theirs = read_blueprints(path)[-1]
     assert sorted(v.name for v in ours) == sorted(v.name for v in theirs)
+
+
+def test_verdict_lives_in_run_rrd_and_rejudging_replaces_it(faulted, tmp_path):
+    """Issue 21: the verdict panel was empty unless verdict.rrd was opened too, and a run
+    stopped by an unexpected fault was headlined by a consequence. Judged, run.rrd holds the
+    verdict (root cause first, failing criteria first, each with value, limit, margin and
+    worst time), its violation as an event and marker, and the run's layout; re-judging
+    replaces it, and every recorded sample stays."""
+    import shutil
+
+    from harness.record.reader import read_scalar_channel
+    from harness.testing import judge_run
+    from harness.testing.judge import write_verdict
+
+    run_dir = tmp_path / faulted.run_dir.name
+    shutil.copytree(faulted.run_dir, run_dir)
+    rrd = run_dir / "run.rrd"
+    before = read_scalar_channel(rrd, "/attitude/angle_deg")
+    bus_before = read_scalar_channel(rrd, "/bus/hub_sensor/tlm/angle_rad")
+    assert read_text(rrd, "/run/verdict") is None
+    for _ in range(2):  # judged, then re-judged
+        write_verdict(judge_run(run_dir), run_dir)
+        text = read_text(rrd, "/run/verdict")
+        assert text is not None
+        head = text.splitlines()[0]
+        fault = faulted.summary["faults"][0]
+        assert head.startswith("# ERROR: unexpected fault hub_sensor: silent"), head
+        assert f"{fault['time_s']:.3f} s" in head
+        items = [ln for ln in text.splitlines() if ln.startswith("- **")]
+        verdicts = [ln.split("**")[1] for ln in items]
+        assert verdicts == sorted(verdicts, key=["ERROR", "FAIL", "MARGINAL", "PASS"].index)
+        assert "unexpected_fault" in items[0]  # the cause before its consequences
+        final = next(ln for ln in items if " final_error:" in ln)
+        assert "limit |x| ≤ 0.1 deg" in final and "margin" in final and "worst at" in final
+        assert "missing data" in text and "a consequence of the run stopping early" in text
+        ev = [e for e in read_events(rrd) if e.entity == "/events/verdict"]
+        assert len(ev) == 1 and ev[0].time_s == pytest.approx(fault["time_s"])
+        # the unexpected fault is marked once, by the run's own fault marker
+        assert "/markers/tip/fault" in entities(rrd)
+        assert "/markers/tip/verdict" not in entities(rrd)
+        names = {v.name for v in read_blueprints(rrd)[-1]}
+        assert L.VERDICT_VIEW in names and L.PLOTS["tip"].title in names
+        for (t0, v0), (t1, v1) in ((before, read_scalar_channel(rrd, "/attitude/angle_deg")),
+                                   (bus_before,
+                                    read_scalar_channel(rrd, "/bus/hub_sensor/tlm/angle_rad"))):
+            assert np.array_equal(t0, t1) and np.array_equal(v0, v1)
+    # a criterion's violation is marked on the plots at its worst sample
+    from harness.review.verdict import write_into_run
+
+    fail = {"name": "tip_quiet", "kind": "channel", "value": 0.03, "unit": "m_s2",
+            "limit": {"max_abs_m_s2": 0.01}, "margin": -0.02, "verdict": "FAIL",
+            "worst_time_s": 0.5, "message": "too much"}
+    assert write_into_run(run_dir, {"verdict": "FAIL", "reason": "x", "criteria": [fail]})
+    assert "/markers/tip/verdict" in entities(rrd)
+    assert [e.time_s for e in read_events(rrd) if e.entity == "/events/verdict"] == [0.5]
+
+
+def test_baseline_comparison_draws_the_baseline_on_the_same_plot(faulted, tmp_path):
+    """Issue 21: a baseline criterion's baseline channel is drawn on the judged channel's
+    plot, on the run's time axis shifted as judged."""
+    import shutil
+
+    import yaml
+
+    from harness.record.reader import read_scalar_channel
+    from harness.testing import judge_run
+    from harness.testing.judge import write_verdict
+
+    run_dir = tmp_path / faulted.run_dir.name
+    shutil.copytree(faulted.run_dir, run_dir)
+    cfg_path = run_dir / "config.yaml"
+    cfg = yaml.safe_load(cfg_path.read_text())
+    cfg["run"]["expect"] = {"same_as_before": {
+        "baseline": str(faulted.run_dir), "channel": "/attitude/error_deg",
+        "tol_deg": 1e-6, "max_shift_s": 0.01}}
+    cfg_path.write_text(yaml.safe_dump(cfg))
+    v = judge_run(run_dir)
+    [same] = [c for c in v.criteria if c.name == "same_as_before"]
+    assert "time shift +0.000 s" in same.message
+    write_verdict(v, run_dir)
+    t0, x0 = read_scalar_channel(faulted.run_dir / "run.rrd", "/attitude/error_deg")
+    t1, x1 = read_scalar_channel(run_dir / "run.rrd", "/baseline/attitude/error_deg")
+    assert np.allclose(t0, t1) and np.array_equal(x0, x1)
+    error_plot = next(w for w in read_blueprints(run_dir / "run.rrd")[-1]
+                      if w.name == L.PLOTS["error"].title)
+    assert "/baseline/attitude/error_deg" in error_plot.contents
+    # a judged shift moves the baseline: its sample at t + shift sits at the run's t
+    from harness.review.verdict import log_baselines
+
+    shifted = tmp_path / "shifted.rrd"
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id="shifted")
+    rec.save(str(shifted))
+    assert log_baselines(rec, run_dir, {"criteria": [
+        {"name": "same_as_before", "kind": "baseline",
+         "message": "... time shift +0.010 s) within tolerance"}]}) == 1
+    rec.flush()
+    rec.disconnect()
+    t2, x2 = read_scalar_channel(shifted, "/baseline/attitude/error_deg")
+    assert np.allclose(t2, t0 - 0.010) and np.array_equal(x2, x0)
+
+
+def test_verdict_is_not_appended_to_a_cut_recording(faulted, tmp_path):
+    """A run.rrd cut short mid-message (SIGKILL) is left as it is; the verdict stays in
+    verdict.json and verdict.rrd."""
+    import shutil
+
+    from harness.record.append import stream_end
+    from harness.review.verdict import write_into_run
+    from harness.testing import judge_run
+
+    run_dir = tmp_path / faulted.run_dir.name
+    shutil.copytree(faulted.run_dir, run_dir)
+    rrd = run_dir / "run.rrd"
+    verdict = judge_run(run_dir).to_dict()
+    data = rrd.read_bytes()
+    rrd.write_bytes(data[: len(data) - 100])
+    assert stream_end(rrd) == "cut"
+    assert not write_into_run(run_dir, verdict)
+    assert rrd.read_bytes() == data[: len(data) - 100]
 
 
 def test_realtime_bus_frames_at_their_receive_time(tmp_path):

@@ -68,6 +68,7 @@ def write_suite(tmp: Path) -> Path:
                                  "marginal_deg": 0.9999}}},
             {"run": "case-a", "duration_s": 6, "variants": ["beta-0.6", "beta-1.0"],
              "set": {"steady_window_s": 3}, "own_expect": False,
+             "expect": {"safe": {"left_safe": True}},  # a suite requires criteria
              "compare": [{"measure": "compensation_amplitude_n_m", "largest": "beta-1.0"}]},
         ],
     }
@@ -261,7 +262,7 @@ def test_the_deprecated_check_form_is_translated_with_its_new_spelling(capsys):
 
 
 def test_exit_code_is_the_most_severe():
-    from harness.testing.plugin import exit_code
+    from harness.testing.outcome import exit_code
 
     def recs(*pairs):
         return [{"verdict": v, "exit_code": c} for v, c in pairs]

@@ -328,7 +328,9 @@ def test_verdict_worst_wins_and_exit_codes():
     p = scalar({"measure": "overruns", "max_count": 5})
     m = scalar({"measure": "overruns", "max_count": 1, "marginal_count": 0.4}, {"overruns": 0.8})
     assert (p.verdict, m.verdict) == (PASS, MARGINAL)
-    assert make_verdict([]).exit_code == 0 and make_verdict([]).reason == "no criteria"
+    # nothing judged is not a pass: NO CRITERIA, exit 0 (harness run warns)
+    assert make_verdict([]).exit_code == 0 and make_verdict([]).verdict == "NO CRITERIA"
+    assert make_verdict([]).reason.startswith("no criteria")
     assert make_verdict([p]).exit_code == 0
     assert make_verdict([p, m]).exit_code == 5
     fail = scalar({"measure": "final_angle_error_deg", "max_abs_deg": 0.01})

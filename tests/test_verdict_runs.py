@@ -109,7 +109,7 @@ def test_verdict_rrd_holds_the_document_and_violation_events(judged_run, tmp_pat
     expect = tmp_path / "strict.yaml"
     expect.write_text(yaml.safe_dump({"expect": {"torque": {
         "channel": "/wheel/torque_cmd_n_m", "max_abs_n_m": 0.02}}}))
-    assert main(["judge", str(copy), "--expect", str(expect)]) == 1
+    assert main(["judge", str(copy), "--expect", str(expect), "--write"]) == 1
     entities = {c.entity_path for c in RrdReader(copy / "verdict.rrd").stream().to_chunks()}
     assert {"/run/verdict", "/events/verdict"} <= entities
     v = verdict_of(copy)
@@ -126,7 +126,7 @@ def test_baseline_against_itself_passes_and_a_changed_gain_fails(judged_run, tmp
     same.write_text(yaml.safe_dump({"expect": {"angle": crit}}))
     copy = tmp_path / "copy"
     shutil.copytree(base, copy)
-    assert main(["judge", str(copy), "--expect", str(same)]) == 0
+    assert main(["judge", str(copy), "--expect", str(same), "--write"]) == 0
     assert verdict_of(copy)["criteria"][0]["value"] == 0.0
     # the same slew with the PD's bandwidth changed, judged against the baseline by its
     # run file, whose baseline path is relative to the run file
@@ -157,7 +157,8 @@ def test_fault_expected_passes_and_unexpected_fault_is_error(tmp_path):
     assert code == 3 and v["verdict"] == "ERROR" and "did not expect" in v["reason"]
     # expecting another kind: the expectation fails and the fault is still unexpected
     other = {"detected": {"fault": "hub_sensor", "kind": "stuck"}}
-    assert main(["judge", str(d), "--expect", str(_expect_file(tmp_path, other))]) == 3
+    assert main(["judge", str(d), "--expect", str(_expect_file(tmp_path, other)),
+                 "--write"]) == 3
 
 
 def _expect_file(tmp_path: Path, expect: dict) -> Path:
@@ -200,7 +201,7 @@ def test_error_verdicts_and_judge_exit_codes(judged_run, tmp_path, capsys):
     capsys.readouterr()
     assert main(["judge", str(tmp_path / "nope")]) == 2
     bad = _expect_file(tmp_path, {"x": {"measure": "final_angle_error_deg", "max": 1}})
-    assert main(["judge", str(base), "--expect", str(bad)]) == 2
+    assert main(["judge", str(base), "--expect", str(bad), "--write"]) == 2
     assert "expect.x.max: missing unit" in capsys.readouterr().err
 
 
@@ -250,7 +251,7 @@ def test_logs_shows_verdicts_and_lists_failures(judged_run, tmp_path, capsys):
     ok = Path(shutil.copytree(base, logs / "20260101T000000.000000Z-ok"))
     bad = Path(shutil.copytree(base, logs / "20260101T000001.000000Z-bad"))
     assert main(["judge", str(bad), "--expect", str(_expect_file(tmp_path, {
-        "t": {"channel": "/wheel/torque_cmd_n_m", "max_abs_n_m": 0.01}}))]) == 1
+        "t": {"channel": "/wheel/torque_cmd_n_m", "max_abs_n_m": 0.01}})), "--write"]) == 1
     nov = Path(shutil.copytree(base, logs / "20260101T000002.000000Z-unjudged"))
     (nov / "verdict.json").unlink()
     killed = logs / "20260101T000003.000000Z-killed"
@@ -278,7 +279,8 @@ def test_dry_run_judges_only_the_safe_state(tmp_path):
     v = verdict_of(d)
     assert code == 0 and [c["name"] for c in v["criteria"]] == ["safe"]
     assert v["reason"].startswith("dry run")
-    assert main(["judge", str(d), "--expect", str(_expect_file(tmp_path, expect))]) == 0
+    assert main(["judge", str(d), "--expect", str(_expect_file(tmp_path, expect)),
+                 "--write"]) == 0
 
 
 def test_every_built_in_run_states_its_criteria():
@@ -308,7 +310,7 @@ def test_built_in_slew_passes_and_a_tightened_copy_fails_or_is_marginal(slew_res
     raw["expect"]["wheel_torque"]["max_n_m"] = 0.04
     tight.write_text(yaml.safe_dump(raw))
     capsys.readouterr()
-    assert main(["judge", str(d), "--expect", str(tight)]) == 1
+    assert main(["judge", str(d), "--expect", str(tight), "--write"]) == 1
     out = capsys.readouterr().out
     v = verdict_of(d)
     [c] = [c for c in v["criteria"] if c["verdict"] != "PASS"]
@@ -318,7 +320,7 @@ def test_built_in_slew_passes_and_a_tightened_copy_fails_or_is_marginal(slew_res
     assert "outside max_n_m 0.04" in out and "VERDICT FAIL (exit 1)" in out
     raw["expect"]["wheel_torque"].update(max_n_m=0.065, marginal_n_m=0.013)
     tight.write_text(yaml.safe_dump(raw))
-    assert main(["judge", str(d), "--expect", str(tight)]) == 5
+    assert main(["judge", str(d), "--expect", str(tight), "--write"]) == 5
     assert verdict_of(d)["verdict"] == "MARGINAL"
 
 

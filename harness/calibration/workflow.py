@@ -24,6 +24,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import math
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,6 +40,7 @@ from harness.calibration.candidates import (
     SlewSpec,
     baseline_controller,
     build,
+    modes_yaml,
     predict_ratios,
     run_dict,
     slew_spec,
@@ -307,28 +309,76 @@ def recommend(c: Calibration) -> None:
             f"{c.verified[c.recommended].get('ratio_resolvable', math.nan):.1f}x)")
 
 
+SIGMAS = 3.0
+"""A repeat of a verified slew reads its fitted residual within this many of the fit's
+1-sigma (the accelerometer's noise over the window)."""
+
+
+def _modes_criterion(c: Calibration) -> list[dict[str, float]]:
+    """The residual fit's modes as a ``modal_residual:`` criterion takes them (the same basis
+    calibrate fitted with: identified, then predicted but unidentified)."""
+    return modes_yaml(c.analysis_modes)
+
+
+def residual_limit_m_s2(c: Calibration, row: dict[str, Any]) -> float | None:
+    """The largest fitted residual a run of this slew may leave: the target it met (the
+    threshold), or, above it, what the calibration measured plus ``SIGMAS`` of the fit's
+    uncertainty. None when that limit would not tell this slew from the unshaped one (it is
+    not ``SIGMAS`` sigma below the unshaped slew's fitted residual): a criterion that the
+    unshaped slew passes would catch no lost shaping."""
+    assert c.baseline is not None
+    f = row["fitted"]
+    limit = max(threshold_m_s2(c), f["peak_m_s2"] + SIGMAS * f["sigma_m_s2"])
+    base = c.baseline["fitted"]
+    if not limit < base["peak_m_s2"] - SIGMAS * base["sigma_m_s2"]:
+        return None
+    return limit
+
+
 def residual_expect(c: Calibration, row: dict[str, Any], label: str) -> dict[str, Any]:
     """The run file's ``expect:`` (docs/criteria.md) stating what the calibration measured
-    of this slew that its own recording can show: the raw tip acceleration over the residual
-    window stays below the unshaped slew's raw peak over the same window (the fitted
-    residual, the calibration's main reading, is not a recorded channel; the accelerometer's
-    noise keeps the raw peak near its noise floor). Empty when the raw peak was not below
-    the unshaped one."""
+    of this slew: the identified modes fitted to the tip acceleration over the residual
+    window (``MARGIN_S`` after the slew's own end, to the run's end) leave at most
+    ``residual_limit_m_s2``. The unshaped slew, judged by it, FAILs: it leaves the
+    unshaped residual. Empty (with a note) when no such limit exists."""
     assert c.baseline is not None
-    base_raw = c.baseline["raw"]["peak_m_s2"]
-    if not row["raw"]["peak_m_s2"] < base_raw:
+    limit = residual_limit_m_s2(c, row)
+    if limit is None:
+        c.notes.append(f"{label}: no residual criterion written: its fitted residual "
+                       f"{row['fitted']['peak_m_s2']:.3g} +- {row['fitted']['sigma_m_s2']:.2g}"
+                       " m/s^2 cannot be told from the unshaped slew's "
+                       f"{c.baseline['fitted']['peak_m_s2']:.3g} m/s^2")
         return {}
+    f, base = row["fitted"], c.baseline["fitted"]
     truth = (f"; noise-free truth {row['ratio_truth']:.1f}x" if "ratio_truth" in row else "")
-    return {"residual_below_unshaped": {
-        "channel": "/tip/accel_m_s2", "max_abs_m_s2": round(base_raw, 5),
-        "from_s": round(row["window_s"][0], 4),
-        "why": (f"harness calibrate measured, over this window: raw peak "
-                f"{row['raw']['peak_m_s2']:.4f} m/s^2 for the {label} slew against "
-                f"{base_raw:.4f} m/s^2 for the unshaped slew of the same angle; the identified "
-                f"modes fitted to the residual: {row['fitted']['peak_m_s2']:.3g} +- "
-                f"{row['fitted']['sigma_m_s2']:.2g} m/s^2, {row['ratio_fitted']:.1f}x below "
-                f"unshaped{truth}. The limit is the unshaped slew's raw peak: the raw channel, "
-                f"near the accelerometer's noise, can show no more than that.")}}
+    return {"residual_within_calibration": {
+        "modal_residual": "/tip/accel_m_s2", "modes": _modes_criterion(c),
+        "after": "slew_profile_end_s", "from_s": MARGIN_S,
+        "max_m_s2": float(f"{limit:.4g}"),
+        "why": (f"harness calibrate measured, with these modes fitted to the tip acceleration "
+                f"from {MARGIN_S:g} s after the slew's end: {f['peak_m_s2']:.3g} +- "
+                f"{f['sigma_m_s2']:.2g} m/s^2 (1 sigma) for the {label} slew, "
+                f"{row['ratio_fitted']:.1f}x below the unshaped slew's {base['peak_m_s2']:.3g} "
+                f"+- {base['sigma_m_s2']:.2g} m/s^2{truth}. The limit is the target "
+                f"({threshold_m_s2(c):.3g} m/s^2) or, if larger, the measurement plus "
+                f"{SIGMAS:g} sigma; the unshaped slew fails it")}}
+
+
+def baseline_expect(c: Calibration, shaped_limit_m_s2: float) -> dict[str, Any]:
+    """baseline.yaml's ``expect:``: the unshaped slew still leaves more residual than the
+    recommended slew is allowed. Were it not so (a rig that no longer vibrates, a dead
+    accelerometer, a shaper slipped into the baseline), the recommended run's criterion would
+    pass without the shaping doing anything."""
+    assert c.baseline is not None
+    base = c.baseline["fitted"]
+    return {"vibrates_beyond_shaped_limit": {
+        "modal_residual": "/tip/accel_m_s2", "modes": _modes_criterion(c),
+        "after": "slew_profile_end_s", "from_s": MARGIN_S,
+        "min_m_s2": float(f"{shaped_limit_m_s2:.4g}"),
+        "why": (f"harness calibrate measured {base['peak_m_s2']:.3g} +- "
+                f"{base['sigma_m_s2']:.2g} m/s^2 for this unshaped slew; the limit is the "
+                "recommended slew's (recommended.yaml's residual_within_calibration): below "
+                "it, that criterion could not tell shaping from none")}}
 
 
 def _dump(path: Path, data: dict[str, Any], header: str) -> None:
@@ -463,6 +513,10 @@ def write_outputs(c: Calibration) -> None:
         _dump(cand_dir / f"{safe_name(key)}.yaml", row["run"],
               f"harness calibrate candidate {key}: fitted residual {row['ratio_fitted']:.1f}x "
               "below the unshaped slew")
+    claim = (c.verified[c.recommended]["run"].get("expect", {}).get(
+        "residual_within_calibration") if c.recommended is not None else None)
+    if claim is not None:
+        c.baseline["run"]["expect"] = baseline_expect(c, claim["max_m_s2"])
     c.baseline_run_file = c.folder / "baseline.yaml"
     _dump(c.baseline_run_file, c.baseline["run"],
           "harness calibrate: the unshaped slew (baseline), same angle and torque")
@@ -479,8 +533,21 @@ def write_outputs(c: Calibration) -> None:
               f"Target {'met' if c.target_met else 'NOT met'}: {c.recommendation_note}.\n"
               f"Report: {c.folder / 'report.md'}")
     c.report = write_report(c)
+    _write_recording(c)
     data = c.to_dict()
     (c.folder / "results.json").write_text(json.dumps(_jsonable(data), indent=2))
+
+
+def _write_recording(c: Calibration) -> None:
+    """calibration.rrd: modes, candidates' predicted and measured residuals and the
+    verified pair in one layout (harness.review.calibration); the calibration stands
+    without it."""
+    try:
+        from harness.review.calibration import write_calibration_rrd
+
+        write_calibration_rrd(c)
+    except Exception as exc:  # noqa: BLE001 - the run files and report are written
+        print(f"harness calibrate: could not write calibration.rrd ({exc})", file=sys.stderr)
 
 
 def _jsonable(x: Any) -> Any:

@@ -1,4 +1,4 @@
-"""`harness judge RUN_DIR [--expect FILE] [--json]`: judge (or re-judge) a recorded run.
+"""`harness judge RUN_DIR [--expect FILE [--write]] [--json]`: judge (or re-judge) a recorded run.
 
 The run's criteria (the ``expect:`` section of its run file, as written in config.yaml, with
 the rig file's ``expect_overrides``), or those of ``--expect FILE`` (a YAML file with an
@@ -6,10 +6,12 @@ the rig file's ``expect_overrides``), or those of ``--expect FILE`` (a YAML file
 run.rrd and can.blf; the run's own checks are added (it raised, was interrupted, a fault no
 criterion expects, files missing). Writes verdict.json and verdict.rrd into RUN_DIR (the
 same verdict.json ``harness run`` wrote at the end of the run, for the same criteria and
-code) and prints the verdict: one line per criterion (value, limit, margin, verdict, the
+code) and prints the verdict. Judged by ``--expect FILE`` (a what-if) it writes nothing
+unless ``--write`` is given, so the run's own verdict (what ``harness logs`` reports) stays.
+It prints one line per criterion (value, limit, margin, verdict, the
 worst sample's time). Forms of criteria: docs/criteria.md.
 
-Exit codes: 0 PASS (or no criteria), 1 FAIL, 2 bad input (no such directory, bad criteria),
+Exit codes: 0 PASS (or NO CRITERIA), 1 FAIL, 2 bad input (no such directory, bad criteria),
 3 ERROR by a fault the run did not expect, 4 ERROR otherwise (the run raised, missing data, a
 real-time budget not held), 5 MARGINAL, 130 the run was interrupted.
 """
@@ -31,6 +33,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("run_dir", type=Path, help="a run directory (logs/<UTC time>-<name>/)")
     p.add_argument("--expect", type=Path, metavar="FILE",
                    help="judge by this file's expect: section instead of the run's own")
+    p.add_argument("--write", action="store_true",
+                   help="with --expect: make this the run's verdict (verdict.json, "
+                   "verdict.rrd); without, a what-if judgement writes nothing")
     p.add_argument("--json", action="store_true", help="print verdict.json on stdout")
     p.set_defaults(func=cmd_judge)
 
@@ -41,10 +46,15 @@ def cmd_judge(args: argparse.Namespace) -> int:
     except (ConfigError, JudgeInputError) as exc:
         print(f"harness judge: {exc}", file=sys.stderr)
         return 2
-    path = write_verdict(verdict, args.run_dir)
-    from harness.history.record import record_verdict  # the results database (issue 22)
+    path = None
+    if args.expect is None or args.write:
+        path = write_verdict(verdict, args.run_dir)
+        from harness.history.record import record_verdict  # the results database (issue 22)
 
-    record_verdict(args.run_dir, verdict.to_dict())
+        record_verdict(args.run_dir, verdict.to_dict())
+    else:  # a what-if: the run's own verdict (what 'harness logs' reads) stays as it is
+        print(f"harness judge: judged by {args.expect}, not the run's own criteria: "
+              "verdict.json left as it was (--write to replace it)", file=sys.stderr)
     if args.json:
         print(json.dumps(verdict.to_dict(), indent=2))
         print(format_block(verdict, path), file=sys.stderr)

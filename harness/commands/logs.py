@@ -1,14 +1,15 @@
 """`harness logs [--logs DIR] [--last N] [--failed] [--json]`: the recorded runs, how each ended
 and its verdict.
 
-One line per run directory under ``--logs`` (default ``./logs``), oldest first (directory
-names start with the UTC time): run name, clock and bus, simulated time, how it stopped
-(completed, fault, interrupted, error), the first fault, the final angle error and residual
-tip acceleration where the run has them, the real-time factor, and the verdict of its
-``verdict.json`` (PASS, MARGINAL, FAIL, ERROR; ``-`` if the run was never judged: see
-``harness judge``). A directory without a readable ``summary.json`` (the harness was killed,
-or the file was damaged) is listed as such: its ``run.rrd`` and ``can.blf`` hold what was
-written.
+One line per run directory under ``--logs`` (default ``./logs``) at any depth (the runs of
+a suite, a calibration or a study included, with the folder each belongs to in the ``in``
+column), oldest first (directory names start with the UTC time): run name, clock and bus,
+simulated time, how it stopped (completed, fault, interrupted, error), the first fault, the
+final angle error and residual tip acceleration where the run has them, the real-time
+factor, and the verdict of its ``verdict.json`` (PASS, MARGINAL, FAIL, ERROR, NO CRITERIA;
+``-`` if the run was never judged: see ``harness judge``). A directory without a readable
+``summary.json`` (the harness was killed, or the file was damaged) is listed as such: its
+``run.rrd`` and ``can.blf`` hold what was written.
 
 ``--failed`` lists only the failures: runs judged FAIL or ERROR, and runs without a
 verdict.json that did not complete (a fault, an exception, an interruption, no summary):
@@ -36,14 +37,48 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_logs)
 
 
+RUN_FILES = ("config.yaml", "run.rrd", "can.blf")
+
+
+def run_dirs(logs: Path) -> list[Path]:
+    """Every run directory under ``logs`` at any depth (a suite's, a calibration's, a
+    study's own logs), oldest first: run folders' names start with their UTC time, so the
+    order is by name whatever the nesting. A run directory is not searched further; hidden
+    folders (pytest's cache) and symbolic links are not followed."""
+    found: list[Path] = []
+    stack = [logs]
+    while stack:
+        here = stack.pop()
+        try:
+            subs = [p for p in here.iterdir() if p.is_dir() and not p.is_symlink()
+                    and not p.name.startswith(".")]
+        except OSError:
+            continue
+        for p in subs:
+            if any((p / f).exists() for f in RUN_FILES):
+                found.append(p)
+            else:
+                stack.append(p)
+    return sorted(found, key=lambda p: (p.name, str(p)))
+
+
+def group_of(run_dir: Path, logs: Path) -> str | None:
+    """The suite, calibration or study folder a run belongs to: its parent's path under
+    ``logs`` (None for a run directly under it)."""
+    try:
+        rel = run_dir.parent.relative_to(logs)
+    except ValueError:
+        return None
+    return None if str(rel) in ("", ".") else rel.as_posix()
+
+
 def collect(logs: Path) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     if not logs.is_dir():
         return rows
-    for run_dir in sorted(p for p in logs.iterdir() if p.is_dir()):
-        if not any((run_dir / f).exists() for f in ("config.yaml", "run.rrd", "can.blf")):
-            continue  # not a run directory
-        row: dict[str, Any] = {"dir": str(run_dir), **_verdict(run_dir)}
+    for run_dir in run_dirs(logs):
+        row: dict[str, Any] = {"dir": str(run_dir), "group": group_of(run_dir, logs),
+                               **_verdict(run_dir)}
         path = run_dir / "summary.json"
         try:
             s = json.loads(path.read_text())
@@ -53,6 +88,10 @@ def collect(logs: Path) -> list[dict[str, Any]]:
             continue
         except (OSError, ValueError) as exc:
             row["status"] = f"unreadable summary.json ({type(exc).__name__})"
+            rows.append(row)
+            continue
+        if not isinstance(s, dict):
+            row["status"] = "unreadable summary.json (not a JSON object)"
             rows.append(row)
             continue
         faults = s.get("faults") or []
@@ -123,16 +162,19 @@ def cmd_logs(args: argparse.Namespace) -> int:
     if args.json:
         return 0
     w = max(len("run directory"), *(len(Path(r["dir"]).name) for r in rows))
-    print(f"{'run directory':<{w}} {'verdict':<8} {'clock':<9} {'sim s':>7} {'status':<12} "
-          f"{'final err deg':>13} {'resid m/s^2':>11} {'x real':>7}  first fault / error")
+    g = max(len("in"), *(len(r.get("group") or "-") for r in rows))
+    print(f"{'run directory':<{w}} {'in':<{g}} {'verdict':<11} {'clock':<9} {'sim s':>7} "
+          f"{'status':<12} {'final err deg':>13} {'resid m/s^2':>11} {'x real':>7}  "
+          "first fault / error")
     for r in rows:
         name = Path(r["dir"]).name
+        group = r.get("group") or "-"
         verdict = r.get("verdict") or "-"
         if "run" not in r:
-            print(f"{name:<{w}} {verdict:<8} {r['status']}")
+            print(f"{name:<{w}} {group:<{g}} {verdict:<11} {r['status']}")
             continue
         status = r["status"] + (" (dry)" if r["dry_run"] else "")
-        print(f"{name:<{w}} {verdict:<8} {str(r['clock'] or '-'):<9} "
+        print(f"{name:<{w}} {group:<{g}} {verdict:<11} {str(r['clock'] or '-'):<9} "
               f"{_num(r['simulated_s'], '7.2f')} "
               f"{status:<12} {_num(r['final_angle_error_deg'], '13.2e')} "
               f"{_num(r['residual_tip_accel_m_s2'], '11.4f')} "

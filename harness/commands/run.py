@@ -15,7 +15,13 @@ from harness.bus.rig_process import RigProcessError
 from harness.core.interrupts import StopRequest, stop_on_signals
 from harness.core.runs import load_run
 from harness.core.session import RunRefused, execute_run
-from harness.testing import JudgeInputError, format_block, judge_run, write_verdict
+from harness.testing import (
+    NO_CRITERIA,
+    JudgeInputError,
+    format_block,
+    judge_run,
+    write_verdict,
+)
 from rig_models.faults import parse_fault
 from rig_models.schema import ConfigError
 
@@ -26,9 +32,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "Writes logs/<UTC time>-<name>/ with run.rrd, can.blf, config.yaml and "
                        "summary.json, then judges the run by its expect: criteria and writes "
                        "verdict.json and verdict.rrd (docs/criteria.md). Progress goes to "
-                       "stderr; --json prints the summary. Exit codes: 0 PASS (or no "
-                       "criteria), 1 FAIL, 2 bad input or run refused before anything was "
-                       "sent, 3 ERROR by a fault the run did not expect, 4 ERROR otherwise "
+                       "stderr; --json prints the summary. Exit codes: 0 PASS (or NO "
+                       "CRITERIA: nothing judged, with a warning), 1 FAIL, 2 bad input or run "
+                       "refused before anything was sent, 3 ERROR by a fault the run did "
+                       "not expect, 4 ERROR otherwise "
                        "(exception, missing data, real-time budget not held), 5 MARGINAL, "
                        "130 interrupted; with variants, the most severe.")
     p.add_argument("run", help="built-in run name (see 'harness cases') or a run file path")
@@ -122,7 +129,10 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
             s["run_dir"] = str(result.run_dir)
             summaries.append(s)
             print(f"harness: {s['run']} {s['stopped_by']}: final angle error "
-                  f"{_g(s['final_angle_error_deg'])} deg, settle {_g(s['settle_time_s'])} s, "
+                  f"{_g(s['final_angle_error_deg'])} deg, within the settle band from t = "
+                  # settle_time_s is a run time, not the settles criterion's delay after the
+                  # profile's end: said so, the two no longer read as one number
+                  f"{_g(s['settle_time_s'])} s to the end, "
                   f"residual tip accel {_g(s['residual_tip_accel_m_s2'])} m/s^2"
                   + (f", steady tip accel amplitude {s['steady_tip_accel_amplitude_m_s2']:.4f}"
                      " m/s^2" if "steady_tip_accel_amplitude_m_s2" in s else "")
@@ -165,6 +175,10 @@ def _judge(run_dir: Path, summary: dict | None) -> int:
         return 4
     path = write_verdict(verdict, run_dir)
     print(format_block(verdict, path), file=sys.stderr)
+    if verdict.verdict == NO_CRITERIA:
+        print(f"harness: WARNING: NO CRITERIA: {run_dir.name} ran but nothing was judged (its "
+              "run file has no expect:); exit 0 says it completed, not that it passed. Add "
+              "criteria (docs/criteria.md)", file=sys.stderr)
     from harness.history.record import record_verdict  # the results database (issue 22)
 
     record_verdict(run_dir, verdict.to_dict())

@@ -89,10 +89,20 @@ def save_plots(path_maps: Path, path_curves: Path, lambdas: np.ndarray, betas: n
 SWEEP_TIMELINE = "lambda_x1000"
 
 
-def sweep_blueprint() -> object:
+def sweep_colours(n: int) -> list[tuple[int, int, int]]:
+    """One colour per beta, from low (dark blue) to high (yellow) on viridis: the same beta
+    has the same colour in every plot (the viewer's own colours change between plots)."""
+    import matplotlib
+
+    cmap = matplotlib.colormaps["viridis"]
+    return [tuple(int(255 * x) for x in cmap(k / max(n - 1, 1))[:3]) for k in range(n)]
+
+
+def sweep_blueprint(lambdas: np.ndarray | None = None, maps_png: bool = False) -> object:
     """The sweep's layout (harness.review.layouts.study_layout): per output, the amplitude
-    and its log10 against lambda (one curve per beta), the lambda x beta maps, and the
-    description."""
+    and its log10 against lambda (one curve per beta) over the whole lambda range, the
+    lambda x beta maps (maps.png, with their colour scales, when given; the raw tensors
+    else), and the description."""
     from harness.review.layouts import study_layout
 
     curves = {}
@@ -101,20 +111,30 @@ def sweep_blueprint() -> object:
         curves[f"{title[0].upper()}{title[1:]} vs lambda x 1000, one curve per beta"] = [
             f"/sweep/curves/{out}/**"]
         curves[f"log10 {title} vs lambda x 1000"] = [f"/sweep/log10/{out}/**"]
-    return study_layout(
-        curves, SWEEP_TIMELINE, texts={"Sweep": "/sweep/about"},
-        tensors={"Tip acceleration amplitude map (m/s^2) [lambda x beta]":
-                 "/sweep/map/tip_accel_m_s2",
-                 "Tip deflection amplitude map (m) [lambda x beta]":
-                 "/sweep/map/tip_deflection_m"})
+    x_range = None
+    if lambdas is not None and len(lambdas):
+        lo, hi = float(lambdas[0]) * 1000, float(lambdas[-1]) * 1000
+        pad = 0.02 * (hi - lo)
+        x_range = (int(round(lo - pad)), int(round(hi + pad)))
+    maps = {"log10 amplitude maps, lambda x beta, with their colour scales (maps.png)":
+            "/sweep/maps"} if maps_png else None
+    tensors = None if maps_png else {
+        "Tip acceleration amplitude map (m/s^2) [lambda x beta]": "/sweep/map/tip_accel_m_s2",
+        "Tip deflection amplitude map (m) [lambda x beta]": "/sweep/map/tip_deflection_m"}
+    return study_layout(curves, SWEEP_TIMELINE, texts={"Sweep": "/sweep/about"},
+                        tensors=tensors, x_range=x_range, images=maps)
 
 
 def save_rrd(path: Path, name: str, lambdas: np.ndarray, betas: np.ndarray,
-             amps: np.ndarray) -> None:
+             amps: np.ndarray, maps_png: Path | None = None) -> None:
     import rerun as rr
 
     rec = rr.RecordingStream("sgsrt-harness", recording_id=name)
-    rec.save(str(path), default_blueprint=sweep_blueprint())
+    with_maps = maps_png is not None and maps_png.is_file()
+    rec.save(str(path), default_blueprint=sweep_blueprint(lambdas, with_maps))
+    if with_maps:
+        rec.log("/sweep/maps", rr.EncodedImage(path=maps_png), static=True)
+    colours = sweep_colours(len(betas))
     for o, out in enumerate(OUTPUTS):
         rec.log(f"/sweep/map/{out}", rr.Tensor(amps[:, :, o], dim_names=["lambda", "beta"]),
                 static=True)
@@ -127,12 +147,16 @@ def save_rrd(path: Path, name: str, lambdas: np.ndarray, betas: np.ndarray,
                              columns=rr.Scalars.columns(scalars=np.log10(amps[:, j, o])))
             for kind in ("curves", "log10"):  # the legend: "beta 0.60", not the path
                 rec.log(f"/sweep/{kind}/{out}/beta_{b:.2f}",
-                        rr.SeriesLines(names=f"beta {b:.2f}"), static=True)
+                        rr.SeriesLines(names=f"beta {b:.2f}", colors=[colours[j]]),
+                        static=True)
     rec.log("/sweep/about", rr.TextDocument(
         f"# Sweep {name}\n\nx axis: the `{SWEEP_TIMELINE}` timeline, lambda = w_m / w_ref "
-        f"times 1000 ({lambdas[0]:g} to {lambdas[-1]:g}, {len(lambdas)} points); one curve "
-        f"per beta = U / A ({betas[0]:g} to {betas[-1]:g}, {len(betas)} values). Maps: "
-        "rows lambda, columns beta.", media_type="text/markdown"), static=True)
+        f"times 1000 ({lambdas[0]:g} to {lambdas[-1]:g}, {len(lambdas)} points, all in "
+        f"view); one curve per beta = U / A ({betas[0]:g} to {betas[-1]:g}, {len(betas)} "
+        "values), coloured from dark blue (lowest beta) to yellow (highest) in every plot. "
+        "Maps: log10 of each amplitude over lambda x beta with their colour scales "
+        "(maps.png; the raw arrays are under /sweep/map).", media_type="text/markdown"),
+        static=True)
     rec.flush()
     rec.disconnect()
 
@@ -209,7 +233,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                         f"{amps[i, j, 0]:.6g},{amps[i, j, 1]:.6g}\n")
     save_plots(out_dir / "maps.png", out_dir / "curves.png", lambdas, betas, amps,
                args.reference)
-    save_rrd(out_dir / "sweep.rrd", out_dir.name, lambdas, betas, amps)
+    save_rrd(out_dir / "sweep.rrd", out_dir.name, lambdas, betas, amps,
+             maps_png=out_dir / "maps.png")
     summary = {"grid": [args.n_lambda, args.n_beta], "reference": args.reference,
                "omega_ref_rad_s": w_ref, "wall_time_s": round(wall, 2),
                "workers": engine.workers, "engine": engine.name, "out_dir": str(out_dir),

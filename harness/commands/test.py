@@ -1,7 +1,8 @@
 """`harness test [NAME|PATH ...]`: run suites of run files, probes, identifications and
 studies as tests, judged by their criteria, in parallel.
 
-A suite (built-ins in ``harness/suites/``, ``--list``; or a YAML path) lists tests; each run
+A suite (built-ins in ``harness/suites/``, ``--list``; or a YAML path) lists tests; a run
+file (a path, or a built-in run's name) runs as a one-test suite. Each run
 test expands to its variants and parameter matrix (format: docs/suites.md). The tests are
 collected by pytest (a plugin, ``harness.testing.plugin``), so ``-k EXPR`` selects by name,
 ``-x`` stops at the first failure, ``--lf`` re-runs only what failed last time (remembered
@@ -19,7 +20,9 @@ plots of the checked channels with their bands, links to run.rrd and can.blf).
 
 Exit status, the most severe test's (as ``harness run``'s variants): 130 interrupted, 2
 refused (bad suite file, no test selected, the pre-flight probe failed), 3 an ERROR by a
-fault nobody expected, 4 another ERROR, 1 a FAIL, 5 the worst is MARGINAL, 0 all PASS.
+fault nobody expected, 4 another ERROR, 1 a FAIL (a test without criteria FAILs unless the
+suite says ``require_criteria: false``), 5 the worst is MARGINAL, 0 all PASS (or NO
+CRITERIA allowed).
 """
 
 from __future__ import annotations
@@ -79,7 +82,8 @@ def _terminate(signum: int, frame: object) -> None:
 def cmd_test(args: argparse.Namespace) -> int:
     import pytest
 
-    from harness.testing.plugin import SuitePlugin, exit_code
+    from harness.testing.outcome import exit_code
+    from harness.testing.plugin import SuitePlugin
 
     if args.list:
         for name, desc in list_suites():

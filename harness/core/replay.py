@@ -496,8 +496,11 @@ def write_rrd(replay: Replay, path: Path, recording_name: str | None = None) -> 
     """The replayed telemetry and the controller's command frames (the leave-safe group
     left out, as run.rrd records them) as scalar channels on the ``time`` timeline
     (tick * dt), with the entity paths of run.rrd."""
+    from harness.review.annotations import ReviewAnnotator
+
     rec = Recorder(path, REPLAY_CHANNELS, max(1, len(replay.ticks)),
-                   recording_name or f"replay-{replay.source.parent.name or replay.source.name}")
+                   recording_name or f"replay-{replay.source.parent.name or replay.source.name}",
+                   annotator=ReviewAnnotator())
     try:
         for t in replay.ticks:
             row = rec.row(t.time_s)

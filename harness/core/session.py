@@ -11,6 +11,7 @@ import contextlib
 import datetime as dt
 import json
 import math
+import shutil
 import sys
 import threading
 from collections.abc import Callable
@@ -36,6 +37,7 @@ from harness.core.streaming import RunningSummary
 from harness.record.can_log import CanLog
 from harness.record.reader import RecordedColumns
 from harness.record.recording import Recorder
+from harness.review.annotations import ReviewAnnotator
 from harness.review.bus import write_bus
 from harness.review.events import log_event
 from harness.review.layouts import PlotStats, layout_for_run, write_layout_file
@@ -52,7 +54,8 @@ COMMAND_FRAMES = {
 
 
 class RunRefused(RuntimeError):
-    """The run was refused before anything was sent (bus load, limits)."""
+    """The run was refused before anything was sent (bus load, limits, a bus that does not
+    open): no run directory is left behind."""
 
 
 @dataclass
@@ -150,6 +153,11 @@ def execute_run(
         try:
             result = _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
                               show_progress, dry_run, faults, should_stop)
+        except RunRefused:
+            # nothing was sent and the folder holds only config.yaml: left behind, it would
+            # read as a run killed on the way ('harness logs --failed')
+            shutil.rmtree(run_dir, ignore_errors=True)
+            raise
         except Exception as exc:  # the run raised: its directory can still be judged (ERROR)
             exc.run_dir = run_dir  # type: ignore[attr-defined]
             raise
@@ -305,7 +313,10 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
              should_stop: Callable[[], str | None] | None) -> RunResult:
     dt_s = run.dt_s
     protocol = load_protocol()
-    harness_bus = open_bus(spec)
+    try:
+        harness_bus = open_bus(spec)
+    except Exception as exc:  # python-can raises many kinds (OSError, CanError, ValueError)
+        raise RunRefused(f"bus {spec}: cannot open: {type(exc).__name__}: {exc}") from exc
     rig_bus = None
     rig: VirtualRig | None = None
     rig_thread: threading.Thread | None = None
@@ -319,7 +330,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                         # lockstep outruns the file sink: wait for it every 10 blocks so its
                         # queue stays bounded; real time never waits (the sink keeps up)
                         flush_every_blocks=0 if clock_name == "realtime" else 10,
-                        blueprint=layout_for_run(run.resolved(), CHANNELS))
+                        blueprint=layout_for_run(run.resolved(), CHANNELS),
+                        annotator=ReviewAnnotator())
     pump = None
     stats = LoopStats()
     setup = RealTimeSetup()
@@ -462,9 +474,11 @@ def _final_layout(recorder: Recorder, run: RunConfig, run_dir: Path,
     emptiest corner (``plot_stats``, a recorder observer, saw every row; layout.json keeps
     both for identify.rrd and verdict.rrd, harness.review.layouts)."""
     try:
-        ranges, legends = plot_stats.ranges(), plot_stats.legends(run.data["duration_s"])
-        write_layout_file(run_dir, ranges, legends)
-        recorder.send_layout(layout_for_run(run.resolved(), CHANNELS, ranges, legends))
+        # the time axes end where the recording does (a faulted run's at the fault)
+        end_s = plot_stats.end_s or run.data["duration_s"]
+        ranges, legends = plot_stats.ranges(), plot_stats.legends(end_s)
+        write_layout_file(run_dir, ranges, legends, end_s)
+        recorder.send_layout(layout_for_run(run.resolved(), CHANNELS, ranges, legends, end_s))
     except Exception as exc:  # the layout of the start stays
         print(f"harness: could not write the run's final layout ({exc})", file=sys.stderr)
 

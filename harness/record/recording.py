@@ -13,13 +13,21 @@ sink's own thread at least every 200 ms (its flush tick), so after a SIGKILL the
 everything but the last blocks (tested) without the loop waiting for the disk. An explicit
 ``flush()`` (which blocks until written: about 10 ms here, five ticks at 500 Hz) is made
 only every ``flush_every_blocks`` blocks when that is set (0, the default: only on close).
+
+How series are named and drawn, how an event is marked on the plots and how the summary
+reads are the review layer's (``harness.review.annotations``), handed in by the caller as an
+``Annotator``: this module imports nothing of ``harness.review`` (which reads recordings
+with ``harness.record.reader``), so the dependency runs one way. Without one, events are
+plain text logs and the summary a JSON block.
 """
 
 from __future__ import annotations
 
+import json
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
 import rerun as rr
@@ -51,6 +59,37 @@ def default_blueprint(extra_views: list[rrb.View] | None = None) -> rrb.Blueprin
 BlockObserver = Callable[[np.ndarray, np.ndarray], None]
 
 
+class Annotator(Protocol):
+    """What the review layer adds to a recording (harness.review.annotations)."""
+
+    def name_series(self, rec: rr.RecordingStream, channels: list[str]) -> None:
+        """Each channel's legend name and style, logged static."""
+
+    def log_event(self, rec: rr.RecordingStream, time_s: float, entity: str, text: str,
+                  level: str, values: Mapping[str, float], name: str | None,
+                  series: str | None) -> None:
+        """An event at ``time_s``, marked on the plots at ``values`` (channel -> value)."""
+
+    def summary_text(self, summary: Mapping[str, Any]) -> str:
+        """The run's summary as markdown."""
+
+
+class PlainAnnotator:
+    """No review layer: entity paths as legends, events as text logs, the summary as JSON."""
+
+    def name_series(self, rec: rr.RecordingStream, channels: list[str]) -> None:
+        return None
+
+    def log_event(self, rec: rr.RecordingStream, time_s: float, entity: str, text: str,
+                  level: str, values: Mapping[str, float], name: str | None,
+                  series: str | None) -> None:
+        rec.set_time("time", duration=time_s)
+        rec.log(entity, rr.TextLog(text, level=level))
+
+    def summary_text(self, summary: Mapping[str, Any]) -> str:
+        return "```json\n" + json.dumps(summary, indent=1, default=str) + "\n```\n"
+
+
 class _Block:
     __slots__ = ("t", "data", "next_channel")
 
@@ -72,7 +111,7 @@ class Recorder:
                  live_view_url: str | None = None, retain_rows: int = 0,
                  flush_every_blocks: int = 0, max_pending_blocks: int = 30,
                  observers: list[BlockObserver] | None = None,
-                 max_pending_events: int = 100) -> None:
+                 max_pending_events: int = 100, annotator: Annotator | None = None) -> None:
         self.path = path
         self.channels = list(channels)
         self.index = {c: i for i, c in enumerate(self.channels)}
@@ -111,9 +150,8 @@ class Recorder:
                           rr.GrpcSink(live_view_url))
             send_blueprint(rec, bp)
         rec.send_recording_name(recording_name)
-        from harness.review.names import log_series_names
-
-        log_series_names(rec, self.channels)
+        self.annotator: Annotator = annotator or PlainAnnotator()
+        self.annotator.name_series(rec, self.channels)
 
     def row(self, time_s: float) -> np.ndarray:
         """The next row to fill (a view); call ``commit()`` when written."""
@@ -188,17 +226,16 @@ class Recorder:
 
     def log_event(self, time_s: float, entity: str, text: str, level: str = "WARN") -> None:
         """A TextLog under ``/events/...`` and a marker on every plot at ``time_s``, on the
-        plot's signal at the last recorded row (harness.review.events)."""
-        from harness.review.events import log_event
-
-        log_event(self._stream(), time_s, entity, text, level, self.latest_values())
+        plot's signal at the last recorded row (the annotator's)."""
+        self.annotator.log_event(self._stream(), time_s, entity, text, level,
+                                 self.latest_values(), None, None)
 
     def queue_event(self, time_s: float, entity: str, text: str, level: str = "WARN",
                     series: str | None = None, name: str | None = None) -> None:
         """As ``log_event`` (markers at the last committed row's values), but sent by the
         next ``drain()``, outside the tick's critical path; past ``max_pending_events``
         queued, the oldest is sent at once (memory stays bounded). ``series`` and ``name``:
-        the markers' series and legend name (harness.review.events.log_event)."""
+        the markers' series and legend name (the annotator's ``log_event``)."""
         self._events.append((time_s, entity, text, level, self.latest_values(), series, name))
         while len(self._events) > self.max_pending_events:
             self._send_event(self._events.popleft())
@@ -209,10 +246,9 @@ class Recorder:
 
     def _send_event(self, event: tuple[float, str, str, str, dict[str, float], str | None,
                                        str | None]) -> None:
-        from harness.review.events import log_event
-
         time_s, entity, text, level, values, series, name = event
-        log_event(self._stream(), time_s, entity, text, level, values, name=name, series=series)
+        self.annotator.log_event(self._stream(), time_s, entity, text, level, values, name,
+                                 series)
 
     def latest_values(self) -> dict[str, float]:
         """Every channel's value in the last committed row (empty before the first)."""
@@ -232,10 +268,8 @@ class Recorder:
         send_blueprint(self._stream(), blueprint, make_active=True, make_default=True)
 
     def log_summary(self, summary: dict) -> None:
-        """The run's summary as a markdown table at ``/run/summary``."""
-        from harness.review.events import summary_markdown
-
-        self.log_static_text("/run/summary", summary_markdown(summary))
+        """The run's summary as markdown at ``/run/summary`` (the annotator's text)."""
+        self.log_static_text("/run/summary", self.annotator.summary_text(summary))
 
     def finish_rows(self) -> None:
         """Queue the partly filled block (observers see it); rows after it start a new one."""

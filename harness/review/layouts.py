@@ -148,62 +148,61 @@ def main_plots(kind: str, actuators: Iterable[str]) -> tuple[str, ...]:
     return keys
 
 
-def whole_run_axis(duration_s: float | None) -> rrb.TimeAxis | None:
-    """The time axis of a plot fixed on the whole run, 0 .. duration."""
-    if duration_s is None or duration_s <= 0:
+def whole_run_axis(end_s: float | None) -> rrb.TimeAxis | None:
+    """The time axis of a plot fixed on the whole run, 0 .. where it ended (a faulted run's
+    recording ends at the fault, not at the configured duration)."""
+    if end_s is None or end_s <= 0:
         return None
-    pad = 0.015 * float(duration_s)  # so that the last label is not clipped
+    pad = 0.015 * float(end_s)  # so that the last label is not clipped
     return rrb.TimeAxis(view_range=rrb.TimeRange(
         start=rrb.TimeRangeBoundary.absolute(seconds=0.0),
-        end=rrb.TimeRangeBoundary.absolute(seconds=float(duration_s) + pad)))
+        end=rrb.TimeRangeBoundary.absolute(seconds=float(end_s) + pad)))
 
 
-MAX_STEPS = 6
-AXIS_MARGIN = 0.06
-
-
-def nice_range(lo: float, hi: float) -> tuple[float, float] | None:
-    """``[lo, hi]`` widened to whole multiples of a power of ten, at most ``MAX_STEPS`` of
-    them. The viewer labels a plot's y axis at powers of ten only and hides labels closer
-    than about 20 points, so a signal spanning +-0.09 in a small plot would show no label
-    but 0; on this range its ends are labelled."""
-    if not (math.isfinite(lo) and math.isfinite(hi)):
-        return None
-    if hi < lo:
-        lo, hi = hi, lo
-    span = hi - lo
-    if span <= 0.0:
-        span = abs(hi) if hi != 0.0 else 1.0
-    step = 10.0 ** math.floor(math.log10(span))
-    while True:
-        a, b = math.floor(lo / step + 1e-9), math.ceil(hi / step - 1e-9)
-        if b == a:
-            b += 1
-        if b - a <= MAX_STEPS:
-            return a * step, b * step
-        step *= 10.0
+AXIS_MARGIN = 0.08
 
 
 def y_range(plot: Plot, ranges: Mapping[str, Sequence[float]] | None
             ) -> tuple[float, float] | None:
-    """The nice range of a plot's channels' recorded extremes (None: the viewer's own)."""
+    """The span of a plot's channels' recorded extremes (None: the viewer's own); a
+    count's plot always shows 0."""
     if not ranges:
         return None
-    found = [ranges[c] for c in plot.channels if c in ranges]
+    found = [ranges[c] for c in plot.channels if c in ranges
+             and all(math.isfinite(x) for x in ranges[c][:2])]
     if not found:
         return None
     lo = min(r[0] for r in found)
-    return nice_range(min(lo, 0.0) if plot.from_zero else lo, max(r[1] for r in found))
+    return (min(lo, 0.0) if plot.from_zero else lo), max(r[1] for r in found)
 
 
-def axis_range(plot: Plot, ranges: Mapping[str, Sequence[float]] | None
+def axis_range(plot: Plot, ranges: Mapping[str, Sequence[float]] | None,
+               bands: Mapping[str, Sequence[float]] | None = None
                ) -> tuple[float, float] | None:
-    """The y axis of a plot: ``y_range`` with a margin, so that the end labels show."""
+    """The y axis of a plot: the data's span (and the limit band of a criterion judging one
+    of its channels, ``bands``: channel -> [lo, hi]) with a small margin. Never widened to
+    round numbers: a 5 deg slew on +-10 or a judged 0.02 deg error on +-100 hid the very
+    thing a reviewer looks for."""
     yr = y_range(plot, ranges)
-    if yr is None:
+    ends = [] if yr is None else list(yr)
+    for c in plot.channels:
+        ends += [float(b) for b in (bands or {}).get(c, ())[:2]
+                 if b is not None and math.isfinite(b)]
+    if not ends:
         return None
-    pad = AXIS_MARGIN * (yr[1] - yr[0])
-    return yr[0] - pad, yr[1] + pad
+    lo, hi = min(ends), max(ends)
+    span = hi - lo
+    if span <= 0.0:
+        span = abs(hi) if hi != 0.0 else 1.0
+    pad = AXIS_MARGIN * span
+    return lo - pad, hi + pad
+
+
+def plot_aggregation(plot: Plot) -> str:
+    """``Off`` when every channel of the plot is discrete, else ``MinMax`` (names.py)."""
+    from harness.review.names import MIN_MAX, OFF, is_discrete
+
+    return OFF if all(is_discrete(c) for c in plot.channels) else MIN_MAX
 
 
 CORNERS = ("LeftTop", "RightTop", "LeftBottom", "RightBottom")
@@ -244,21 +243,28 @@ def legend_corners(time_s: Any, columns: Mapping[str, Any], duration_s: float,
     return out
 
 
-def time_plot(plot: Plot, duration_s: float | None, channels: Iterable[str] | None = None,
+def time_plot(plot: Plot, end_s: float | None, channels: Iterable[str] | None = None,
               ranges: Mapping[str, Sequence[float]] | None = None,
-              legend: str = "LeftTop") -> rrb.TimeSeriesView:
+              legend: str = "LeftTop",
+              bands: Mapping[str, Sequence[float]] | None = None) -> rrb.TimeSeriesView:
     """A plot of ``plot``'s channels (those recorded, if ``channels`` is given) and its event
-    markers, on the whole run; its y axis on ``ranges`` (channel -> recorded min, max)
-    widened by ``nice_range``, when given."""
+    markers, on the whole run (0 .. ``end_s``); its y axis on ``ranges`` (channel ->
+    recorded min, max) and ``bands`` with a margin, when given. Its series default to the
+    plot's aggregation (``plot_aggregation``: peaks kept, discrete signals drawn whole)."""
+    import rerun as rr
+
     recorded = None if channels is None else set(channels)
     contents = [c for c in plot.channels
                 if recorded is None or c in recorded or c.startswith("/bus/")]
     contents.append(f"{plot.marker_path}/**")
-    yr = axis_range(plot, ranges)
+    # a baseline run's copy of a judged channel, once the run is judged (review.verdict)
+    contents += [f"/baseline{c}" for c in plot.channels if not c.startswith("/bus/")]
+    yr = axis_range(plot, ranges, bands)
     return rrb.TimeSeriesView(
-        name=plot.title, contents=contents, axis_x=whole_run_axis(duration_s),
+        name=plot.title, contents=contents, axis_x=whole_run_axis(end_s),
         axis_y=None if yr is None else rrb.ScalarAxis(range=yr, zoom_lock=False),
-        plot_legend=rrb.PlotLegend(corner=legend))
+        plot_legend=rrb.PlotLegend(corner=legend),
+        defaults=[rr.SeriesLines(aggregation_policy=plot_aggregation(plot))])
 
 
 def events_view() -> rrb.TextLogView:
@@ -283,17 +289,18 @@ def text_views(include_verdict: bool = True) -> rrb.Container:
         rrb.TextDocumentView(origin="/run/config", name=CONFIG_VIEW))
     if not include_verdict:
         return rrb.Vertical(docs)
+    # the verdict gets the larger part: every criterion is on its own lines there
     return rrb.Vertical(rrb.TextDocumentView(origin="/run/verdict", name=VERDICT_VIEW), docs,
-                        row_shares=[1, 2])
+                        row_shares=[3, 2])
 
 
 def spectrum_views() -> list[rrb.View]:
     """The identification (``harness identify`` writes identify.rrd): spectra as bar charts
     over frequency in Hz, one series per identified mode (its name in the legend)."""
     return [
-        rrb.BarChartView(origin="/identify/spectrum", name=SPECTRUM_VIEW,
+        rrb.BarChartView(origin="/final", name=SPECTRUM_VIEW,
                          plot_legend=rrb.PlotLegend(corner="RightTop")),
-        rrb.BarChartView(origin="/identify/windows", name=WINDOWS_VIEW,
+        rrb.BarChartView(origin="/short", name=WINDOWS_VIEW,
                          plot_legend=rrb.PlotLegend(corner="RightTop")),
         rrb.TextDocumentView(origin="/identify/modes", name=IDENTIFY_VIEW),
     ]
@@ -304,37 +311,81 @@ def _grid(views: Sequence[rrb.View], columns: int = 2) -> rrb.Container:
     return rrb.Horizontal(*cols)
 
 
+def criterion_bands(run: Mapping[str, Any]) -> dict[str, list[float]]:
+    """channel -> [lo, hi] of the limits a run's criteria (``expect:``) put on its samples:
+    a ``channel:`` band (``max_abs_*``, ``max_*``, ``min_*`` with ``reduce: each``) or a
+    ``settles:`` band, so that a judged channel's plot shows its limit."""
+    data = run.get("run", run)
+    expect = data.get("expect") or run.get("expect") or {}
+    items = expect.values() if isinstance(expect, Mapping) else expect
+    out: dict[str, list[float]] = {}
+
+    def widen(channel: str, lo: float, hi: float) -> None:
+        if math.isfinite(lo) and math.isfinite(hi):
+            cur = out.get(channel)
+            out[channel] = [lo, hi] if cur is None else [min(cur[0], lo), max(cur[1], hi)]
+
+    for c in items if isinstance(items, Iterable) else ():
+        if not isinstance(c, Mapping):
+            continue
+        try:
+            if isinstance(c.get("settles"), str):
+                centre = float(c.get("center_deg", 0.0) or 0.0)
+                band = next((float(v) for k, v in c.items() if k.startswith("band_")), None)
+                if band is not None:
+                    widen(c["settles"], centre - band, centre + band)
+            elif isinstance(c.get("channel"), str) and "baseline" not in c \
+                    and c.get("reduce", "each") == "each":
+                for k, v in c.items():
+                    if isinstance(v, bool) or not isinstance(v, int | float):
+                        continue
+                    if k.startswith("max_abs_"):
+                        widen(c["channel"], -float(v), float(v))
+                    elif k.startswith("max_") and not k.startswith("max_shift"):
+                        widen(c["channel"], float(v), float(v))
+                    elif k.startswith("min_"):
+                        widen(c["channel"], float(v), float(v))
+        except (TypeError, ValueError):  # judged and refused elsewhere; no band drawn
+            continue
+    return out
+
+
 def layout_for_run(run: Mapping[str, Any], channels: Iterable[str] | None = None,
                    ranges: Mapping[str, Sequence[float]] | None = None,
-                   legends: Mapping[str, str] | None = None) -> rrb.Blueprint:
+                   legends: Mapping[str, str] | None = None,
+                   end_s: float | None = None) -> rrb.Blueprint:
     """The default layout of a run from its resolved config (``RunConfig.resolved()`` or
     config.yaml, or its ``run`` section) and its recorded channels: the main plots of its
     kind in two columns, the text views on the right; the bus, the other devices and the
-    identification in tabs."""
+    identification in tabs. ``end_s``: where the recording ends (default: the configured
+    duration)."""
     data = run.get("run", run)
     kind = run_kind(data)
-    duration = data.get("duration_s")
+    end = end_s if end_s is not None else data.get("duration_s")
     chans = list(channels) if channels is not None else None
     corner = dict(legends or {})
+    bands = criterion_bands(run)
     keys = main_plots(kind, data.get("actuators") or ())
-    main = [time_plot(PLOTS[k], duration, chans, ranges, corner.get(k, "LeftTop"))
+    main = [time_plot(PLOTS[k], end, chans, ranges, corner.get(k, "LeftTop"), bands)
             for k in keys]
     if kind == "free_decay":
         spec = spectrum_views()
         run_page: rrb.Container = rrb.Vertical(
-            _grid(main), rrb.Horizontal(spec[0], spec[1], column_shares=[1, 1]),
+            _grid(main), rrb.Horizontal(spec[0], spec[1], spec[2], column_shares=[3, 3, 2]),
             row_shares=[3, 2], name="Run")
     else:
         run_page = rrb.Vertical(_grid(main), name="Run")
     shown = set(keys)
-    others = [time_plot(p, duration, chans, ranges, corner.get(k, "LeftTop"))
+    others = [time_plot(p, end, chans, ranges, corner.get(k, "LeftTop"), bands)
               for k, p in PLOTS.items() if k not in shown]
-    bus = [time_plot(p, duration) for p in BUS_PLOTS]
+    bus = [time_plot(p, end) for p in BUS_PLOTS]
     tabs = [run_page,
             rrb.Vertical(_grid(bus), name="CAN bus (decoded at receive time)"),
             rrb.Vertical(_grid(others), name="Other signals")]
     if kind != "free_decay":
-        tabs.append(rrb.Vertical(*spectrum_views()[:2], name="Identification"))
+        spec = spectrum_views()
+        tabs.append(rrb.Vertical(rrb.Horizontal(spec[0], spec[1]), spec[2],
+                                 row_shares=[2, 1], name="Identification"))
     left = rrb.Vertical(rrb.Tabs(*tabs, active_tab=0), events_view(), row_shares=[5, 1])
     root = rrb.Horizontal(left, text_views(), column_shares=[3, 1])
     return rrb.Blueprint(root, rrb.TimePanel(timeline="time", state="collapsed"),
@@ -361,39 +412,56 @@ def channel_ranges(columns: Mapping[str, Any]) -> dict[str, list[float]]:
 
 
 def write_layout_file(run_dir: Path, ranges: Mapping[str, Sequence[float]],
-                      legends: Mapping[str, str] | None = None) -> Path:
+                      legends: Mapping[str, str] | None = None,
+                      end_s: float | None = None) -> Path:
     path = run_dir / LAYOUT_FILE
-    path.write_text(json.dumps({"y_ranges": {c: list(r) for c, r in ranges.items()},
-                                "legends": dict(legends or {})}, indent=1))
+    doc: dict[str, Any] = {"y_ranges": {c: list(r) for c, r in ranges.items()},
+                           "legends": dict(legends or {})}
+    if end_s is not None and math.isfinite(end_s):
+        doc["end_s"] = float(end_s)
+    path.write_text(json.dumps(doc, indent=1))
     return path
 
 
 def blueprint_for_run_dir(run_dir: Path) -> rrb.Blueprint:
     """The layout of a recorded run from its config.yaml and layout.json: what run.rrd
     carries. Writers of other files for the run (identify.rrd, verdict.rrd) pass it as their
-    ``default_blueprint`` so that the files open together in any order."""
+    ``default_blueprint`` so that the files open together in any order. The recorded
+    channels are layout.json's (those with values); without it, every plot's channels."""
     import yaml
-
-    from harness.core.loop import CHANNELS
 
     cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
     layout = run_dir / LAYOUT_FILE
     saved = json.loads(layout.read_text()) if layout.exists() else {}
-    return layout_for_run(cfg, CHANNELS, saved.get("y_ranges"), saved.get("legends"))
+    ranges = saved.get("y_ranges")
+    return layout_for_run(cfg, None if ranges is None else list(ranges), ranges,
+                          saved.get("legends"), saved.get("end_s"))
 
 
 def study_layout(curves: Mapping[str, Sequence[str]], timeline: str,
                  texts: Mapping[str, str] | None = None,
-                 tensors: Mapping[str, str] | None = None) -> rrb.Blueprint:
+                 tensors: Mapping[str, str] | None = None,
+                 x_range: tuple[int, int] | None = None,
+                 images: Mapping[str, str] | None = None,
+                 bars: Mapping[str, str] | None = None) -> rrb.Blueprint:
     """A layout for a sweep, study or calibration: one plot per entry of ``curves`` (title
     with its unit -> entity paths, each plot one quantity) over ``timeline`` (the swept
-    variable as a sequence timeline, its scale in its name), optional tensor maps (title ->
-    entity) and text documents (title -> entity) on the right."""
+    variable as a sequence timeline, its scale in its name), its x axis on ``x_range``
+    (first, last value on the timeline: the whole sweep in view, not the viewer's own
+    window), optional tensor maps, images (title -> entity: a map drawn with its colour
+    scale), bar charts (title -> origin) and text documents (title -> entity) on the right."""
+    axis = None if x_range is None else rrb.TimeAxis(view_range=rrb.TimeRange(
+        start=rrb.TimeRangeBoundary.absolute(seq=int(x_range[0])),
+        end=rrb.TimeRangeBoundary.absolute(seq=int(x_range[1]))))
     plots: list[rrb.View] = [
-        rrb.TimeSeriesView(name=title, contents=list(paths),
+        rrb.TimeSeriesView(name=title, contents=list(paths), axis_x=axis,
                            plot_legend=rrb.PlotLegend(corner="RightTop"))
         for title, paths in curves.items()]
+    plots += [rrb.BarChartView(origin=path, name=title,
+                               plot_legend=rrb.PlotLegend(corner="RightTop"))
+              for title, path in (bars or {}).items()]
     plots += [rrb.TensorView(origin=path, name=title) for title, path in (tensors or {}).items()]
+    plots += [rrb.Spatial2DView(origin=path, name=title) for title, path in (images or {}).items()]
     left = _grid(plots, 2 if len(plots) > 2 else 1)
     docs = [rrb.TextDocumentView(origin=path, name=title) for title, path in (texts or {}).items()]
     root: rrb.Container = rrb.Horizontal(left, rrb.Vertical(*docs), column_shares=[3, 1]) \
@@ -435,6 +503,7 @@ class PlotStats:
         self._skip = 0  # rows to skip before the next one kept
         self.t: list[float] = []
         self.rows: list[Any] = []
+        self.end_s: float | None = None  # the last row's time: where the recording ends
 
     def add(self, time_s: Any, rows: Any) -> None:
         import numpy as np
@@ -443,6 +512,7 @@ class PlotStats:
         data = np.asarray(rows, dtype=float).reshape(len(t), len(self.channels))
         if not len(t):
             return
+        self.end_s = float(t[-1]) if self.end_s is None else max(self.end_s, float(t[-1]))
         with np.errstate(invalid="ignore"):
             self.lo = np.fmin(self.lo, np.nanmin(np.where(np.isfinite(data), data, np.nan),
                                                  axis=0, initial=np.inf))

@@ -68,6 +68,22 @@ def read_series_names(rrd: Path, points: bool = False) -> dict[str, list[str]]:
     return out
 
 
+def read_series_styles(rrd: Path) -> dict[str, dict[str, object]]:
+    """entity -> its static ``SeriesLines`` components (``names``, ``colors``,
+    ``aggregation_policy`` as Rerun's enum number, ``interpolation_mode``), last logged."""
+    out: dict[str, dict[str, object]] = {}
+    for chunk in iter_chunks(rrd):
+        if not chunk.is_static:
+            continue
+        batch = chunk.to_record_batch()
+        cols = [c for c in batch.schema.names if c.startswith("SeriesLines:")]
+        if cols:
+            style = out.setdefault(chunk.entity_path, {})
+            for c in cols:
+                style[c.split(":", 1)[1]] = _first(batch.column(c).to_pylist()[-1])
+    return out
+
+
 def entities(rrd: Path) -> set[str]:
     """Every entity path with data in the recording."""
     return {c.entity_path for c in iter_chunks(rrd)}
@@ -79,6 +95,8 @@ class SavedView:
     kind: str
     origin: str
     contents: tuple[str, ...]
+    defaults: tuple[tuple[str, object], ...] = ()
+    """The view's component defaults (``SeriesLines:aggregation_policy`` -> its value)."""
 
 
 def read_blueprints(rrd: Path) -> list[list[SavedView]]:
@@ -91,10 +109,17 @@ def read_blueprints(rrd: Path) -> list[list[SavedView]]:
             path = chunk.entity_path
             if not path.startswith("/view/"):
                 continue
-            vid = path.split("/")[2]
+            parts = path.split("/")
+            vid = parts[2]
             batch = chunk.to_record_batch()
             names = batch.schema.names
             v = views.setdefault(vid, {})
+            if len(parts) > 3 and parts[3] == "defaults":
+                d = v.setdefault("defaults", {})
+                for col in names:
+                    if ":" in col and not col.startswith("rerun."):
+                        d[col] = _first(batch.column(col).to_pylist()[-1])
+                continue
             if "ViewBlueprint:display_name" in names:
                 v["name"] = _first(batch.column("ViewBlueprint:display_name").to_pylist()[-1])
             if "ViewBlueprint:class_identifier" in names:
@@ -105,6 +130,7 @@ def read_blueprints(rrd: Path) -> list[list[SavedView]]:
             if "ViewContents:query" in names:
                 v["contents"] = tuple(batch.column("ViewContents:query").to_pylist()[-1])
         out.append([SavedView(str(v.get("name", "")), str(v.get("kind", "")),
-                              str(v.get("origin", "")), tuple(v.get("contents", ())))  # type: ignore[arg-type]
-                    for v in views.values()])
+                              str(v.get("origin", "")), tuple(v.get("contents", ())),  # type: ignore[arg-type]
+                              tuple(sorted(v.get("defaults", {}).items())))  # type: ignore[attr-defined]
+                    for v in views.values() if "kind" in v or "name" in v])
     return out

@@ -1,7 +1,8 @@
 """The verdict layer: criteria (a run file's ``expect:`` section), judging, verdicts.
 
-Depends on the loop's channel list, the recording and the CAN log; nothing below it imports
-it (``harness.core.runs`` calls ``parse_criteria`` lazily to refuse bad criteria before a run).
+Depends on the loop's channel list, the recording, the CAN log and the pure
+``harness.identification`` (the ``modal_residual:`` fit); nothing below it imports it
+(``harness.core.runs`` calls ``parse_criteria`` lazily to refuse bad criteria before a run).
 The criteria forms are documented in docs/criteria.md.
 
 Public API
@@ -30,7 +31,9 @@ base_dir=None, check_files=True, open_paths=False) -> list[Criterion]``
     forms that need them. Missing data gives that criterion ERROR, never an exception.
 
 ``make_verdict(results, identity=None) -> Verdict``
-    The worst result wins (PASS < MARGINAL < FAIL < ERROR); no results is PASS.
+    The worst result wins (PASS < MARGINAL < FAIL < ERROR); no results is NO CRITERIA
+    (nothing judged: exit 0 for ``harness run``, with a warning; a suite fails it unless
+    ``require_criteria: false``).
 
 ``judge_run(run_dir, expect=None) -> Verdict``
     A run directory judged by its own criteria (config.yaml's ``run.expect`` with the rig's
@@ -39,11 +42,11 @@ base_dir=None, check_files=True, open_paths=False) -> list[Criterion]``
     ``write_verdict(verdict, run_dir)`` writes verdict.json and verdict.rrd;
     ``format_block(verdict, path)`` is the text ``harness run`` / ``harness judge`` print.
 
-``Verdict``: ``.verdict`` ("PASS" | "MARGINAL" | "FAIL" | "ERROR"), ``.reason``,
+``Verdict``: ``.verdict`` ("PASS" | "MARGINAL" | "FAIL" | "ERROR" | "NO CRITERIA"), ``.reason``,
 ``.criteria`` (CriterionResult: name, kind, value, unit, limit, margin, verdict,
 worst_time_s, message), ``.identity``, ``.exit_code``, ``.to_dict()`` (verdict.json).
 
-Exit codes (``EXIT_CODES``): 0 PASS (or no criteria), 1 FAIL, 2 bad input / refused before
+Exit codes (``EXIT_CODES``): 0 PASS (or NO CRITERIA), 1 FAIL, 2 bad input / refused before
 anything was sent, 3 ERROR by a fault the run did not expect, 4 ERROR otherwise (exception,
 missing data, real-time budget not held), 5 MARGINAL, 130 interrupted.
 """
@@ -62,6 +65,7 @@ from harness.testing.evaluate import (
     ERROR,
     FAIL,
     MARGINAL,
+    NO_CRITERIA,
     PASS,
     SEVERITY,
     CriterionResult,
@@ -86,7 +90,7 @@ EXIT_CODES = {"PASS": 0, "FAIL": 1, "BAD_INPUT": 2, "ERROR_FAULT": 3, "ERROR": 4
               "MARGINAL": 5, "INTERRUPTED": 130}
 
 __all__ = [
-    "ERROR", "EXIT_CODES", "FAIL", "MARGINAL", "PASS", "SEVERITY", "Criterion",
+    "ERROR", "EXIT_CODES", "FAIL", "MARGINAL", "NO_CRITERIA", "PASS", "SEVERITY", "Criterion",
     "CriterionResult", "Facts", "JudgeInputError", "MissingData", "Verdict", "Window",
     "apply_overrides", "evaluate", "evaluate_scalar", "exit_code", "format_block",
     "judge_run", "make_verdict", "parse_criteria", "parse_criterion", "resolve_baselines",

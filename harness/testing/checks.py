@@ -19,7 +19,8 @@ from harness.testing.criteria import Criterion
 from harness.testing.evaluate import evaluate_scalar
 from harness.testing.measures import FieldMissing, resolve
 
-ORDER = {"PASS": 0, "MARGINAL": 1, "FAIL": 2, "ERROR": 3}
+ORDER = {"PASS": 0, "NO CRITERIA": 0.5, "MARGINAL": 1, "FAIL": 2, "ERROR": 3}
+"""Severity; a test that judged nothing (NO CRITERIA) is worse than one that passed."""
 
 
 def _num(v: Any) -> float | None:
@@ -70,9 +71,10 @@ def judge_compare(rule: dict[str, Any], docs: dict[str, Any]) -> dict[str, Any]:
 
 def combine(criteria: list[dict[str, Any]], empty_reason: str = "completed, no criteria"
             ) -> tuple[str, str]:
-    """Worst verdict of the criteria, and the reason (the first criterion that set it)."""
+    """Worst verdict of the criteria, and the reason (the first criterion that set it);
+    NO CRITERIA without any (nothing judged is not a pass)."""
     if not criteria:
-        return "PASS", empty_reason
+        return "NO CRITERIA", empty_reason
     worst = max(criteria, key=lambda c: ORDER[c["verdict"]])
     if worst["verdict"] == "PASS":
         return "PASS", f"{len(criteria)} criteria passed"

@@ -27,7 +27,7 @@ from harness.testing.measures import (
 )
 from rig_models.schema import ConfigError
 
-FORMS = ("fault", "left_safe", "settles", "baseline", "measure", "channel")
+FORMS = ("fault", "left_safe", "settles", "baseline", "modal_residual", "measure", "channel")
 """The key that names a criterion's form, checked in this order (``baseline`` criteria also
 have a ``channel``)."""
 
@@ -63,7 +63,8 @@ class Criterion:
     ``max``, ``max_abs``, ``marginal``, ``within_s``, ...); ``unit`` is the measure's."""
 
     name: str
-    kind: str  # "scalar" | "channel" | "settles" | "baseline" | "fault" | "left_safe"
+    kind: str  # "scalar" | "channel" | "settles" | "baseline" | "modal_residual" | "fault"
+    # | "left_safe"
     key_path: str  # e.g. "expect.final_error" (for messages)
     target: str  # summary path, channel entity, or fault device
     unit: str
@@ -342,6 +343,19 @@ def parse_criterion(name: str, raw: Any, source: str, key_path: str,
                          params={"band": band, "center": center, "stays_s": stays,
                                  "channel_unit": unit}, why=why)
 
+    if form == "modal_residual":
+        target = _channel(source, f"{key_path}.modal_residual", raw["modal_residual"],
+                          channels)
+        unit = unit_of_channel(target)
+        modes = _modes(source, f"{key_path}.modes", raw.get("modes"))
+        used.add("modes")
+        limit = _band(source, key_path, raw, unit, target, used)
+        window = _window(source, key_path, raw, used)
+        _check_keys(source, key_path, raw, used, f"modes, min_{unit}, max_{unit}, "
+                    f"marginal_{unit}, after, from_s, to_s, last_s, why")
+        return Criterion(name, "modal_residual", key_path, target, unit, limit, window,
+                         params={"modes": modes}, why=why)
+
     if form == "baseline":
         base = raw["baseline"]
         if not isinstance(base, str) or not base:
@@ -416,6 +430,41 @@ def parse_criterion(name: str, raw: Any, source: str, key_path: str,
         raise _err(source, f"{key_path}.left_safe", f"expected true, got {raw['left_safe']!r}")
     _check_keys(source, key_path, raw, used, "left_safe, why")
     return Criterion(name, "left_safe", key_path, "can.blf", "count", {"max": 0}, why=why)
+
+
+MODE_KEYS = ("omega_rad_s", "damping_ratio", "sigma_omega_rad_s", "sigma_damping")
+
+
+def _modes(source: str, path: str, raw: Any) -> tuple[tuple[float, float], ...]:
+    """A ``modal_residual:`` criterion's modes: ``[{omega_rad_s, damping_ratio}, ...]`` (the
+    identification's sigmas may stay beside them, for the record)."""
+    if not isinstance(raw, list) or not raw:
+        raise _err(source, path, "expected a list of modes [{omega_rad_s: W, damping_ratio: "
+                   f"Z}}, ...] (harness identify's), got {raw!r}")
+    out = []
+    for i, m in enumerate(raw):
+        where = f"{path}[{i}]"
+        if not isinstance(m, Mapping):
+            raise _err(source, where, f"expected {{omega_rad_s, damping_ratio}}, got {m!r}")
+        unknown = sorted(set(map(str, m)) - set(MODE_KEYS))
+        if unknown:
+            raise _err(source, f"{where}.{unknown[0]}", "unknown key (expected "
+                       f"{', '.join(MODE_KEYS)})")
+        if "omega_rad_s" not in m:
+            raise _err(source, f"{where}.omega_rad_s", "missing; expected the mode's "
+                       "undamped frequency, a number > 0 (rad/s)")
+        w = _number(source, f"{where}.omega_rad_s", m["omega_rad_s"], "rad/s", positive=True)
+        z = _number(source, f"{where}.damping_ratio", m.get("damping_ratio", 0.0), "ratio",
+                    nonneg=True)
+        if z >= 1:
+            raise _err(source, f"{where}.damping_ratio", f"expected a ratio in [0, 1) (an "
+                       f"oscillating mode), got {z!r}")
+        for k in ("sigma_omega_rad_s", "sigma_damping"):
+            if k in m:
+                _number(source, f"{where}.{k}", m[k], "rad/s" if "omega" in k else "ratio",
+                        nonneg=True)
+        out.append((w, z))
+    return tuple(out)
 
 
 def unit_of_measure_name(path: str) -> str | None:

@@ -19,11 +19,16 @@ from typing import Any
 
 import numpy as np
 
+from harness.identification.residual_fit import ModalResidualFit
 from harness.testing.criteria import Criterion, Window
 from harness.testing.measures import NULL_MEANS_FAIL, WORST_SAMPLE, FieldMissing, find
 
 PASS, MARGINAL, FAIL, ERROR = "PASS", "MARGINAL", "FAIL", "ERROR"
 SEVERITY = {PASS: 0, MARGINAL: 1, FAIL: 2, ERROR: 3}
+NO_CRITERIA = "NO CRITERIA"
+"""A run's verdict when nothing was judged: no criterion, and none of the run's own checks
+found a problem. Not PASS (a run whose ``expect:`` was lost must not read as a passing
+test); exit code 0 for ``harness run``, a failure in a suite unless it allows it."""
 
 Channel = Callable[[str], tuple[np.ndarray, np.ndarray]]
 """entity -> (time s, values); raises KeyError/ValueError if the channel is missing."""
@@ -102,7 +107,7 @@ def _fmt(v: Any) -> str:
 
 def limit_dict(c: Criterion) -> dict[str, Any]:
     """The limits as written in the run file (keys with their unit)."""
-    if c.kind in ("scalar", "channel"):
+    if c.kind in ("scalar", "channel", "modal_residual"):
         if "is" in c.limit:
             return {"is": c.limit["is"]}
         return {f"{k}_{c.unit}": v for k, v in c.limit.items()}
@@ -490,6 +495,32 @@ def evaluate_settles(c: Criterion, measures: Mapping[str, Any]) -> Consumer:
     return _windowed(c, measures, lambda start: _settles_core(c, start))
 
 
+def _modal_core(c: Criterion, start: float) -> Generator[None, Any, CriterionResult]:
+    """A ``modal_residual:`` criterion: its modes fitted to the window's samples (normal
+    equations accumulated block by block), judged on the fitted modal part's peak."""
+    fit = ModalResidualFit(c.params["modes"], start)
+    while (blk := (yield)) is not None:
+        fit.add(*blk)
+    try:
+        r = fit.result()
+    except ValueError as exc:
+        raise MissingData(f"{c.target}: {exc}") from exc
+    margin = float(band_margins(np.array([r.peak]), c.limit)[0])
+    verdict = grade(margin, c.marginal)
+    at = start + r.peak_tau_s
+    return _result(c, r.peak, margin, verdict, at,
+                   f"{len(c.params['modes'])} modes fitted to {c.target} "
+                   f"({c.window.describe()}, from t = {start:.3f} s): residual peak "
+                   f"{_fmt(r.peak)} +- {r.sigma:.2g} {c.unit} (1 sigma; noise rms "
+                   f"{r.noise_rms:.2g}) at t = {at:.3f} s {_verb(verdict)} {_limits_text(c)}",
+                   [at] if verdict == FAIL else [])
+
+
+def evaluate_modal_residual(c: Criterion, measures: Mapping[str, Any]) -> Consumer:
+    """A ``modal_residual:`` criterion as a consumer of its channel's blocks."""
+    return _windowed(c, measures, lambda start: _modal_core(c, start))
+
+
 def evaluate_baseline(c: Criterion, facts: Facts) -> CriterionResult:
     t, x, _ = _samples(c, facts)
     base = c.params["baseline"]
@@ -666,6 +697,7 @@ EVALUATORS: dict[str, Callable[[Criterion, Facts], CriterionResult]] = {
 STREAMED: dict[str, Callable[[Criterion, Mapping[str, Any]], Consumer]] = {
     "channel": evaluate_channel,
     "settles": evaluate_settles,
+    "modal_residual": evaluate_modal_residual,
 }
 
 
@@ -827,17 +859,17 @@ def worst_verdict(results: Sequence[CriterionResult]) -> str:
 
 
 def exit_code(verdict: str, results: Sequence[CriterionResult]) -> int:
-    """0 PASS, 1 FAIL, 3 ERROR by an unexpected fault, 4 ERROR otherwise, 5 MARGINAL,
-    130 interrupted."""
+    """0 PASS (or NO CRITERIA), 1 FAIL, 3 ERROR by an unexpected fault, 4 ERROR otherwise,
+    5 MARGINAL, 130 interrupted."""
     if verdict == ERROR:
         causes = {r.cause for r in results if r.verdict == ERROR}
         return 130 if "interrupted" in causes else 3 if "fault" in causes else 4
-    return {PASS: 0, MARGINAL: 5, FAIL: 1}[verdict]
+    return {PASS: 0, MARGINAL: 5, FAIL: 1, NO_CRITERIA: 0}[verdict]
 
 
 def reason(verdict: str, results: Sequence[CriterionResult]) -> str:
     if not results:
-        return "no criteria"
+        return "no criteria: nothing was judged (the run has no expect: criteria)"
     worst = [r for r in results if r.verdict == verdict]
     if verdict == PASS:
         return f"all {len(results)} criteria passed"

@@ -24,6 +24,7 @@ import yaml
 from harness.testing.criteria import Criterion, apply_overrides, parse_criteria
 from harness.testing.evaluate import (
     ERROR,
+    NO_CRITERIA,
     CriterionResult,
     Facts,
     MissingData,
@@ -60,8 +61,8 @@ class Verdict:
 
 def make_verdict(results: list[CriterionResult], identity: Mapping[str, Any] | None = None,
                  run_dir: Path | None = None) -> Verdict:
-    """The worst of ``results`` wins; no results is PASS (completed with no criteria)."""
-    v = worst_verdict(results)
+    """The worst of ``results`` wins; no results is NO CRITERIA (nothing judged), not PASS."""
+    v = worst_verdict(results) if results else NO_CRITERIA
     return Verdict(v, reason(v, results), results, dict(identity or {}), run_dir,
                    exit_code(v, results))
 
@@ -75,6 +76,16 @@ def sha256_of(path: Path) -> str | None:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def _run_rrd_sha256(run_dir: Path) -> str | None:
+    """run.rrd's own bytes (the verdict appended to it is not the run: harness.review)."""
+    try:
+        from harness.review.verdict import run_rrd_sha256
+
+        return run_rrd_sha256(run_dir)
+    except Exception:  # noqa: BLE001 - the whole file's hash then
+        return sha256_of(run_dir / "run.rrd")
 
 
 @functools.cache
@@ -109,7 +120,7 @@ def identity_of(run_dir: Path, cfg: Mapping[str, Any], summary: Mapping[str, Any
         "clock": summary.get("clock") or run.get("clock"),
         "config_sha256": sha256_of(run_dir / "config.yaml"),
         "summary_sha256": sha256_of(run_dir / "summary.json"),
-        "run_rrd_sha256": sha256_of(run_dir / "run.rrd"),
+        "run_rrd_sha256": _run_rrd_sha256(run_dir),
         "can_blf_sha256": sha256_of(run_dir / "can.blf"),
         "criteria_from": "config.yaml" if expect_file is None else expect_file.name,
         "expect_sha256": None if expect_file is None else sha256_of(expect_file),
@@ -480,8 +491,8 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
     out.write_text(json.dumps(v.to_dict(), indent=2) + "\n")
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=run_dir.name)
     rec.save(str(run_dir / "verdict.rrd"), default_blueprint=_run_layout(run_dir))
-    rec.log("/run/verdict", rr.TextDocument(verdict_markdown(v), media_type="text/markdown"),
-            static=True)
+    rec.log("/run/verdict", rr.TextDocument(_verdict_text(v, run_dir),
+                                            media_type="text/markdown"), static=True)
     events = sorted((t, c) for c in v.criteria for t in c.violations_s)
     for t, c in events:
         rec.set_time("time", duration=t)
@@ -490,7 +501,35 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
     _mark_on_plots(rec, run_dir, [(t, f"VERDICT {c.name} {c.verdict}") for t, c in events])
     rec.flush()
     rec.disconnect()
+    _into_run_rrd(run_dir, v, [(t, "ERROR" if c.verdict == ERROR else "WARN",
+                                f"{c.name} {c.verdict}: {c.message}") for t, c in events])
     return out
+
+
+def _into_run_rrd(run_dir: Path, v: Verdict, events: list[tuple[float, str, str]]) -> None:
+    """The verdict also into run.rrd (harness.review.verdict), so that run.rrd alone shows
+    it; verdict.rrd stays for viewers of older runs."""
+    try:
+        from harness.review.verdict import write_into_run
+
+        if (run_dir / "run.rrd").is_file() and not write_into_run(run_dir, v.to_dict(), events):
+            print(f"harness judge: {run_dir / 'run.rrd'} is cut short: the verdict is in "
+                  "verdict.rrd only", file=sys.stderr)
+    except Exception as exc:  # the verdict stands (verdict.json, verdict.rrd) without it
+        print(f"harness judge: could not add the verdict to run.rrd ({exc})", file=sys.stderr)
+
+
+def _verdict_text(v: Verdict, run_dir: Path) -> str:
+    """The verdict document the reviewer reads (harness.review.verdict: root cause first,
+    failing criteria first), else the plain table."""
+    try:
+        from harness.review.verdict import verdict_markdown as review_markdown
+
+        summary = json.loads((run_dir / "summary.json").read_text()) \
+            if (run_dir / "summary.json").is_file() else {}
+        return review_markdown(v.to_dict(), summary if isinstance(summary, dict) else {})
+    except Exception:  # noqa: BLE001 - the plain table still says it all
+        return verdict_markdown(v)
 
 
 def _run_layout(run_dir: Path) -> Any:

@@ -16,7 +16,9 @@ is only active when passed this way; the project's own tests never collect it.
   need the virtual rig (fault injection) are skipped with the reason. The engine is inline,
   one test at a time (the bus is one rig).
 - The verdict of an item maps to pytest: PASS and MARGINAL pass (MARGINAL is in the report,
-  the JUnit properties and the exit code), FAIL fails with the failed criterion as the
+  the JUnit properties and the exit code), and so does NO CRITERIA in a suite with
+  ``require_criteria: false`` (otherwise the job made it FAIL: ``outcome.require_criteria``);
+  FAIL fails with the failed criterion as the
   message, ERROR errors (JUnit ``<error>``).
 - ``pytest_sessionfinish``: stops the engine (``-x``, Ctrl-C: running runs end at their next
   tick with the rig safe), then writes results.json, report.md and report.html in the
@@ -38,8 +40,10 @@ import pytest
 from harness.core.paths import safe_child
 from harness.engine import Engine
 from harness.testing.checks import combine, judge_compare
+from harness.testing.outcome import EXIT_ORDER, exit_code, item_result  # noqa: F401 - re-exported
+from harness.testing.report import write_reports
 from harness.testing.suite import Case, Compare, Suite
-from harness.testing.work import EXIT, item_result, probe_verdict, run_case, run_probe
+from harness.testing.work import probe_verdict, run_case, run_probe
 
 
 class SuiteFailure(Exception):
@@ -148,7 +152,30 @@ class SuitePlugin:
         if isinstance(item, SuiteItem) and call.excinfo is not None and isinstance(
                 call.excinfo.value, SuiteFailure | SuiteError):
             report.longrepr = item._describe()
+        if isinstance(item, SuiteItem) and call.when == "setup":
+            # the job ran in the engine while pytest walked other items: a test whose job
+            # had finished by the time its item came up took no time here (JUnit time
+            # 0.000 for identify and fault tests); its time is the job's (setup is where
+            # an item waits for it, and the phase every item has)
+            out = self.outputs.get(item.case_key) if item.case is not None else None
+            wall = out.get("wall_s") if out else None
+            if isinstance(wall, int | float):
+                report.duration = max(report.duration, float(wall))
         return report
+
+    @pytest.hookimpl(tryfirst=True)
+    def pytest_report_teststatus(self, report: pytest.TestReport, config: pytest.Config
+                                 ) -> tuple[str, str, str] | None:
+        """No progress dots while the plugin prints a line per test: on one terminal the
+        two ran into each other."""
+        if not self.show_progress or config.option.verbose > 0 or report.when == "collect":
+            return None
+        if report.when == "call" or report.failed or report.skipped:
+            outcome = report.outcome
+            if report.when != "call" and report.failed:
+                outcome = "error"
+            return outcome, "", outcome.upper()
+        return None
 
     # --- results ----------------------------------------------------------------------
     def _finished(self, key: str, fut: Any) -> None:
@@ -237,8 +264,6 @@ class SuitePlugin:
             self.engine.close()
         if session.config.option.collectonly or not self.selected:
             return
-        from harness.testing.report import write_reports
-
         reported = {r["nodeid"] for r in self.records}
         not_run = [i.nodeid for i in self.selected if i.nodeid not in reported]
         for item in self.selected:  # stopped early (-x, Ctrl-C): what finished anyway
@@ -279,14 +304,28 @@ class SuiteFile(pytest.File):
     def collect(self) -> Iterator[pytest.Item]:
         compares = {c.test: c for c in self.suite.compares}
         for case in self.suite.cases:
-            yield SuiteItem.from_parent(self, name=case.id, case=case, item_kind=case.kind)
+            yield self._item(case.id, case=case, item_kind=case.kind)
             if case.identify is not None:
-                yield SuiteItem.from_parent(self, name=f"identify[{case.id}]", case=case,
-                                            item_kind="identify")
+                yield self._item(f"identify[{case.id}]", case=case, item_kind="identify")
             cmp = compares.get(case.test)
             if cmp is not None and case.id == cmp.cases[-1]:
-                yield SuiteItem.from_parent(self, name=cmp.id, case=None, compare=cmp,
-                                            item_kind="cmp")
+                yield self._item(cmp.id, case=None, compare=cmp, item_kind="cmp")
+
+    def _item(self, name: str, **kw: Any) -> SuiteItem:
+        # pytest 9 reads the ids saved for --lf back with NodeId.parse, which splits
+        # "case-a[beta-1.0]" into a name and parameters; an id built by NodeId.child keeps
+        # the brackets in the name, so the two never match and --lf re-ran everything. An
+        # id made by the same parse matches (and prints the same).
+        return SuiteItem.from_parent(self, name=name, nodeid=_parse_nodeid(
+            f"{self.nodeid}::{name}"), **kw)
+
+
+def _parse_nodeid(nodeid: str) -> Any:
+    try:
+        from _pytest.nodeid import NodeId
+    except ImportError:  # pytest < 9 keeps string ids: nothing to match
+        return nodeid
+    return NodeId.parse(nodeid)
 
 
 class SuiteItem(pytest.Item):
@@ -388,17 +427,3 @@ class SuiteItem(pytest.Item):
 
     def reportinfo(self) -> tuple[Path, int | None, str]:
         return self.path, None, f"{self.suite.name}::{self.name}"
-
-
-EXIT_ORDER = (130, 2, 3, 4, 1, 5, 0)
-"""Most severe first (as ``harness run``'s variants, with 2: refused before anything was
-sent, e.g. the pre-flight probe failed)."""
-
-
-def exit_code(records: list[dict[str, Any]]) -> int:
-    """The exit code of the most severe test: interrupted 130, refused 2, ERROR by a fault
-    nobody expected 3, ERROR 4, FAIL 1, MARGINAL 5, PASS 0."""
-    codes = [r.get("exit_code") if r.get("exit_code") is not None else EXIT[r["verdict"]]
-             for r in records if r["verdict"] != "SKIPPED" and r.get("reported", True)]
-    return min(codes, key=lambda c: EXIT_ORDER.index(c) if c in EXIT_ORDER else 3,
-               default=0)

@@ -23,10 +23,11 @@ from typing import Any
 import numpy as np
 
 from harness.testing.checks import worst
+from harness.testing.outcome import exit_code
 
 OVERVIEW = ("/attitude/angle_deg", "/tip/accel_m_s2")
 COLORS = {"PASS": "#1a7f37", "MARGINAL": "#9a6700", "FAIL": "#cf222e", "ERROR": "#8250df",
-          "SKIPPED": "#6e7781"}
+          "SKIPPED": "#6e7781", "NO CRITERIA": "#bc4c00"}
 
 
 def _fmt(v: Any) -> str:
@@ -37,12 +38,6 @@ def _fmt(v: Any) -> str:
     if isinstance(v, dict):
         return ", ".join(f"{k} {_fmt(x)}" for k, x in v.items())
     return str(v)
-
-
-def _limit(limit: Any) -> str:
-    if not isinstance(limit, dict):
-        return _fmt(limit)
-    return ", ".join(f"{k} {_fmt(v)}" for k, v in limit.items() if k != "over")
 
 
 def channel_specs(run_dir: Path, criteria_results: list[dict[str, Any]]
@@ -60,6 +55,8 @@ def channel_specs(run_dir: Path, criteria_results: list[dict[str, Any]]
     for c in criteria_of(run_dir, cfg)[0]:
         if c.kind not in ("channel", "settles", "baseline"):
             continue
+        if criteria_results and c.name not in verdicts:
+            continue  # not judged (a fault test judges only its fault expectations)
         lim = c.limit
         if c.kind == "channel":
             lo = -lim["max_abs"] if "max_abs" in lim else lim.get("min")
@@ -82,9 +79,14 @@ def channel_specs(run_dir: Path, criteria_results: list[dict[str, Any]]
     return out
 
 
+FIGSIZE = (11.0, 3.4)  # inches at DPI: 1100 px wide, shown at the page's full width
+DPI = 100
+LABEL_PT = 10
+
+
 def _png(fig: Any) -> str:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=80)
+    fig.savefig(buf, format="png", dpi=DPI)
     import matplotlib.pyplot as plt
 
     plt.close(fig)
@@ -110,20 +112,26 @@ def _shade_band(ax: Any, s: dict[str, Any], t0: float, t1: float, v: np.ndarray)
         value = known if known is not None else float(v[-1])
     else:
         value = None
+    # the axis stays on the data (a settling error of 0.006 deg drawn on a +-0.1 deg band
+    # was a flat line); a band edge beyond it is named in the legend
     y_lo, y_hi = ax.get_ylim()
-    draw_lo = lo if lo is not None else min(y_lo, hi)
-    draw_hi = hi if hi is not None else max(y_hi, lo)
+    draw_lo = max(lo, y_lo) if lo is not None else y_lo
+    draw_hi = min(hi, y_hi) if hi is not None else y_hi
     what = "band" if reduce == "each" else f"band of the {reduce}"
-    ax.fill_between([t0, t1], [draw_lo, draw_lo], [draw_hi, draw_hi], color="#2da44e",
-                    alpha=0.3, zorder=3, label=f"{what} ({s['window']})")
+    off = [f"{y:.4g}" for y in (lo, hi) if y is not None and not y_lo <= y <= y_hi]
+    label = f"{what} ({s['window']})" + (f"; edge {', '.join(off)} off the axis" if off else "")
+    if draw_hi > draw_lo:
+        ax.fill_between([t0, t1], [draw_lo, draw_lo], [draw_hi, draw_hi], color="#2da44e",
+                        alpha=0.25, zorder=3, label=label)
+    else:
+        ax.plot([], [], color="#2da44e", lw=6, alpha=0.25, label=label)
     for y in (lo, hi):
-        if y is not None:
+        if y is not None and y_lo <= y <= y_hi:
             ax.hlines(y, t0, t1, colors="#2da44e", lw=0.8)
     if value is not None:
         ax.hlines(value, t0, t1, colors="#cf222e" if s["verdict"] in ("FAIL", "ERROR")
                   else "#1f2328", lw=2.0, label=f"{reduce} {value:.4g}")
-    if reduce == "each":  # the band and the data, whichever is wider
-        ax.set_ylim(min(y_lo, draw_lo), max(y_hi, draw_hi))
+    ax.set_ylim(y_lo, y_hi)
 
 
 def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dict[str, str]]:
@@ -155,8 +163,9 @@ def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dic
         if s["channel"] not in data:
             continue
         t, v = data[s["channel"]]
-        fig, ax = plt.subplots(figsize=(7.5, 2.6))
-        ax.plot(t, v, lw=0.6, color="#0969da", alpha=0.7, label=s["channel"])
+        fig, ax = plt.subplots(figsize=FIGSIZE)
+        ax.plot(t, v, lw=0.7, color="#0969da", label=channel_label(s["channel"]))
+        _data_ylim(ax, v)
         try:
             mask, _ = s["window_fn"](t)
         except Exception:  # noqa: BLE001 - e.g. the window's event never happened
@@ -176,28 +185,84 @@ def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dic
         if s["worst_time_s"] is not None:
             ax.axvline(s["worst_time_s"], color=COLORS.get(s["verdict"] or "", "k"), lw=0.8,
                        ls="--", label="worst")
-        ax.set_xlabel("time (s)")
-        ax.set_ylabel(f"{s['channel'].rsplit('/', 1)[-1]}")
-        ax.set_title(f"{s['name']}: {s['channel']} ({s['verdict']})", fontsize=9)
-        ax.legend(fontsize=7, loc="best")
+        ax.set_xlabel("time (s)", fontsize=LABEL_PT)
+        ax.set_ylabel(channel_label(s["channel"], unit=True), fontsize=LABEL_PT)
+        ax.set_title(f"{s['name']}: {channel_label(s['channel'])} ({s['verdict']})",
+                     fontsize=LABEL_PT + 1)
+        _fault_marks(ax, run_dir)
+        ax.legend(fontsize=LABEL_PT - 1, loc="best")
         ax.grid(alpha=0.3)
         fig.tight_layout()
         plots.append({"title": f"{s['name']}: {s['channel']}", "png": _png(fig)})
     if not plots:
         chans = [c for c in OVERVIEW if c in data]
         if chans:
-            fig, axes = plt.subplots(len(chans), 1, figsize=(7.5, 1.9 * len(chans)),
+            fig, axes = plt.subplots(len(chans), 1, figsize=(FIGSIZE[0], 2.6 * len(chans)),
                                      sharex=True, squeeze=False)
+            marked = False
             for ax, c in zip(axes[:, 0], chans, strict=True):
-                ax.plot(*data[c], lw=0.8, color="#0969da")
-                ax.set_ylabel(c.rsplit("/", 1)[-1], fontsize=8)
+                ax.plot(*data[c], lw=0.8, color="#0969da", label=channel_label(c))
+                _data_ylim(ax, data[c][1])
+                ax.set_ylabel(channel_label(c, unit=True), fontsize=LABEL_PT)
+                marked = _fault_marks(ax, run_dir) or marked
+                ax.legend(fontsize=LABEL_PT - 1, loc="best")
                 ax.grid(alpha=0.3)
-            axes[-1, 0].set_xlabel("time (s)")
-            axes[0, 0].set_title("no channel criterion: overview" + (f" ({note})" if note
-                                                                     else ""), fontsize=9)
+            axes[-1, 0].set_xlabel("time (s)", fontsize=LABEL_PT)
+            title = ("fault test: the injection and its detection" if marked
+                     else "no channel criterion: overview")
+            axes[0, 0].set_title(title + (f" ({note})" if note else ""),
+                                 fontsize=LABEL_PT + 1)
             fig.tight_layout()
-            plots.append({"title": "overview", "png": _png(fig)})
+            plots.append({"title": title, "png": _png(fig)})
     return plots
+
+
+def channel_label(channel: str, unit: bool = False) -> str:
+    """``/tip/accel_m_s2`` -> ``tip acceleration`` (with ``unit``: ``... (m/s²)``)."""
+    from harness.review.names import series_name, strip_unit
+    from harness.review.units import split_unit, unit_text
+
+    name = series_name(channel)
+    if not unit:
+        return name
+    last = channel.rsplit("/", 1)[-1]
+    u = unit_text(split_unit(last)[1]) if strip_unit(last) != last else ""
+    return f"{name} ({u})" if u else name
+
+
+def _data_ylim(ax: Any, v: Any) -> None:
+    """The y axis on the data, with a small margin."""
+    a = np.asarray(v, dtype=float)
+    a = a[np.isfinite(a)]
+    if not len(a):
+        return
+    lo, hi = float(a.min()), float(a.max())
+    pad = 0.08 * (hi - lo) if hi > lo else (abs(hi) * 0.1 or 1.0)
+    ax.set_ylim(lo - pad, hi + pad)
+
+
+def _fault_marks(ax: Any, run_dir: Path) -> bool:
+    """The run's injected faults and the faults it detected as vertical lines, named in
+    the legend; whether there were any."""
+    try:
+        summary = json.loads((run_dir / "summary.json").read_text())
+    except (OSError, ValueError):
+        return False
+    marked = False
+    for f in summary.get("injected_faults") or []:
+        if isinstance(f, dict) and isinstance(f.get("at_s"), int | float):
+            ax.axvline(f["at_s"], color="#9a6700", lw=1.2, ls=":",
+                       label=f"injected {f.get('kind')}"
+                       + (f" on {f['device']}" if f.get("device") else "")
+                       + f" at {f['at_s']:.3f} s")
+            marked = True
+    for f in summary.get("faults") or []:
+        if isinstance(f, dict) and isinstance(f.get("time_s"), int | float):
+            ax.axvline(f["time_s"], color="#cf222e", lw=1.2, ls="--",
+                       label=f"detected {f.get('device')}: {f.get('kind')} at "
+                       f"{f['time_s']:.3f} s")
+            marked = True
+    return marked
 
 
 def _run_end_s(run_dir: Path) -> float:
@@ -209,6 +274,29 @@ def _run_end_s(run_dir: Path) -> float:
         return 0.0
 
 
+RUN_FILES = ("run.rrd", "identify.rrd", "verdict.rrd", "can.blf", "verdict.json",
+             "summary.json", "config.yaml", "layout.json")
+
+
+def run_files(out_dir: Path, run_dir: str) -> list[str]:
+    """The files of a run folder that exist (relative names), in ``RUN_FILES`` order."""
+    return [f for f in RUN_FILES if (out_dir / run_dir / f).is_file()]
+
+
+def open_command(out_dir: Path, run_dir: str) -> str:
+    """The one command that opens a run's recordings together in the viewer (run.rrd holds
+    the verdict once judged; verdict.rrd only when it could not be added there)."""
+    folder = out_dir / run_dir
+    files = [f for f in ("run.rrd", "identify.rrd") if (folder / f).is_file()]
+    try:
+        appended = "run_rrd_bytes" in json.loads((folder / "layout.json").read_text())
+    except (OSError, ValueError, TypeError):
+        appended = False
+    if not appended and (folder / "verdict.rrd").is_file():
+        files.append("verdict.rrd")
+    return "rerun " + " ".join(f"{run_dir}/{f}" for f in files) if files else ""
+
+
 def _counts(records: list[dict[str, Any]]) -> dict[str, int]:
     return dict(Counter(r["verdict"] for r in records))
 
@@ -217,8 +305,6 @@ def write_reports(out_dir: Path, records: list[dict[str, Any]], *, not_run: list
                   suites: list[Any], engine: str, bus: str | None,
                   preflight: dict[str, Any] | None, refused: str | None,
                   wall_s: float, interrupted: bool = False) -> dict[str, Any]:
-    from harness.testing.plugin import exit_code
-
     out_dir.mkdir(parents=True, exist_ok=True)
     verdicts = [r["verdict"] for r in records
                 if r["verdict"] != "SKIPPED" and r.get("reported", True)]
@@ -239,7 +325,7 @@ def write_reports(out_dir: Path, records: list[dict[str, Any]], *, not_run: list
 
     record_suite(out_dir, doc)  # adds each criterion's recent values ("trend") to doc
     (out_dir / "results.json").write_text(json.dumps(doc, indent=2, default=_json_default))
-    (out_dir / "report.md").write_text(_markdown(doc))
+    (out_dir / "report.md").write_text(_markdown(doc, out_dir))
     (out_dir / "report.html").write_text(_html(doc, out_dir))
     return doc
 
@@ -251,16 +337,31 @@ def _json_default(v: Any) -> Any:
 
 
 def _criteria_rows(criteria: list[dict[str, Any]]) -> list[list[str]]:
+    """Value, limit and margin with their units as people write them (``N m``, ``m/s²``,
+    ``|x| ≤ 0.1 deg``), the criterion's recent values (the results database), the time of
+    the worst sample."""
     from harness.history.record import trend_text
+    from harness.review.units import limit_text, quantity
 
-    return [[c.get("name", ""), c.get("kind", ""), _fmt(c.get("value")) + (
-                f" (recent: {trend_text(c['trend'])})" if c.get("trend") else ""),
-             c.get("unit", ""),
-             _limit(c.get("limit")), _fmt(c.get("margin")), c.get("verdict", ""),
-             c.get("message", "")] for c in criteria]
+    rows = []
+    for c in criteria:
+        unit = c.get("unit", "")
+        limit = c.get("limit")
+        value = quantity(c.get("value"), unit)
+        if c.get("kind") == "settles" and c.get("value") is not None:
+            value += " after its trigger"  # not summary.json's settle_time_s (from t = 0)
+        if c.get("trend"):
+            value += f" (recent: {trend_text(c['trend'])})"
+        rows.append([c.get("name", ""), c.get("kind", ""), value,
+                     limit_text({k: v for k, v in limit.items() if k != "over"})
+                     if isinstance(limit, dict) else _fmt(limit),
+                     quantity(c.get("margin"), unit), c.get("verdict", ""),
+                     _fmt(c.get("worst_time_s")), c.get("message", "")])
+    return rows
 
 
-HEADER = ["criterion", "kind", "value", "unit", "limit", "margin", "verdict", "message"]
+HEADER = ["criterion", "kind", "value", "limit", "margin", "verdict", "worst at (s)", "message"]
+VERDICT_COL = 5
 
 
 def _md_table(rows: list[list[str]], header: list[str]) -> str:
@@ -271,7 +372,7 @@ def _md_table(rows: list[list[str]], header: list[str]) -> str:
     return "\n".join(lines)
 
 
-def _markdown(doc: dict[str, Any]) -> str:
+def _markdown(doc: dict[str, Any], out_dir: Path) -> str:
     names = ", ".join(s["name"] for s in doc["suites"])
     out = [f"# Suite {names}: {doc['verdict']}", "",
            f"{doc['created_utc']}, {doc['engine']}, bus {doc['bus']}, "
@@ -288,8 +389,10 @@ def _markdown(doc: dict[str, Any]) -> str:
         out += [f"## {r['item']}: {r['verdict']}", "", r["reason"], ""]
         if r.get("run_dir"):
             d = r["run_dir"]
-            out += [f"[run.rrd]({d}/run.rrd) · [can.blf]({d}/can.blf) · "
-                    f"[verdict.json]({d}/verdict.json) · [folder]({d}/)", ""]
+            names = run_files(out_dir, d) or ["run.rrd", "can.blf", "verdict.json"]
+            out += [" · ".join(f"[{f}]({d}/{f})" for f in names) + f" · [folder]({d}/)", ""]
+            if cmd := open_command(out_dir, d):
+                out += [f"`{cmd}`", ""]
         if r["criteria"]:
             out += [_md_table(_criteria_rows(r["criteria"]), HEADER), ""]
         if r.get("modes"):
@@ -305,11 +408,14 @@ def _markdown(doc: dict[str, Any]) -> str:
 
 
 CSS = """
-body{font-family:system-ui,sans-serif;margin:1.5em;max-width:70em;color:#1f2328}
+body{font-family:system-ui,sans-serif;margin:1.5em;max-width:90em;color:#1f2328}
 table{border-collapse:collapse;margin:.5em 0;font-size:.85em}
 td,th{border:1px solid #d0d7de;padding:.2em .5em;text-align:left;vertical-align:top}
 th{background:#f6f8fa}.v{font-weight:bold;color:#fff;padding:.1em .5em;border-radius:.3em}
-section{border-top:1px solid #d0d7de;margin-top:1.2em}img{max-width:100%}
+section{border-top:1px solid #d0d7de;margin-top:1.2em}
+figure{margin:.5em 0}img{width:100%;height:auto}
+code{background:#f6f8fa;padding:.1em .3em;border-radius:.2em;word-break:break-all}
+@media (max-width:60em){body{margin:.5em}table{font-size:.8em}}
 .reason{font-family:monospace;white-space:pre-wrap}
 """
 
@@ -362,14 +468,18 @@ def _html(doc: dict[str, Any], out_dir: Path) -> str:
         parts.append(f"<p class='reason'>{html.escape(r['reason'])}</p>")
         if r.get("run_dir"):
             d = html.escape(r["run_dir"])
-            extra = (f" &middot; <a href='{d}/identify.json'>identify.json</a> &middot; "
-                     f"<a href='{d}/identify.rrd'>identify.rrd</a>"
-                     if r["kind"] == "identify" else "")
-            parts.append(f"<p><a href='{d}/run.rrd'>run.rrd</a> &middot; <a href='{d}/can.blf'>"
-                         f"can.blf</a> &middot; <a href='{d}/verdict.json'>verdict.json</a>"
-                         f"{extra} &middot; <a href='{d}/'>{d}/</a></p>")
+            names = run_files(out_dir, r["run_dir"]) or ["run.rrd", "can.blf", "verdict.json"]
+            if r["kind"] == "identify" and (out_dir / r["run_dir"] / "identify.json").is_file():
+                names.append("identify.json")
+            links = " &middot; ".join(f"<a href='{d}/{html.escape(f)}'>{html.escape(f)}</a>"
+                                      for f in names)
+            parts.append(f"<p>{links} &middot; <a href='{d}/'>{d}/</a></p>")
+            if cmd := open_command(out_dir, r["run_dir"]):
+                parts.append("<p>open its recordings together (from this folder): "
+                             f"<code>{html.escape(cmd)}</code></p>")
         if r["criteria"]:
-            parts.append(_html_table(_criteria_rows(r["criteria"]), HEADER, verdict_col=6))
+            parts.append(_html_table(_criteria_rows(r["criteria"]), HEADER,
+                                     verdict_col=VERDICT_COL))
         if r.get("modes"):
             parts.append(_html_table([[str(i + 1), _fmt(m.get("omega_rad_s")),
                                        _fmt(m.get("model_omega_rad_s")),

@@ -57,6 +57,7 @@ a mapping KEY.PATH: [values]``), and every run file is loaded with its overrides
 from __future__ import annotations
 
 import copy
+import dataclasses
 import itertools
 import sys
 from dataclasses import dataclass, field
@@ -102,6 +103,7 @@ class Case:
     study: str = ""
     study_args: tuple[str, ...] = ()
     timeout_s: float = 1800.0
+    require_criteria: bool = True  # the suite's: a test judging nothing FAILs
 
     @property
     def run_name(self) -> str:
@@ -417,22 +419,44 @@ def _compare(t: dict[str, Any], where: str, suite: str, cases: list[Case]) -> Co
                    where=where, cases=tuple(c.id for c in cases), rules=tuple(rules))
 
 
+RUN_FILE_KEYS = ("controller", "actuators")
+"""Keys only a run file has: a file with them and no ``tests:`` is a run file."""
+
+
+def run_file_suite(path: Path, raw: dict[str, Any]) -> dict[str, Any]:
+    """A run file as a one-test suite (``harness test RUN.yaml``): the run and each of its
+    variants, judged by its own ``expect:``."""
+    name = raw.get("name") if isinstance(raw.get("name"), str) and raw.get("name") \
+        else path.stem
+    return {"name": name, "description": f"the run file {path.name} as a one-test suite",
+            "tests": [{"run": str(path.resolve())}]}
+
+
 def load_suite(name_or_path: str) -> Suite:
     path = suite_path(name_or_path)
+    if not path.exists() and run_path(name_or_path).exists():
+        path = run_path(name_or_path)  # a built-in run's name: that run file
     if not path.exists():
         names = ", ".join(n for n, _ in list_suites())
-        raise ConfigError(f"suite {name_or_path}: not found (built-in suites: {names})")
+        raise ConfigError(f"suite {name_or_path}: not found (built-in suites: {names}; or a "
+                          "run file's name or path: 'harness cases')")
     src = path.name
     try:
         raw = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise ConfigError(f"suite file {path}: not valid YAML: {exc}") from exc
+    if isinstance(raw, dict) and "tests" not in raw and any(k in raw for k in RUN_FILE_KEYS):
+        raw = run_file_suite(path, raw)
     if not isinstance(raw, dict):
         raise ConfigError(f"suite file {src}: expected a mapping with name and tests")
-    unknown = sorted(set(raw) - {"name", "description", "tests"})
+    unknown = sorted(set(raw) - {"name", "description", "tests", "require_criteria"})
     if unknown:
         raise ConfigError(f"suite file {src}: {unknown[0]}: unknown key (expected one of: "
-                          "description, name, tests)")
+                          "description, name, require_criteria, tests)")
+    required = raw.get("require_criteria", True)
+    if not isinstance(required, bool):
+        raise ConfigError(f"suite file {src}: require_criteria: expected true or false, got "
+                          f"{required!r}")
     name = _str(raw.get("name", path.stem), f"suite file {src}: name")
     tests = raw.get("tests")
     if not isinstance(tests, list) or not tests:
@@ -492,5 +516,7 @@ def load_suite(name_or_path: str) -> Suite:
                                "(give one of them a name:)")
                 seen.add(item)
         cases.extend(new)
+    if not required:
+        cases = [dataclasses.replace(c, require_criteria=False) for c in cases]
     return Suite(name=name, description=str(raw.get("description", "")), source=path,
                  cases=cases, compares=compares)

@@ -28,15 +28,8 @@ from typing import Any
 from harness.core.paths import safe_child
 from harness.engine import current_worker, stop_requested
 from harness.testing.checks import combine, judge_checks
+from harness.testing.outcome import EXIT, item_result, require_criteria
 from harness.testing.suite import Case
-
-EXIT = {"PASS": 0, "FAIL": 1, "MARGINAL": 5, "ERROR": 4}
-
-
-def item_result(verdict: str, reason: str, criteria: list[dict[str, Any]] | None = None,
-                exit_code: int | None = None, **extra: Any) -> dict[str, Any]:
-    return {"verdict": verdict, "reason": reason, "criteria": criteria or [],
-            "exit_code": EXIT[verdict] if exit_code is None else exit_code, **extra}
 
 
 def _error(message: str, exit_code: int = 4) -> dict[str, Any]:
@@ -248,5 +241,6 @@ def run_case(case: Case, out_dir: str, ship: bool = False,
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
+    out["items"] = require_criteria(out["items"], case.require_criteria)
     out["wall_s"] = round(time.perf_counter() - t0, 3)
     return out
