@@ -2,7 +2,9 @@
 
 ``recording`` streams a run's channels to Rerun (.rrd) in blocks, ``reader`` reads a
 recording back chunk by chunk (also one cut short by a SIGKILL), ``can_log`` writes the raw
-CAN log (can.blf), ``append`` adds to a finished recording (the verdict into run.rrd). They
+CAN log (can.blf), ``append`` adds to a finished recording (the verdict into run.rrd),
+``streams`` frees Rerun's recording and blueprint streams once done (many runs in one
+process). They
 import nothing of ``harness.core``, ``harness.bus`` or ``harness.review``: the review layer's
 names, event markers and summary text come in as the recorder's ``Annotator``, handed in
 by the caller. Replaying a log, which re-runs a run's controller and monitor, is
