@@ -1,5 +1,12 @@
 """Loop and plant benchmarks, measured in one run; prints a table.
 
+0. The floor tick against the harness's tick (issue 23), interleaved run by run: the floor
+   does only what a lockstep tick must (SYNC and heartbeat out, the rig's one plant step and
+   its output, every due telemetry frame encoded, sent, received and decoded, the run's
+   command frames likewise, one recorded row), with the same codecs, the same bus
+   (``harness.bus.CopyingVirtualBus``) and the same recorder; the harness's tick is a whole
+   lockstep `slew-rw` run's loop time per tick. Their ratio is what the harness costs beyond
+   the floor (`--floor` runs only this).
 1. Lockstep real-time factor of `slew-rw` through the full CAN path at 500 Hz (codecs,
    python-can virtual bus, drivers, virtual rig, BLF log, Rerun recording).
 1b. The same lockstep run on python-can's stock VirtualBus, interleaved with ours.
@@ -9,7 +16,8 @@
 3. The plant step (exact ZOH, one matrix-vector product) against scipy.signal.lsim and
    solve_ivp on the same model, the same piecewise-constant input and comparable accuracy.
 
-    .venv/bin/python benchmarks/bench_loop.py [--repeats 3] [--json] [--warnings]
+    .venv/bin/python benchmarks/bench_loop.py [--repeats 3] [--json] [--warnings] [--floor]
+        [--rig sgsrt]
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import can
 import numpy as np
 import scipy.signal as sig
 from scipy.integrate import solve_ivp
@@ -57,6 +66,122 @@ def bench_lockstep(repeats: int, out: Path) -> dict[str, float]:
     return {"median": float(np.median(ours)), "min": float(np.min(ours)),
             "max": float(np.max(ours)), "stock_median": float(np.median(stock)),
             "ours_over_stock": float(np.median(np.array(ours) / np.array(stock)))}
+
+
+def floor_tick_us(run_name: str, n_ticks: int, out: Path) -> tuple[float, float]:
+    """Microseconds per floor tick (see the module docstring) over ``n_ticks`` ticks of the
+    run's rate, frames and actuators: (wall, CPU of the process, Rerun's threads incl.)."""
+    from drivers.dbc import load_protocol
+    from harness.bus import open_bus, parse_bus
+    from harness.core.loop import CHANNELS
+    from harness.record.recording import Recorder
+
+    run = load_run(run_name)
+    protocol = load_protocol()
+    spec = parse_bus("virtual:floor-bench")
+    harness_bus, rig_bus = open_bus(spec), open_bus(spec)
+    plant = run.rig.plant.discretise(run.dt_s)
+    ad, bd, c, d = plant.ad, plant.bd, plant.c, plant.d
+    x = np.zeros(ad.shape[0])
+    u = np.zeros(bd.shape[1])
+    div = run.rig.data["bus"]["sync_divider"]
+    tlm = {"hub_sensor": "HUB_TLM", "accelerometer": "ACCEL_TLM",
+           "reaction_wheel": "WHEEL_TLM", "thruster_valves": "VALVE_TLM",
+           "piezo_amplifier": "PIEZO_TLM", "disturbance_rotor": "ROTOR_TLM"}
+    cmd = {"reaction_wheel": "WHEEL_CMD", "thruster_valves": "VALVE_CMD",
+           "piezo_amplifier": "PIEZO_CMD", "disturbance_rotor": "ROTOR_CMD"}
+    due = [(protocol[tlm[name]], div[name]) for name in tlm]
+    commands = [protocol[cmd[name]] for name in run.actuators if name in cmd]
+    sync, heartbeat = protocol["SYNC"], protocol["HEARTBEAT"]
+    by_id = protocol.by_id
+    heartbeat_every = max(1, round(run.data["rate_hz"] / run.data["heartbeat_hz"]))
+    recorder = Recorder(out / "floor.rrd", CHANNELS, n_ticks, "floor",
+                        flush_every_blocks=10)
+    Message = can.Message
+    send_h, send_r = harness_bus.send, rig_bus.send
+    recv_h, recv_r = harness_bus.recv, rig_bus.recv
+    values: dict[int, dict[str, float]] = {}
+    perf, cpu = time.perf_counter, time.process_time
+    t0, c0 = perf(), cpu()
+    for tick in range(n_ticks):
+        if tick % heartbeat_every == 0:
+            send_h(Message(arbitration_id=heartbeat.frame_id, is_extended_id=False,
+                           data=heartbeat.encode({"counter": tick & 0xFF, "armed": 1})))
+        send_h(Message(arbitration_id=sync.frame_id, is_extended_id=False,
+                       data=sync.encode({"tick": tick})))
+        while (msg := recv_r(0.0)) is not None:  # the rig: commands, then SYNC
+            values[msg.arbitration_id] = by_id[msg.arbitration_id].decode(msg.data)
+        x = ad @ x + bd @ u
+        y = c @ x + d @ u
+        for codec, every in due:
+            if tick % every == 0:
+                send_r(Message(arbitration_id=codec.frame_id, is_extended_id=False,
+                               data=codec.encode({"angle": y[0], "rate": y[1],
+                                                  "accel": y[2]})))
+        while (msg := recv_h(0.0)) is not None:  # the harness: telemetry
+            values[msg.arbitration_id] = by_id[msg.arbitration_id].decode(msg.data)
+        for codec in commands:
+            send_h(Message(arbitration_id=codec.frame_id, is_extended_id=False,
+                           data=codec.encode({"torque_cmd": 0.0, "enable": 1,
+                                              "counter": tick & 0xFF})))
+        row = recorder.row(tick * run.dt_s)
+        row[:] = y[0]
+        recorder.commit()
+        recorder.drain()
+    elapsed, elapsed_cpu = perf() - t0, cpu() - c0
+    recorder.close()
+    harness_bus.shutdown()
+    rig_bus.shutdown()
+    return 1e6 * elapsed / n_ticks, 1e6 * elapsed_cpu / n_ticks
+
+
+def bench_floor(repeats: int, out: Path, run_name: str = "slew-rw") -> dict[str, float]:
+    """The floor tick and the harness's tick (whole lockstep runs of ``run_name``),
+    interleaved run by run; the ratio is taken pair by pair (same machine load). Both in
+    wall time and in the process's CPU time over the loop only (Rerun's threads included;
+    on a shared machine CPU time is the steadier of the two)."""
+    import harness.core.session as session
+
+    own_loop = session.run_loop
+    loop_cpu: list[float] = []
+
+    def timed_loop(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        c0 = time.process_time()
+        try:
+            return own_loop(*args, **kwargs)
+        finally:
+            loop_cpu.append(time.process_time() - c0)
+
+    floor: list[float] = []
+    floor_cpu: list[float] = []
+    harness: list[float] = []
+    harness_cpu: list[float] = []
+    rtf: list[float] = []
+    session.run_loop = timed_loop
+    try:
+        for _ in range(repeats):
+            res = execute_run(load_run(run_name), out_dir=out, show_progress=False)
+            ticks = res.summary["ticks"]
+            harness.append(1e6 * res.stats.wall_s / ticks)
+            harness_cpu.append(1e6 * loop_cpu[-1] / ticks)
+            rtf.append(res.summary["real_time_factor"])
+            del res
+            wall_us, cpu_us = floor_tick_us(run_name, ticks, out)
+            floor.append(wall_us)
+            floor_cpu.append(cpu_us)
+    finally:
+        session.run_loop = own_loop
+    ratio = np.array(harness) / np.array(floor)
+    ratio_cpu = np.array(harness_cpu) / np.array(floor_cpu)
+    return {"floor_us": float(np.median(floor)), "harness_us": float(np.median(harness)),
+            "ratio": float(np.median(ratio)), "ratio_min": float(np.min(ratio)),
+            "ratio_max": float(np.max(ratio)),
+            "floor_cpu_us": float(np.median(floor_cpu)),
+            "harness_cpu_us": float(np.median(harness_cpu)),
+            "ratio_cpu": float(np.median(ratio_cpu)), "ratio_cpu_min": float(np.min(ratio_cpu)),
+            "ratio_cpu_max": float(np.max(ratio_cpu)),
+            "real_time_factor": float(np.median(rtf)),
+            "real_time_factor_max": float(np.max(rtf))}
 
 
 def bench_warnings(repeats: int, out: Path, n_calls: int = 200_000) -> dict[str, float]:
@@ -138,9 +263,15 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--warnings", action="store_true", help="only 1c, the monitor's warnings")
+    ap.add_argument("--floor", action="store_true", help="only 0, the floor tick")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
+        print("benchmark: floor tick and the harness's tick ...", file=sys.stderr)
+        floor = bench_floor(args.repeats, out)
+        if args.floor:
+            print(json.dumps(floor, indent=2) if args.json else _floor_row(floor, args.repeats))
+            return 0
         print("benchmark: monitor warnings ...", file=sys.stderr)
         warn = bench_warnings(args.repeats, out)
         if args.warnings:
@@ -152,12 +283,14 @@ def main() -> int:
     plant = bench_plant()
     result = {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
               "python": platform.python_version(), "date": time.strftime("%Y-%m-%d"),
-              "lockstep_real_time_factor": lock, "plant": plant, "warnings": warn}
+              "lockstep_real_time_factor": lock, "plant": plant, "warnings": warn,
+              "floor": floor}
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
     print(f"| measure ({result['date']}, {result['machine']}, Python {result['python']}) | value |")
     print("|---|---|")
+    print(_floor_row(floor, args.repeats))
     print(f"| lockstep real-time factor, slew-rw at 500 Hz, full CAN path (median of "
           f"{args.repeats}) | {lock['median']:.1f}x (min {lock['min']:.1f}, max "
           f"{lock['max']:.1f}) |")
@@ -172,6 +305,16 @@ def main() -> int:
           f"({plant['solve_ivp_over_zoh']:.0f}x ZOH; max state diff "
           f"{plant['max_state_diff_solve_ivp']:.1e}) |")
     return 0
+
+
+def _floor_row(f: dict[str, float], repeats: int) -> str:
+    return (f"| slew-rw lockstep tick / floor tick (sgsrt, interleaved, median of {repeats}) "
+            f"| wall {f['harness_us']:.1f} / {f['floor_us']:.1f} us, ratio {f['ratio']:.2f} "
+            f"(min {f['ratio_min']:.2f}, max {f['ratio_max']:.2f}); CPU "
+            f"{f['harness_cpu_us']:.1f} / {f['floor_cpu_us']:.1f} us, ratio "
+            f"{f['ratio_cpu']:.2f} (min {f['ratio_cpu_min']:.2f}, max "
+            f"{f['ratio_cpu_max']:.2f}); real-time factor {f['real_time_factor']:.1f}x "
+            f"(max {f['real_time_factor_max']:.1f}x) |")
 
 
 def _warnings_row(w: dict[str, float], repeats: int) -> str:

@@ -16,21 +16,33 @@ def quantise(value: float, lsb: float) -> float:
 
 
 class NoiseSource:
-    """Gaussian samples drawn in blocks (one generator per rig: deterministic runs)."""
+    """Gaussian samples drawn in blocks (one generator per rig: deterministic runs).
+
+    A block is drawn as one vector and kept as a Python list: a sample is then a list item,
+    not a numpy scalar converted to float (the sensors draw two to four a tick)."""
 
     def __init__(self, seed: int, block: int = 4096) -> None:
         self._rng = np.random.default_rng(seed)
         self._block = block
-        self._buf = self._rng.standard_normal(block)
+        self._buf: list[float] = self._rng.standard_normal(block).tolist()
         self._i = 0
 
     def normal(self) -> float:
-        if self._i >= self._block:
-            self._buf = self._rng.standard_normal(self._block)
-            self._i = 0
-        v = self._buf[self._i]
-        self._i += 1
-        return float(v)
+        i = self._i
+        if i >= self._block:
+            self._buf = self._rng.standard_normal(self._block).tolist()
+            i = 0
+        self._i = i + 1
+        return self._buf[i]
+
+    def normal2(self) -> tuple[float, float]:
+        """The next two samples (what two ``normal()`` calls return)."""
+        i = self._i
+        if i + 2 > self._block:
+            return self.normal(), self.normal()
+        self._i = i + 2
+        buf = self._buf
+        return buf[i], buf[i + 1]
 
 
 @dataclass
@@ -71,6 +83,10 @@ class ReactionWheel:
     def step(self) -> float:
         """Advance one step; return the torque on the hub held over the step."""
         target = 0.0 if self.fault else self.command_n_m
+        if target == 0.0 and self.torque_n_m == 0.0:
+            # at rest (most ticks of a run without the wheel): what the full step gives
+            self.speed_limited = False
+            return 0.0
         # speed limit: refuse torque that would spin the rotor further past its limit
         self.speed_limited = False
         if self.speed_rad_s >= self.max_speed_rad_s and target < 0:
@@ -177,8 +193,9 @@ class HubSensor:
     noise: NoiseSource
 
     def sample(self, angle_rad: float, rate_rad_s: float) -> tuple[float, float]:
-        a = angle_rad + self.angle_noise_rms_rad * self.noise.normal()
-        r = rate_rad_s + self.rate_noise_rms_rad_s * self.noise.normal()
+        n_angle, n_rate = self.noise.normal2()
+        a = angle_rad + self.angle_noise_rms_rad * n_angle
+        r = rate_rad_s + self.rate_noise_rms_rad_s * n_rate
         return quantise(a, self.angle_lsb_rad), quantise(r, self.rate_lsb_rad_s)
 
 
@@ -222,6 +239,8 @@ class DisturbanceRotor:
         )
 
     def step(self) -> float:
+        if self.speed_rad_s == 0.0 and self.command_rad_s == 0.0:
+            return 0.0  # at rest (no rotor in most runs): nothing moves, no torque
         torque = self.torque_n_m()
         alpha = 1.0 - math.exp(-self.dt_s / self.speed_lag_s) if self.speed_lag_s > 0 else 1.0
         self.speed_rad_s += alpha * (self.command_rad_s - self.speed_rad_s)

@@ -17,6 +17,7 @@ a_tip = (R + L) theta'' + phi(L)^T eta'' (which depends on the input through q''
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.linalg as sla
@@ -147,6 +148,20 @@ class DiscreteHubBeam:
 
     def step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         return self.ad @ x + self.bd @ u
+
+    @cached_property
+    def fused(self) -> np.ndarray:
+        """[[Ad, Bd], [C Ad, C Bd + D]]: times [x[k]; u[k]] it gives [x[k+1]; y], y the
+        outputs at k+1 with u[k] still held (what the rig samples right after its step)."""
+        top = np.hstack([self.ad, self.bd])
+        return np.vstack([top, self.c @ top + np.hstack([np.zeros_like(self.c), self.d])])
+
+    def advance(self, xu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One step and its outputs in one matrix product: ``xu`` = [x[k]; u[k]] ->
+        (x[k+1], C x[k+1] + D u[k])."""
+        out = self.fused @ xu
+        n = self.ad.shape[0]
+        return out[:n], out[n:]
 
     def output(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         return self.c @ x + self.d @ u

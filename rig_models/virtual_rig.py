@@ -168,7 +168,11 @@ class VirtualRig:
         self.plant = rig.plant.discretise(dt_s)
         self.n_modes = rig.plant.n_modes
         self.x = np.zeros(rig.plant.n_states)
-        self.u = np.zeros(self.plant.bd.shape[1])
+        # [x; u] in one buffer: the step is one product with the plant's fused matrix
+        # (DiscreteHubBeam.advance); u is a view into it, as before a persistent array
+        self._xu = np.zeros(rig.plant.n_states + self.plant.bd.shape[1])
+        self.u = self._xu[rig.plant.n_states:]
+        self.y = np.zeros(self.plant.c.shape[0])  # outputs after the last step
         noise = NoiseSource(rig.data["noise_seed"])
         self.noise = noise
         rw, acc, hs = (rig.section(k) for k in ("reaction_wheel", "accelerometer", "hub_sensor"))
@@ -184,6 +188,11 @@ class VirtualRig:
         )
         pa = rig.section("piezo_amplifier")
         self.piezo_gains = rig.piezo_gains
+        # modal forces per volt, one column per patch; the piezo's share of u is computed
+        # only while a voltage is applied (and once more to clear it)
+        self._piezo_drive = (np.column_stack([g.actuator for g in self.piezo_gains])
+                             if self.piezo_gains else None)
+        self._piezo_forcing = False
         caps = [g.capacitance_f for g in self.piezo_gains] + [0.0, 0.0]
         self.piezo = PiezoAmplifier(max_voltage_v=pa["max_voltage_v"],
                                     max_current_a=pa["max_current_a"],
@@ -498,13 +507,16 @@ class VirtualRig:
                 if values is not None:
                     self._apply[device](values)
         hub_torque = self.wheel.step() + self.valves.step() + self.rotor.step()
-        self.u[0] = hub_torque
-        if self.piezo_gains:
-            forces = np.zeros(self.n_modes)
-            for g, v in zip(self.piezo_gains, self.piezo.voltages_v, strict=False):
-                forces += g.actuator * v
-            self.u[1:] = forces
-        self.x = self.plant.ad @ self.x + self.plant.bd @ self.u
+        u = self.u
+        u[0] = hub_torque
+        volts = self.piezo.voltages_v
+        if self._piezo_drive is not None and (volts[0] or volts[1] or self._piezo_forcing):
+            drive = self._piezo_drive
+            u[1:] = drive @ np.asarray(volts[:drive.shape[1]], dtype=float)
+            self._piezo_forcing = bool(volts[0] or volts[1])
+        xu = self._xu
+        xu[:len(self.x)] = self.x
+        self.x, self.y = self.plant.advance(xu)
         self.time_s += self.dt_s
         self.counters.steps += 1
         if (not self.safe

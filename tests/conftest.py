@@ -6,6 +6,10 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+import json
+import subprocess
+import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -29,3 +33,39 @@ def free_decay_run(tmp_path_factory):
     res = execute_run(load_run("free-decay"), out_dir=Path(out), show_progress=False)
     assert res.run_dir.exists()
     return res
+
+
+@dataclass
+class PaperSuites:
+    """One run of the four paper suites (``harness test paper001 ... paper004``), shared by
+    every test that checks a paper study's claims, so that no study runs twice in a
+    session: the suites' own verdicts (tests/test_paper_suites.py) and the unit tests that
+    read a study's full results (its ``document`` in results.json)."""
+
+    out: Path
+    returncode: int
+    log: str
+    documents: dict[str, dict]  # item (e.g. "shaped-rig-wheel") -> the study's results
+
+    def document(self, item: str) -> dict:
+        assert item in self.documents, f"{item}: not in the paper suites' results " \
+                                       f"({self.log[-2000:]})"
+        return self.documents[item]
+
+
+@pytest.fixture(scope="session")
+def paper_suites(tmp_path_factory) -> PaperSuites:
+    from harness.testing.results_docs import PAPER_SUITES
+
+    out = Path(tmp_path_factory.mktemp("paper_suites"))
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    proc = subprocess.run([sys.executable, "-m", "harness", "test", *PAPER_SUITES, "--out",
+                           str(out)], capture_output=True, text=True, timeout=1500,
+                          env=env, cwd=out)
+    documents: dict[str, dict] = {}
+    for results in out.glob("*/results.json"):
+        for test in json.loads(results.read_text())["tests"]:
+            if isinstance(test.get("document"), dict):
+                documents[test["item"]] = test["document"]
+    return PaperSuites(out, proc.returncode, proc.stdout[-3000:] + proc.stderr[-3000:],
+                       documents)

@@ -43,7 +43,7 @@ def test_signal_during_a_realtime_run(tmp_path, sig):
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
-    (run_dir,) = out_dir.iterdir()
+    (run_dir,) = [p for p in out_dir.iterdir() if p.is_dir()]  # beside: history.sqlite
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["stopped_by"] == "interrupted" and sig.name in summary["error"]
     ticks = summary["ticks"]

@@ -7,7 +7,6 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
@@ -108,21 +107,19 @@ def test_report_docs_writes_the_pages_and_refuses_bad_input(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_paper_suites_pass(tmp_path):
-    """All four paper suites on the virtual rig (the claims hold), then their pages."""
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
-    proc = subprocess.run([sys.executable, "-m", "harness", "test", *PAPER_SUITES, "--out",
-                           str(tmp_path)], capture_output=True, text=True, timeout=1500,
-                          env=env, cwd=tmp_path)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    results = list(tmp_path.glob("*/results.json"))
+def test_paper_suites_pass(paper_suites, tmp_path):
+    """All four paper suites on the virtual rig (the claims hold), then their pages. The
+    suites run once a session (conftest's ``paper_suites``), shared with the unit tests
+    that read the studies' results."""
+    assert paper_suites.returncode == 0, paper_suites.log
+    results = list(paper_suites.out.glob("*/results.json"))
     assert results
     docs = tmp_path / "docs"
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
     proc = subprocess.run([sys.executable, "-m", "harness", "report", "docs", "--logs",
-                           str(tmp_path), "--docs", str(docs)], capture_output=True, text=True,
-                          timeout=120, env=env)
+                           str(paper_suites.out), "--docs", str(docs)], capture_output=True,
+                          text=True, timeout=120, env=env)
     assert proc.returncode == 0, proc.stderr
     for suite in PAPER_SUITES:
         text = (docs / f"{suite}.md").read_text()
         assert "| FAIL |" not in text and "| ERROR |" not in text and "**PASS**" in text
-    assert Path(tmp_path).exists()

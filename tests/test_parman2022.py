@@ -268,10 +268,10 @@ def test_study_recording_and_first_extremum(tmp_path):
 
 
 @pytest.mark.slow
-def test_study_runs_end_to_end():
-    from harness.studies.parman2022 import run_study
-
-    out, cases = run_study(starts=16, duration_s=60.0)
+def test_study_runs_end_to_end(paper_suites):
+    """The whole study, as paper002's suite runs it (`harness study parman2022 --json`,
+    128 starts, 100 s; shared for the session by conftest's paper_suites: it runs once)."""
+    out = paper_suites.document("parman2022-satellite")
     assert out["model"]["elastic_dof"] == 144
     for row in out["table3"].values():
         assert row["constraints_met"]

@@ -36,7 +36,6 @@ from harness.studies.shaped_rig import (
     WHEEL_SLEWS,
     fit_modal_residual,
     identify_modes,
-    measure,
     register_study,
     slew_run,
 )
@@ -348,21 +347,24 @@ def test_study_registers_its_command():
 # --------------------------------------------------------------------------- Done when
 
 
+# The slews' rows come from the paper suites' run of this study (paper004's
+# shaped-rig-wheel, paper002's shaped-rig-thrusters: the same run files, the same
+# measure()), shared for the session (conftest's paper_suites): the study runs once.
 @pytest.fixture(scope="module")
-def wheel_rows(tmp_path_factory):
-    out = Path(tmp_path_factory.mktemp("shaped_rig"))
-    keys = ("unshaped", "zvd-exact", "zv-minus-10", "zvd-minus-10", "zv-plus-10",
-            "zvd-plus-10")
-    return {s.key: measure(s, out) for s in WHEEL_SLEWS if s.key in keys}
+def wheel_rows(paper_suites):
+    rows = paper_suites.document("shaped-rig-wheel")["wheel"]
+    assert set(rows) == {s.key for s in WHEEL_SLEWS}
+    return rows
 
 
 @pytest.fixture(scope="module")
-def thruster_rows(tmp_path_factory):
-    out = Path(tmp_path_factory.mktemp("shaped_rig"))
-    keys = ("bang-bang", "lhhl-damped", "lhhl-damped-zv3")
-    return {s.key: measure(s, out) for s in THRUSTER_SLEWS if s.key in keys}
+def thruster_rows(paper_suites):
+    rows = paper_suites.document("shaped-rig-thrusters")["thruster"]
+    assert set(rows) == {s.key for s in THRUSTER_SLEWS}
+    return rows
 
 
+@pytest.mark.slow
 def test_issue6_zvd_leaves_10x_less_than_unshaped_with_the_identified_modes(wheel_rows):
     un, zvd = wheel_rows["unshaped"], wheel_rows["zvd-exact"]
     # the unshaped slew excites the beam well above the fit's noise floor
@@ -382,6 +384,7 @@ def test_issue6_zvd_leaves_10x_less_than_unshaped_with_the_identified_modes(whee
         assert r["peak_torque_n_m"] <= 0.06 + 1e-9
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("off", ["minus-10", "plus-10"])
 def test_issue6_zvd_stays_better_than_zv_with_the_modes_10_percent_off(wheel_rows, off):
     zv, zvd = wheel_rows[f"zv-{off}"], wheel_rows[f"zvd-{off}"]
@@ -392,6 +395,7 @@ def test_issue6_zvd_stays_better_than_zv_with_the_modes_10_percent_off(wheel_row
     assert mode1["amplitude_m_s2"] > 5 * mode1["sigma_m_s2"]
 
 
+@pytest.mark.slow
 def test_issue5_two_level_slew_leaves_10x_less_than_bang_bang(thruster_rows):
     bb, lhhl = thruster_rows["bang-bang"], thruster_rows["lhhl-damped"]
     assert bb["fitted"]["peak_m_s2"] >= 10 * lhhl["fitted"]["peak_m_s2"]
@@ -409,6 +413,7 @@ def test_issue5_two_level_slew_leaves_10x_less_than_bang_bang(thruster_rows):
     assert by_mode[2] > max(by_mode[:2])
 
 
+@pytest.mark.slow
 def test_zv_for_mode_3_on_the_valves_removes_most_of_what_the_damped_lhhl_leaves(
         thruster_rows):
     lhhl, zv3 = thruster_rows["lhhl-damped"], thruster_rows["lhhl-damped-zv3"]

@@ -199,3 +199,15 @@ def test_memory_does_not_grow_with_run_length(tmp_path: Path) -> None:
     assert all(len(t) == long["ticks"] for t, _ in back.values())
     syncs = sum(m.arbitration_id == 0x80 for m in read_can_log(run_dir / "can.blf"))
     assert syncs == long["ticks"]
+
+
+def test_histogram_add_repeated_is_n_adds() -> None:
+    for x in (0.0, -1e-6, 3.3e-5, 0.02, 7.5):
+        one, many = LatencyHistogram(), LatencyHistogram()
+        one.add(1e-4)
+        many.add(1e-4)
+        for _ in range(37):
+            one.add(x)
+        many.add_repeated(x, 37)
+        many.add_repeated(x, 0)
+        assert (many.counts, many.n, many.max_s) == (one.counts, one.n, one.max_s)

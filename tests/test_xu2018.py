@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -35,11 +36,18 @@ def test_cli_json(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_cases_part_orders_beta(tmp_path):
-    """Nine case runs (shortened to 40 s: the last 30 s are the steady window)."""
-    out = xu2018.run_study(("cases",), out_dir=tmp_path, cases_duration_s=40.0)
-    m = out["measures"]
-    assert len(out["cases"]) == 9 and len(list(tmp_path.glob("*-case-*/run.rrd"))) == 9
+def test_cases_part_orders_beta(paper_suites):
+    """The study's cases part on the nine case runs paper003's suite made (100 s each;
+    shared for the session by conftest's paper_suites, so no case runs twice)."""
+    def suite_run(run, out_dir):  # noqa: ANN001, ANN202 - the suite's run of this case
+        found = sorted(paper_suites.out.glob(f"*/*-{run.name}/summary.json"))
+        assert len(found) == 1, f"{run.name}: {found}"
+        return json.loads(found[0].read_text()), found[0].parent
+
+    rows, m = xu2018.cases_part(paper_suites.out, execute=suite_run)
+    out = {"cases": rows, "measures": m}
+    assert len(out["cases"]) == 9
+    assert all((Path(r["run_dir"]) / "run.rrd").exists() for r in rows)
     for case in ("case_a", "case_b", "case_c"):
         assert m[f"{case}_worst_beta"] == 1.0  # beta = 1 worst, as in the paper's Table 2
         assert m[f"{case}_beta_1p0_over_largest_other"] > 1.0

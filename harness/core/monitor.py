@@ -167,7 +167,33 @@ class FaultMonitor:
         self.valve_close_ticks = math.ceil((valve_close_delay_s + valve_min_on_s) / dt_s)
         self.grace = max(2 * d + 2 for d in self.div.values())
         self.startup_ticks = math.ceil(monitor["startup_s"] / dt_s)
-        self._misses = {n: deque(maxlen=20) for n in self.div}
+        # per device, built once (the tick's checks then touch only what changed):
+        # [name, driver, divider, ticks after which it is stale, its last 20 due frames
+        # (True: missing), how many of those are missing]
+        self._lost: list[list[Any]] = [
+            [name, drv, self.div[name],
+             getattr(drv, "stale_after_ticks", 2 * self.div[name] + 1), deque(maxlen=20), 0]
+            for name, drv in interface.drivers.items()]
+        self._drivers = list(interface.drivers.items())
+        self._lost_limit = int(monitor["lost_frames"])
+        self._max_malformed = monitor["max_malformed_frames"]
+        self._accel_div = self.div.get("accelerometer", 1)
+        self._late_limit = max(monitor["late_ticks"], self.realtime_grace)
+        lim = self.limits
+        # the limits in SI, a hair inside: a value this side is within its limit for sure;
+        # anything else is judged in the limits' own units (_limits)
+        inside = 1.0 - 1e-9
+        self._limit_bounds = (math.radians(lim["max_angle_deg"]) * inside,
+                              math.radians(lim["max_rate_deg_s"]) * inside,
+                              lim["max_wheel_speed_rad_s"] * inside,
+                              lim["max_tip_accel_m_s2"] * inside)
+        # the bus protocol's own fault reports only where the interface has them (CANopen)
+        self._protocol_fault = getattr(interface, "protocol_fault", None)
+        self._enabled = bool(monitor["enabled"])
+        # the devices whose telemetry check() looks at (None: not on this rig's bus)
+        self._device_drivers = tuple(interface.drivers.get(name) for name in (
+            "accelerometer", "hub_sensor", "reaction_wheel", "thruster_valves",
+            "piezo_amplifier"))
         self._accel_offset: int | None = None
         self._accel_last: tuple[int, int] | None = None  # (counter, tick of that counter)
         self._accel_same = 0
@@ -223,13 +249,15 @@ class FaultMonitor:
     def _warnings(self, tick: int, state: RigState, sent: RigCommand) -> None:
         self._last_tick = tick
         h = self._hyst
+        accel = abs(state.tip_accel_m_s2)
         values = (("wheel_speed", abs(state.wheel_speed_rad_s)),
                   ("hub_angle", abs(state.hub_angle_rad) * 57.29577951308232),
                   ("hub_rate", abs(state.hub_rate_rad_s) * 57.29577951308232),
-                  ("tip_accel", abs(state.tip_accel_m_s2)),
-                  ("accel_range", abs(state.tip_accel_m_s2)))
+                  ("tip_accel", accel), ("accel_range", accel))
         for kind, x in values:
-            if h[kind].update(x):
+            hyst = h[kind]
+            # the usual tick: no warning active and every value below its level
+            if (hyst.active or x > hyst.on) and hyst.update(x):
                 frac, limit, unit, what = self._levels[kind]
                 self._warn(tick, kind, f"{x:.5g} {unit} is past {100 * frac:g} % of {what} "
                                        f"{limit:.4g} {unit} ({frac * limit:.5g} {unit})")
@@ -284,22 +312,52 @@ class FaultMonitor:
 
     # ------------------------------------------------------------------
     def check(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
-        if not self.cfg["enabled"]:
+        if not self._enabled:
             return None
         if self.warnings_on:
             self._warnings(tick, state, sent)
-        for check in (self._protocol, self._bus, self._silent_and_lost, self._accelerometer,
-                      self._hub,
-                      self._wheel, self._valves, self._piezo, self._limits):
-            event = check(tick, state, sent)
+        # driven by what changed: a device's checks run only in a tick its telemetry came
+        # (or, for the valves, a tick they were commanded open), the limits' messages only
+        # past a limit; the order of the checks (the first event wins) is unchanged
+        if self._protocol_fault is not None:
+            event = self._protocol(tick, state, sent)
             if event is not None:
                 return event
-        return None
+        event = self._bus(tick, state, sent) or self._silent_and_lost(tick, state, sent)
+        if event is not None:
+            return event
+        accel, hub, wheel, valves, piezo = self._device_drivers
+        if accel is not None and accel.last_tick == tick:
+            event = self._accelerometer(tick, state, sent)
+            if event is not None:
+                return event
+        if hub is not None and hub.last_tick == tick and tick != self._hub_tick:
+            event = self._hub(tick, state, sent)
+            if event is not None:
+                return event
+        if wheel is not None and wheel.last_tick == tick and tick != self._wheel_tick:
+            event = self._wheel(tick, state, sent)
+            if event is not None:
+                return event
+        if sent.valve_direction != 0 or (valves is not None and valves.last_tick == tick):
+            event = self._valves(tick, state, sent)
+            if event is not None:
+                return event
+        if piezo is not None and piezo.last_tick == tick:
+            event = self._piezo(tick, state, sent)
+            if event is not None:
+                return event
+        bounds = self._limit_bounds
+        if (abs(state.hub_angle_rad) <= bounds[0] and abs(state.hub_rate_rad_s) <= bounds[1]
+                and abs(state.wheel_speed_rad_s) <= bounds[2]
+                and abs(state.tip_accel_m_s2) <= bounds[3]):
+            return None
+        return self._limits(tick, state, sent)
 
     def _protocol(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
         """The bus protocol's own fault reports (CANopen: EMCY, boot-up, NMT state,
         heartbeat lost), by node and device."""
-        get = getattr(self.iface, "protocol_fault", None)
+        get = self._protocol_fault
         found = get(tick) if get is not None else None
         if found is None:
             return None
@@ -320,30 +378,40 @@ class FaultMonitor:
             return self._event(tick, "bus", "unknown ids",
                                f"{c.unknown} frames with ids no device uses "
                                f"(last 0x{c.last_unknown_id:03X})")
-        for name, drv in self.iface.drivers.items():
-            if drv.counters.malformed > self.cfg["max_malformed_frames"]:
-                return self._event(tick, name, "malformed frame", drv.counters.last_error)
-            if drv.counters.sequence_errors:
-                return self._event(tick, name, "frames lost", drv.counters.last_error)
+        max_malformed = self._max_malformed
+        for name, drv in self._drivers:
+            counters = drv.counters
+            if counters.malformed > max_malformed:
+                return self._event(tick, name, "malformed frame", counters.last_error)
+            if counters.sequence_errors:
+                return self._event(tick, name, "frames lost", counters.last_error)
         return None
 
     def _silent_and_lost(self, tick: int, state: RigState, sent: RigCommand
                          ) -> FaultEvent | None:
         if tick < self.grace:
             return None
-        for name, drv in self.iface.drivers.items():
-            age = tick - drv.last_tick
-            if age > 10**8 and tick < self.startup_ticks:
+        startup = tick < self.startup_ticks
+        grace = self.realtime_grace
+        for entry in self._lost:
+            last = entry[1].last_tick
+            age = tick - last
+            if age > 10**8 and startup:
                 continue  # not heard from yet: a device may take a moment to answer at first
-            if drv.is_stale(tick) and age > self.realtime_grace:
-                return self._event(tick, name, "silent",
+            if age > entry[3] and age > grace:
+                return self._event(tick, entry[0], "silent",
                                    f"no telemetry for {age if age < 10**8 else 'all'} ticks")
-            if tick % self.div[name] == 0 and not self.realtime_grace:
-                misses = self._misses[name]
-                misses.append(drv.last_tick != tick)
-                if sum(misses) >= self.cfg["lost_frames"]:
-                    return self._event(tick, name, "frames lost",
-                                       f"{sum(misses)} of its last {len(misses)} frames missing")
+            if not grace and tick % entry[2] == 0:
+                # a running count of the last 20 due frames' misses, not a sum each tick
+                misses = entry[4]
+                missed = last != tick
+                if len(misses) == misses.maxlen:
+                    entry[5] -= misses[0]
+                misses.append(missed)
+                entry[5] += missed
+                if entry[5] >= self._lost_limit:
+                    return self._event(tick, entry[0], "frames lost",
+                                       f"{entry[5]} of its last {len(misses)} frames missing")
         return None
 
     def _accelerometer(self, tick: int, state: RigState, sent: RigCommand
@@ -371,11 +439,11 @@ class FaultMonitor:
                                    f"sample counter frozen at {counter}")
         else:
             self._accel_same = 0
-        offset = (tick // self.div["accelerometer"] - counter) % 65536
+        offset = (tick // self._accel_div - counter) % 65536
         late = (offset - self._accel_offset) % 65536 if self._accel_offset is not None else 0
         if self._accel_offset is None:
             self._accel_offset = offset
-        elif max(self.cfg["late_ticks"], self.realtime_grace) < late < 32768:
+        elif self._late_limit < late < 32768:
             return self._event(tick, "accelerometer", "late",
                                f"telemetry {(offset - self._accel_offset) % 65536} samples "
                                "behind the SYNC count")
@@ -444,6 +512,11 @@ class FaultMonitor:
         return None
 
     def _limits(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
+        bounds = self._limit_bounds
+        if (abs(state.hub_angle_rad) <= bounds[0] and abs(state.hub_rate_rad_s) <= bounds[1]
+                and abs(state.wheel_speed_rad_s) <= bounds[2]
+                and abs(state.tip_accel_m_s2) <= bounds[3]):
+            return None
         lim = self.limits
         checks = (
             ("hub_sensor", "angle limit", abs(math.degrees(state.hub_angle_rad)),

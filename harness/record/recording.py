@@ -38,6 +38,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from harness.record.output import OutputError, SpaceGuard
+from harness.record.streams import save_with_blueprint, send_blueprint, sweep_orphans
 
 APPLICATION_ID = "sgsrt-harness"
 
@@ -73,26 +74,6 @@ def _bounded(call: Callable[[], object], timeout_s: float) -> None:
         raise errors[0]
 
 
-def default_blueprint(extra_views: list[rrb.View] | None = None) -> rrb.Blueprint:
-    """Attitude, wheel, tip acceleration and loop timing stacked on one time line; the other
-    devices and analysis views in tabs below."""
-    main = rrb.Vertical(
-        rrb.TimeSeriesView(origin="/attitude", name="Attitude (deg)"),
-        rrb.TimeSeriesView(origin="/wheel", name="Reaction wheel"),
-        rrb.TimeSeriesView(origin="/tip", name="Tip acceleration (m/s^2)"),
-        rrb.TimeSeriesView(origin="/timing", name="Loop timing (ms)"),
-    )
-    tabs = rrb.Tabs(
-        rrb.TimeSeriesView(origin="/thrusters", name="Thrusters"),
-        rrb.TimeSeriesView(origin="/piezo", name="Piezo"),
-        rrb.TimeSeriesView(origin="/rotor", name="Disturbance rotor"),
-        *(extra_views or []),
-    )
-    return rrb.Blueprint(rrb.Vertical(main, tabs, row_shares=[4, 1]), collapse_panels=True)
-
-
-BlockObserver = Callable[[np.ndarray, np.ndarray], None]
-
 START_TIMEOUT_S = 20.0
 """Rerun's ``save`` waited forever when its file sink's first write failed (a disk with
 64 KB free: the sink's thread died and ``set_sink`` waited for its flush). A Rust call cannot
@@ -118,17 +99,25 @@ def _start_watchdog(path: Path) -> Iterator[None]:
         started.set()
 
 
-class _BoundedFlushStream:
-    """A ``RecordingStream`` whose ``flush`` is its recorder's (bounded in time)."""
+def default_blueprint(extra_views: list[rrb.View] | None = None) -> rrb.Blueprint:
+    """Attitude, wheel, tip acceleration and loop timing stacked on one time line; the other
+    devices and analysis views in tabs below."""
+    main = rrb.Vertical(
+        rrb.TimeSeriesView(origin="/attitude", name="Attitude (deg)"),
+        rrb.TimeSeriesView(origin="/wheel", name="Reaction wheel"),
+        rrb.TimeSeriesView(origin="/tip", name="Tip acceleration (m/s^2)"),
+        rrb.TimeSeriesView(origin="/timing", name="Loop timing (ms)"),
+    )
+    tabs = rrb.Tabs(
+        rrb.TimeSeriesView(origin="/thrusters", name="Thrusters"),
+        rrb.TimeSeriesView(origin="/piezo", name="Piezo"),
+        rrb.TimeSeriesView(origin="/rotor", name="Disturbance rotor"),
+        *(extra_views or []),
+    )
+    return rrb.Blueprint(rrb.Vertical(main, tabs, row_shares=[4, 1]), collapse_panels=True)
 
-    def __init__(self, recorder: Recorder) -> None:
-        self._recorder = recorder
 
-    def flush(self, *args: object, **kwargs: object) -> None:
-        self._recorder.flush()
-
-    def __getattr__(self, name: str) -> object:
-        return getattr(self._recorder.rec, name)
+BlockObserver = Callable[[np.ndarray, np.ndarray], None]
 
 
 class Annotator(Protocol):
@@ -160,6 +149,19 @@ class PlainAnnotator:
 
     def summary_text(self, summary: Mapping[str, Any]) -> str:
         return "```json\n" + json.dumps(summary, indent=1, default=str) + "\n```\n"
+
+
+class _BoundedFlushStream:
+    """A ``RecordingStream`` whose ``flush`` is its recorder's (bounded in time)."""
+
+    def __init__(self, recorder: Recorder) -> None:
+        self._recorder = recorder
+
+    def flush(self, *args: object, **kwargs: object) -> None:
+        self._recorder.flush()
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._recorder._stream(), name)
 
 
 class _Block:
@@ -213,23 +215,24 @@ class Recorder:
         self._blocks_sent = 0
         self._closed = False
         self._last_block: _Block | None = None
-        self.rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_name)
+        rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_name)
+        self.rec: rr.RecordingStream | None = rec
         bp = blueprint or default_blueprint()
         # no RRD footer: writing one keeps a manifest entry per chunk in memory until the
         # file is closed (measured: ~1.2 MB per 100 000 rows, 0.5 GB for a day); the file
         # stays a valid RRD, read by streaming (harness.record.reader)
         with _start_watchdog(path):
             if live_view_url is None:
-                self.rec.save(str(path), default_blueprint=bp, write_footer=False)
+                save_with_blueprint(rec, path, bp, write_footer=False)
             else:
                 # the file and a viewer we started bound to 127.0.0.1 (harness.live_view);
                 # we never call serve_grpc, which binds every interface
-                self.rec.set_sinks(rr.FileSink(str(path), write_footer=False),
-                                   rr.GrpcSink(live_view_url))
-                self.rec.send_blueprint(bp)
-        self.rec.send_recording_name(recording_name)
+                rec.set_sinks(rr.FileSink(str(path), write_footer=False),
+                              rr.GrpcSink(live_view_url))
+                send_blueprint(rec, bp)
+        rec.send_recording_name(recording_name)
         self.annotator: Annotator = annotator or PlainAnnotator()
-        self.annotator.name_series(self.rec, self.channels)
+        self.annotator.name_series(rec, self.channels)
 
     def row(self, time_s: float) -> np.ndarray:
         """The next row to fill (a view); call ``commit()`` when written."""
@@ -289,7 +292,7 @@ class Recorder:
 
     def _send_one(self, block: _Block) -> None:
         c = block.next_channel
-        self.rec.send_columns(
+        self._stream().send_columns(
             self.channels[c],
             indexes=[rr.TimeColumn("time", duration=block.t)],
             columns=rr.Scalars.columns(scalars=block.data[:, c]),
@@ -307,8 +310,9 @@ class Recorder:
         writer thread stops at the first failed write: a full or read-only disk)."""
         if self.failed is not None:
             raise self.failed
+        rec = self._stream()
         try:
-            _bounded(lambda: self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S), FLUSH_TIMEOUT_S + 1)
+            _bounded(lambda: rec.flush(timeout_sec=FLUSH_TIMEOUT_S), FLUSH_TIMEOUT_S + 1)
         except Exception as exc:
             viewer = f"; or the live viewer at {self.live_view_url} stopped answering" \
                 if self.live_view_url else ""
@@ -325,13 +329,13 @@ class Recorder:
         return _BoundedFlushStream(self)  # type: ignore[return-value]
 
     def log_static_text(self, entity: str, text: str) -> None:
-        self.rec.log(entity, rr.TextDocument(text, media_type="text/markdown"), static=True)
+        self._stream().log(entity, rr.TextDocument(text, media_type="text/markdown"), static=True)
 
     def log_event(self, time_s: float, entity: str, text: str, level: str = "WARN") -> None:
         """A TextLog under ``/events/...`` and a marker on every plot at ``time_s``, on the
         plot's signal at the last recorded row (the annotator's)."""
-        self.annotator.log_event(self.rec, time_s, entity, text, level, self.latest_values(),
-                                 None, None)
+        self.annotator.log_event(self._stream(), time_s, entity, text, level,
+                                 self.latest_values(), None, None)
 
     def queue_event(self, time_s: float, entity: str, text: str, level: str = "WARN",
                     series: str | None = None, name: str | None = None) -> None:
@@ -350,7 +354,8 @@ class Recorder:
     def _send_event(self, event: tuple[float, str, str, str, dict[str, float], str | None,
                                        str | None]) -> None:
         time_s, entity, text, level, values, series, name = event
-        self.annotator.log_event(self.rec, time_s, entity, text, level, values, name, series)
+        self.annotator.log_event(self._stream(), time_s, entity, text, level, values, name,
+                                 series)
 
     def latest_values(self) -> dict[str, float]:
         """Every channel's value in the last committed row (empty before the first)."""
@@ -367,7 +372,7 @@ class Recorder:
     def send_layout(self, blueprint: rrb.Blueprint) -> None:
         """Replace the recording's layout (made default and active), e.g. at the end of a
         run when the plots' ranges are known."""
-        self.rec.send_blueprint(blueprint, make_active=True, make_default=True)
+        send_blueprint(self._stream(), blueprint, make_active=True, make_default=True)
 
     def log_summary(self, summary: dict) -> None:
         """The run's summary as markdown at ``/run/summary`` (the annotator's text)."""
@@ -392,7 +397,20 @@ class Recorder:
             self.flush()
         finally:
             if self.failed is None:  # a failed or stuck sink would hold disconnect too
-                self.rec.disconnect()
+                rec = self._stream()
+                rec.disconnect()
+                # a finished stream keeps its two threads and buffers until destroyed, and
+                # rerun destroys it only when a sweep finds it unreferenced: drop ours,
+                # then sweep (a process making many runs stays flat;
+                # benchmarks/bench_many_runs.py)
+                del rec
+                self.rec = None
+                sweep_orphans()
+
+    def _stream(self) -> rr.RecordingStream:
+        if self.rec is None:
+            raise RuntimeError(f"{self.path}: the recording is closed")
+        return self.rec
 
     def tail_time(self) -> np.ndarray:
         """Times of the retained tail (the last ``retain_rows`` rows at least, when set)."""

@@ -23,6 +23,7 @@ import argparse
 import json
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +33,7 @@ from harness.commands.identify import PAPER_TABLE1, analysis_windows, load_recor
 from harness.commands.model import PAPER_003, model_report
 from harness.commands.report import PAPER_TABLE2
 from harness.commands.sweep import analyse
-from harness.core.runs import load_run
+from harness.core.runs import RunConfig, load_run
 from harness.core.session import execute_run
 from harness.identification.windows import identify_windows
 from harness.studies.sweep import SweepSpec, run_sweep
@@ -72,8 +73,20 @@ def _variant_runs(name: str, duration_s: float | None = None):
         yield vname, load_run(name, dict(over) | {"name": f"{base.name}-{vname}"} | extra)
 
 
-def cases_part(out_dir: Path, progress=None, duration_s: float | None = None
+RunSummary = Callable[[RunConfig, Path], tuple[dict[str, Any], Path]]
+
+
+def _execute(run: RunConfig, out_dir: Path) -> tuple[dict[str, Any], Path]:
+    result = execute_run(run, out_dir=out_dir, show_progress=False)
+    return result.summary, result.run_dir
+
+
+def cases_part(out_dir: Path, progress=None, duration_s: float | None = None,
+               execute: RunSummary = _execute
                ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """The nine case runs' steady amplitudes beside Table 2. ``execute(run, out_dir)`` gives
+    a run's (summary, run directory): the runs made here by default, or ones already made
+    (the paper suite's, read back by the tests, so that no case runs twice)."""
     rows: list[dict[str, Any]] = []
     m: dict[str, Any] = {}
     for case in CASES:
@@ -81,8 +94,7 @@ def cases_part(out_dir: Path, progress=None, duration_s: float | None = None
         for _vname, run in _variant_runs(case, duration_s):
             if progress:
                 progress(f"xu2018: running {run.name}")
-            result = execute_run(run, out_dir=out_dir, show_progress=False)
-            s = result.summary
+            s, run_dir = execute(run, out_dir)
             if s.get("stopped_by") != "completed":
                 raise RuntimeError(f"{run.name}: stopped by {s.get('stopped_by')}")
             beta = round(float(s["beta"]), 3)
@@ -91,7 +103,7 @@ def cases_part(out_dir: Path, progress=None, duration_s: float | None = None
             paper = PAPER_TABLE2[case].get(beta)
             rows.append({"case": case, "beta": beta, "frequency_ratio": s["frequency_ratio"],
                          "rotor_speed_rad_s": s["rotor_speed_rad_s"], "ours_m_s2": amp,
-                         "paper_m_s2": paper, "run_dir": str(result.run_dir)})
+                         "paper_m_s2": paper, "run_dir": str(run_dir)})
             tag = f"{case.replace('-', '_')}_beta_{beta:.1f}".replace(".", "p")
             m[f"{tag}_amplitude_m_s2"] = amp
             if paper is not None:
