@@ -29,6 +29,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import can
 import numpy as np
@@ -184,6 +185,55 @@ def bench_floor(repeats: int, out: Path, run_name: str = "slew-rw") -> dict[str,
             "real_time_factor_max": float(np.max(rtf))}
 
 
+RIGS = ("sgsrt", "sgsrt-canopen", "sgsrt-dbc2")
+
+
+def bench_rigs(repeats: int, out: Path, rigs: tuple[str, ...] = RIGS) -> dict[str, Any]:
+    """slew-rw in lockstep over each rig's device binding (the sgsrt DBC, CANopen PDOs with
+    the SYNC counter and the nodes' emulation, the custom DBC's Motorola and multiplexed
+    frames), interleaved run by run; the loop's CPU per tick and the real-time factor, and
+    each rig's ratio to sgsrt taken pair by pair (same machine load)."""
+    import harness.core.session as session
+
+    own_loop = session.run_loop
+    loop_cpu: list[float] = []
+
+    def timed_loop(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        c0 = time.process_time()
+        try:
+            return own_loop(*args, **kwargs)
+        finally:
+            loop_cpu.append(time.process_time() - c0)
+
+    cpu_us: dict[str, list[float]] = {r: [] for r in rigs}
+    rtf: dict[str, list[float]] = {r: [] for r in rigs}
+    session.run_loop = timed_loop
+    try:
+        for _ in range(repeats):
+            for rig in rigs:
+                res = execute_run(load_run("slew-rw", {"rig": rig}), out_dir=out,
+                                  show_progress=False)
+                cpu_us[rig].append(1e6 * loop_cpu[-1] / res.summary["ticks"])
+                rtf[rig].append(res.summary["real_time_factor"])
+                del res
+    finally:
+        session.run_loop = own_loop
+    base = np.array(cpu_us[rigs[0]])
+    return {r: {"cpu_us_per_tick": float(np.median(cpu_us[r])),
+                "real_time_factor": float(np.median(rtf[r])),
+                "cpu_over_sgsrt": float(np.median(np.array(cpu_us[r]) / base)),
+                "cpu_over_sgsrt_max": float(np.max(np.array(cpu_us[r]) / base))}
+            for r in rigs}
+
+
+def _rigs_rows(r: dict[str, Any], repeats: int) -> str:
+    return "\n".join(
+        f"| slew-rw lockstep on {rig} (interleaved, median of {repeats}) | "
+        f"{v['real_time_factor']:.1f}x real time, loop CPU {v['cpu_us_per_tick']:.1f} us a "
+        f"tick, {v['cpu_over_sgsrt']:.2f}x sgsrt's (max {v['cpu_over_sgsrt_max']:.2f}) |"
+        for rig, v in r.items())
+
+
 def bench_warnings(repeats: int, out: Path, n_calls: int = 200_000) -> dict[str, float]:
     """slew-rw (20 s) with the monitor's warnings on and off, interleaved run by run; and
     the warning checks alone (``FaultMonitor._warnings`` on a run's interface, state within
@@ -264,9 +314,16 @@ def main() -> int:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--warnings", action="store_true", help="only 1c, the monitor's warnings")
     ap.add_argument("--floor", action="store_true", help="only 0, the floor tick")
+    ap.add_argument("--rigs", action="store_true",
+                    help="only the device bindings: slew-rw on sgsrt, sgsrt-canopen, sgsrt-dbc2")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
+        print("benchmark: slew-rw over each rig's device binding ...", file=sys.stderr)
+        rigs = bench_rigs(args.repeats, out)
+        if args.rigs:
+            print(json.dumps(rigs, indent=2) if args.json else _rigs_rows(rigs, args.repeats))
+            return 0
         print("benchmark: floor tick and the harness's tick ...", file=sys.stderr)
         floor = bench_floor(args.repeats, out)
         if args.floor:
@@ -284,13 +341,14 @@ def main() -> int:
     result = {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
               "python": platform.python_version(), "date": time.strftime("%Y-%m-%d"),
               "lockstep_real_time_factor": lock, "plant": plant, "warnings": warn,
-              "floor": floor}
+              "floor": floor, "rigs": rigs}
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
     print(f"| measure ({result['date']}, {result['machine']}, Python {result['python']}) | value |")
     print("|---|---|")
     print(_floor_row(floor, args.repeats))
+    print(_rigs_rows(rigs, args.repeats))
     print(f"| lockstep real-time factor, slew-rw at 500 Hz, full CAN path (median of "
           f"{args.repeats}) | {lock['median']:.1f}x (min {lock['min']:.1f}, max "
           f"{lock['max']:.1f}) |")

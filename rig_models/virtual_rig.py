@@ -417,6 +417,8 @@ class VirtualRig:
             if not f.active(self.time_s):
                 continue
             done.add(i)
+            if co is not None:
+                co.touch()
             node = co.node_of(f.device) if co is not None else None
             if node is None:
                 continue  # not a CANopen device: nothing of this kind to inject
@@ -490,6 +492,8 @@ class VirtualRig:
         self.rotor.make_safe()
         self.armed = False
         self.safe = True
+        if self.co_devices is not None:
+            self.co_devices.touch()  # the CANopen devices' commands are read again
         if watchdog:
             self.counters.watchdog_trips += 1
 
@@ -503,7 +507,7 @@ class VirtualRig:
         if self.co_devices is not None and not self.safe:
             co = self.co_devices
             for device in self._co_actuators:
-                values = co.commands(device)
+                values = co.changed_commands(device)
                 if values is not None:
                     self._apply[device](values)
         hub_torque = self.wheel.step() + self.valves.step() + self.rotor.step()

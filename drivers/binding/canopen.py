@@ -188,6 +188,22 @@ class Conversion:
             return 0.0
         return raw * self.scale + self.offset
 
+    def si_function(self) -> Any:
+        """``to_si`` as one small function with its constants bound: the tick decodes every
+        PDO field through it."""
+        if self.bit is not None:
+            b = self.bit
+            return lambda raw: float(int(raw) >> b & 1)
+        if self.mask is not None:
+            m, e = self.mask, self.equals
+            return lambda raw: float((int(raw) & m) == e)
+        if self.values is not None:
+            return self.to_si
+        a, o = self.scale, self.offset
+        if o == 0.0:
+            return lambda raw: raw * a
+        return lambda raw: raw * a + o
+
     def to_raw(self, si: float, ref: ObjRef) -> Any:
         if self.values is not None:
             key = int(si)
@@ -225,7 +241,7 @@ class PdoTelemetryMap:
         self.mux = None
         self.identity = False
         pos = {e: i for i, e in enumerate(codec.entries)}
-        self._f = tuple((f.quantity, pos[f.ref], f.conv.to_si) for f in fields)
+        self._f = tuple((f.quantity, pos[f.ref], f.conv.si_function()) for f in fields)
 
     def decode(self, data: bytes | bytearray) -> dict[str, float] | None:
         raw = self.codec.decode_raw(data)

@@ -346,6 +346,11 @@ class VirtualNode:
                 c.timed_out = True
                 self._heartbeat_lost(c.producer_id)
 
+    def addressed(self, can_id: int) -> bool:
+        """Whether a frame with this COB-ID is for this node alone (its SDO server or one
+        of its RPDOs): the owner may then skip the other nodes."""
+        return can_id == 0x600 + self.id or can_id in self._rpdo_by_cob
+
     def handle(self, can_id: int, data: bytes | bytearray, now_s: float) -> None:
         """One frame from the bus."""
         self._now = now_s

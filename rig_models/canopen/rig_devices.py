@@ -22,6 +22,7 @@ from rig_models.canopen.profiles import Cia401Io, Cia402Drive, Cia406Encoder
 STATUSWORD = 0x6041  # CiA 402: the drive's own; the profile publishes it
 
 Send = Callable[[int, bytes], None]
+_ONE_NODE = frozenset((0x200, 0x300, 0x400, 0x500, 0x600))  # RPDO1-4, SDO request
 
 
 class CanopenDevices:
@@ -50,6 +51,18 @@ class CanopenDevices:
                 self._tlm[device] = (node, writes)
             for device, qrefs in spec.commands.items():
                 self._cmd[device] = (node, qrefs)
+        # a device's command is read again only when something that decides it changed: a
+        # master's write of one of its objects, the node's NMT state, a reset, a
+        # communication error (the profile's reaction), an injected fault (``touch``)
+        self._dirty: set[str] = set(self._cmd)
+        for device, (node, qrefs) in self._cmd.items():
+            def mark(*_: object, d: str = device) -> None:
+                self._dirty.add(d)
+            for q in qrefs:
+                node.add_write_listener(q.ref.index, q.ref.sub, mark)
+            node.add_nmt_listener(mark)
+            node.add_reset_listener(mark)
+            node.on_comm_error.append(mark)
         self.sdo_aborts: list[tuple[int, int]] = []
 
     def boot(self, now_s: float) -> None:
@@ -58,6 +71,14 @@ class CanopenDevices:
             node.poll(now_s)
 
     def handle(self, can_id: int, data: bytes, now_s: float) -> None:
+        """One frame from the bus to the nodes it concerns: an RPDO or SDO request (default
+        COB-IDs: function code and node id) to its node only, anything else (NMT, SYNC,
+        heartbeats, other COB-IDs) to every node."""
+        if can_id & 0x780 in _ONE_NODE:
+            node = self.nodes.get(can_id & 0x7F)
+            if node is not None and node.addressed(can_id):
+                node.handle(can_id, data, now_s)
+                return
         for node in self.nodes.values():
             node.handle(can_id, data, now_s)
 
@@ -84,6 +105,17 @@ class CanopenDevices:
                 node.values[(ref.index, ref.sub)] = raw
         for (index, sub), v in bits.items():
             node.values[(index, sub)] = v
+
+    def touch(self) -> None:
+        """Something changed every device's command (an injected fault): read them again."""
+        self._dirty.update(self._cmd)
+
+    def changed_commands(self, device: str) -> dict[str, float] | None:
+        """``commands(device)`` if it may have changed since the last call, else None."""
+        if device not in self._dirty:
+            return None
+        self._dirty.discard(device)
+        return self.commands(device)
 
     def commands(self, device: str) -> dict[str, float] | None:
         """What the device is commanded now (its objects, through the conversions); a CiA
