@@ -399,3 +399,27 @@ def test_a_dcf_pdo_over_eight_bytes_is_refused_naming_the_key(tmp_path):
     with pytest.raises(ConfigError, match=r"devices\.reaction_wheel\.eds: wheel\.dcf: TPDO1 "
                                           r"node 2: mapping of 96 bits"):
         rig_from_dict(_dcf_rig(tmp_path, dcf), "rig file dcf.yaml", base_dir=RIGS_DIR)
+
+
+def test_replay_decodes_a_canopen_run_by_name(tmp_path):
+    """`harness replay` on a CANopen run: every frame named by the binding (NMT, SYNC, each
+    node's PDOs, SDO and heartbeat), the ticks unwrapped from the SYNC counter, the states
+    decoded through the same maps; `--check` says it compares sgsrt frames only."""
+    import json
+    import subprocess
+    import sys
+
+    result = _run(tmp_path, [])
+    out = subprocess.run([sys.executable, "-m", "harness", "replay", str(result.run_dir),
+                          "--json"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    rep = json.loads(out.stdout)
+    assert rep["ticks"] == result.summary["ticks"]
+    assert rep["unknown_ids"] == 0 and rep["malformed"] == 0
+    names = {f["name"] for f in rep["frames"]}
+    assert {"NMT", "SYNC", "TPDO1 node 2 (reaction_wheel)", "RPDO1 node 2",
+            "SDO request node 2", "SDO response node 2", "heartbeat node 4"} <= names, names
+    assert "?" not in names
+    check = subprocess.run([sys.executable, "-m", "harness", "replay", str(result.run_dir),
+                            "--check"], capture_output=True, text=True, timeout=300)
+    assert check.returncode == 2 and "compares sgsrt command frames only" in check.stderr

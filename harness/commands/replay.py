@@ -47,7 +47,7 @@ from harness.core.replay import (
     replay_log,
     replay_recording_name,
 )
-from rig_models.rig_file import load_rig
+from rig_models.rig_file import RigConfig, load_rig
 from rig_models.schema import ConfigError
 
 
@@ -76,6 +76,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     path: Path = args.path
     result: CheckResult | None = None
     writer: ReplayRecording | None = None
+    rig_cfg: RigConfig | None = None
     try:
         if not path.exists():
             raise ReplayError(f"{path}: no such file or directory")
@@ -95,7 +96,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             # one pass, tick by tick: nothing of the capture is kept (bounded memory)
             replay = replay_log(path / "can.blf", run.rig, run.dt_s, keep_ticks=False,
                                 on_tick=_each(monitor, checker, writer))
-            rig_name = run.rig.name
+            rig_name, rig_cfg = run.rig.name, run.rig
         else:
             if args.check:
                 raise ReplayError(f"{path}: --check needs a run directory (with config.yaml "
@@ -108,7 +109,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             _stage(f"reading and replaying {path}")
             replay = replay_log(path, rig, 1.0 / (args.rate_hz or 500.0), keep_ticks=False,
                                 on_tick=_each(writer))
-            rig_name = rig.name
+            rig_name, rig_cfg = rig.name, rig
         if writer is not None:
             writer.close()
             writer = None
@@ -126,7 +127,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     finally:
         if writer is not None:  # the replay stopped part way: what was written stays
             writer.close()
-    report = to_dict(replay, rig_name, result)
+    report = to_dict(replay, rig_name, result, rig_cfg)
     if args.rrd is not None:
         report["rrd"] = str(args.rrd)
     if args.json:
@@ -152,14 +153,36 @@ def _each(*consumers: Any) -> Any:
     return on_tick
 
 
-def to_dict(replay: Replay, rig_name: str, result: CheckResult | None) -> dict[str, Any]:
-    protocol = load_protocol()
+def frame_names(rig: RigConfig | None) -> dict[int, tuple[str, str]]:
+    """id -> (name, who sends it) by the rig's binding: sgsrt's DBC, a vendor DBC's
+    messages, CANopen's PDOs and service frames (NMT, SYNC, EMCY, SDO, heartbeat) by node."""
+    if rig is None or rig.binding.is_sgsrt():
+        protocol = load_protocol()
+        return {c.frame_id: (c.name, "device") for c in protocol.by_id.values()}
+    b = rig.binding
+    out: dict[int, tuple[str, str]] = {}
+    for f in b.frames():
+        who = "harness" if f.kind in ("sync", "heartbeat", "cmd") else f.device
+        out[f.key[0]] = (f.name if f.kind != "tlm" else f"{f.name} ({f.device})", who)
+    if b.canopen is not None:
+        out[0x000] = ("NMT", "harness")
+        for nid in b.canopen.nodes:
+            dev = b.canopen.device_of_node(nid)
+            out[0x080 + nid] = (f"EMCY node {nid}", dev)
+            out[0x580 + nid] = (f"SDO response node {nid}", dev)
+            out[0x600 + nid] = (f"SDO request node {nid}", "harness")
+            out[0x700 + nid] = (f"heartbeat node {nid}", dev)
+    return out
+
+
+def to_dict(replay: Replay, rig_name: str, result: CheckResult | None,
+            rig: RigConfig | None = None) -> dict[str, Any]:
+    names = frame_names(rig)
     frames = []
     for fid, n in sorted(replay.frames_by_id.items()):
-        codec = protocol.by_id.get(fid)
-        frames.append({"id": f"0x{fid:03X}", "name": codec.name if codec else "?",
-                       "from": "harness" if fid in replay.harness_ids else
-                       "device" if codec else "unknown", "frames": n})
+        name, who = names.get(fid, ("?", "unknown"))
+        frames.append({"id": f"0x{fid:03X}", "name": name,
+                       "from": "harness" if fid in replay.harness_ids else who, "frames": n})
     out: dict[str, Any] = {
         "log": str(replay.source), "rig": rig_name, "rate_hz": 1.0 / replay.dt_s,
         "ticks": replay.n_ticks, "first_tick": replay.first_tick,

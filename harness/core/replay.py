@@ -231,6 +231,11 @@ def replay_messages(messages: Iterable[can.Message], rig: RigConfig, dt_s: float
     does not grow with the capture."""
     protocol = protocol or load_protocol()
     iface, bus = _interface(protocol, rig)
+    binding = rig.binding
+    if not binding.is_sgsrt():
+        # another binding (a vendor DBC, CANopen): SYNC, heartbeat and commands are the
+        # binding's frames; CANopen's NMT and SDO requests are the harness's too
+        return _replay_binding(messages, rig, dt_s, source, iface, on_tick, keep_ticks)
     tx_ids = harness_frame_ids(protocol)
     sync = protocol["SYNC"]
     frames_by_id: Counter[int] = Counter()
@@ -292,6 +297,104 @@ def replay_messages(messages: Iterable[can.Message], rig: RigConfig, dt_s: float
     return Replay(
         source=source, dt_s=dt_s, ticks=ticks, frames_by_id=dict(frames_by_id),
         harness_ids=tx_ids, error_frames=iface.counters.error_frames,
+        bus_off=iface.counters.bus_off, unknown=iface.counters.unknown, malformed=malformed,
+        sequence_errors={n: d.counters.sequence_errors for n, d in iface.drivers.items()},
+        sync_gaps=sync_gaps, before_first_sync=before, n_ticks=seen["n"],
+        first_tick=seen["first"], last_tick=seen["last"], first_time_s=seen["t0"],
+        last_time_s=seen["t1"], missing_total=seen["missing"])
+
+
+def _replay_binding(messages: Iterable[can.Message], rig: RigConfig, dt_s: float,
+                    source: Path, iface: RigInterface,
+                    on_tick: Callable[[RigInterface, ReplayTick], None] | None,
+                    keep_ticks: bool) -> Replay:
+    """``replay_messages`` for a rig whose devices bind a DBC of their own or CANopen: every
+    frame decoded through the rig file's binding (commands by device and quantity, the SYNC
+    counter unwrapped into the tick), CANopen's service frames counted by name."""
+    b = rig.binding
+    sync, hb = b.sync, b.heartbeat
+    cmd = b.commands_by_key()
+    modulus = int(getattr(sync, "modulus", 1 << 32))
+    co = b.canopen
+    service = Counter()
+    frames_by_id: Counter[int] = Counter()
+    harness_malformed: Counter[str] = Counter()
+    tx_ids: set[int] = {sync.key[0]} | ({hb.key[0]} if hb is not None else set()) | {
+        k[0] for k in cmd}
+    ticks: list[ReplayTick] = []
+    seen = {"n": 0, "first": None, "last": None, "t0": 0.0, "t1": 0.0, "missing": 0}
+    sync_gaps = before = 0
+    tick: int | None = None
+    raw_last: int | None = None
+    rx: list[can.Message] = []
+    cmds: list[CommandFrame] = []
+
+    def close_tick() -> None:
+        if tick is None:
+            return
+        got = sum(iface.feed(msg, tick) for msg in rx)
+        state = copy.copy(iface.snapshot(tick, tick * dt_s))
+        t = ReplayTick(tick, tick * dt_s, state, list(cmds), got,
+                       max(0, iface.expected_frames(tick) - got))
+        if keep_ticks:
+            ticks.append(t)
+        seen["n"] += 1
+        if seen["first"] is None:
+            seen["first"], seen["t0"] = tick, t.time_s
+        seen["last"], seen["t1"] = tick, t.time_s
+        seen["missing"] += t.missing
+        if on_tick is not None:
+            on_tick(iface, t)
+
+    for msg in messages:
+        if msg.is_error_frame:
+            rx.append(msg)
+            continue
+        frames_by_id[msg.arbitration_id] += 1
+        key = (msg.arbitration_id, msg.is_extended_id)
+        data = bytes(msg.data)
+        if key == sync.key:
+            close_tick()
+            rx, cmds = [], []
+            try:
+                raw = sync.decode(data)
+            except (FrameError, IndexError):
+                harness_malformed["SYNC"] += 1
+                raw = (raw_last + 1) if raw_last is not None else 0
+            new = raw if tick is None else tick + ((raw - raw_last) % modulus or modulus)
+            if tick is not None and new != tick + 1:
+                sync_gaps += 1
+            tick, raw_last = new, raw
+            continue
+        if co is not None and not msg.is_extended_id and (
+                msg.arbitration_id == 0 or msg.arbitration_id & 0x780 == 0x600):
+            service["NMT" if msg.arbitration_id == 0 else "SDO request"] += 1
+            tx_ids.add(msg.arbitration_id)
+            continue
+        if hb is not None and key == hb.key:
+            continue
+        if key in cmd:
+            if tick is None:
+                continue
+            for c in cmd[key]:
+                try:
+                    values = c.decode(data)
+                except FrameError:
+                    harness_malformed[c.codec.name] += 1
+                    break
+                if values is not None:
+                    cmds.append(CommandFrame(c.codec.name, data, values))
+            continue
+        if tick is None:
+            before += 1
+            continue
+        rx.append(msg)
+    close_tick()
+    malformed = {f"{n} telemetry": d.counters.malformed for n, d in iface.drivers.items()}
+    malformed.update(harness_malformed)
+    return Replay(
+        source=source, dt_s=dt_s, ticks=ticks, frames_by_id=dict(frames_by_id),
+        harness_ids=frozenset(tx_ids), error_frames=iface.counters.error_frames,
         bus_off=iface.counters.bus_off, unknown=iface.counters.unknown, malformed=malformed,
         sequence_errors={n: d.counters.sequence_errors for n, d in iface.drivers.items()},
         sync_gaps=sync_gaps, before_first_sync=before, n_ticks=seen["n"],
@@ -404,6 +507,13 @@ class ReplayChecker:
 
     def __init__(self, run: RunConfig, dry_run: bool = False,
                  protocol: Protocol | None = None) -> None:
+        if not run.rig.binding.is_sgsrt():
+            # the comparison reads sgsrt's command frames and its leave-safe group; on
+            # another binding it would compare nothing and call that consistent
+            raise ReplayError(f"--check: {run.rig.name} binds its devices to "
+                              f"{', '.join(sorted(set(run.rig.binding.kinds.values())))}; the "
+                              "controller check compares sgsrt command frames only (replay "
+                              "without --check decodes this rig's frames)")
         self.protocol = protocol or load_protocol()
         self.controller = build_controller(run)
         self.enc, self.bus = _interface(self.protocol, run.rig, run.actuators,
