@@ -155,7 +155,8 @@ def run_from_dict(raw: Any, source: str = "run", base_dir: Path | None = None,
         raise ConfigError(
             f"{source}: actuators: expected a list from {list(ACTUATORS)}, got {actuators!r}")
     ctrl = data["controller"]
-    if not isinstance(ctrl, dict) or ctrl.get("type") not in CONTROLLERS:
+    if (not isinstance(ctrl, dict) or not isinstance(ctrl.get("type"), str)
+            or ctrl["type"] not in CONTROLLERS):
         raise ConfigError(
             f"{source}: controller.type: expected one of {sorted(CONTROLLERS)}, "
             f"got {ctrl.get('type') if isinstance(ctrl, dict) else ctrl!r}")
