@@ -54,3 +54,18 @@ def test_a_closed_recorder_refuses_to_log(tmp_path):
     rec.close()  # idempotent
     with pytest.raises(RuntimeError, match="closed"):
         rec.log_static_text("/x", "late")
+
+
+def test_judging_many_times_in_one_process_leaves_no_threads(tmp_path):
+    """A suite worker judges every run it makes: each judgement writes verdict.rrd and
+    appends the verdict to run.rrd, each through a recording stream and a blueprint stream
+    that must end with it (before: 2 OS threads left per judgement)."""
+    from harness.testing.judge import judge_run, write_verdict
+
+    run_dir = _one_run(tmp_path)
+    counts = []
+    for _ in range(8):
+        write_verdict(judge_run(run_dir), run_dir)
+        gc.collect()
+        counts.append(footprint()[1])
+    assert counts[-1] <= counts[2] + 1, counts

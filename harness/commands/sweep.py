@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from harness.engine import CLUSTER_ENV, EngineError, make_engine
+from harness.record.streams import save_with_blueprint, sweep_orphans
 from harness.studies.sweep import SweepSpec, run_sweep
 from rig_models.rig_file import load_rig
 from rig_models.schema import ConfigError
@@ -131,7 +132,7 @@ def save_rrd(path: Path, name: str, lambdas: np.ndarray, betas: np.ndarray,
 
     rec = rr.RecordingStream("sgsrt-harness", recording_id=name)
     with_maps = maps_png is not None and maps_png.is_file()
-    rec.save(str(path), default_blueprint=sweep_blueprint(lambdas, with_maps))
+    save_with_blueprint(rec, path, sweep_blueprint(lambdas, with_maps))
     if with_maps:
         rec.log("/sweep/maps", rr.EncodedImage(path=maps_png), static=True)
     colours = sweep_colours(len(betas))
@@ -159,6 +160,8 @@ def save_rrd(path: Path, name: str, lambdas: np.ndarray, betas: np.ndarray,
         static=True)
     rec.flush()
     rec.disconnect()
+    del rec
+    sweep_orphans()  # the stream dropped: its threads end (issue 23)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -27,6 +27,8 @@ from pathlib import Path
 import rerun as rr
 import rerun.blueprint as rrb
 
+from harness.record.streams import save_with_blueprint, sweep_orphans
+
 FILE_HEADER = 12
 MESSAGE_HEADER = 16
 END_OF_STREAM = 0
@@ -62,12 +64,14 @@ def stream_end(path: Path) -> str:
 def _write_stream(path: Path, application_id: str, recording_id: str, write: Writer,
                   blueprint: rrb.Blueprint | None) -> None:
     rec = rr.RecordingStream(application_id, recording_id=recording_id)
-    rec.save(str(path), default_blueprint=blueprint, write_footer=False)
+    save_with_blueprint(rec, path, blueprint, write_footer=False)
     try:
         write(rec)
     finally:
         rec.flush()
         rec.disconnect()
+        del rec
+        sweep_orphans()  # the stream dropped: its threads end (issue 23)
 
 
 def append_stream(path: Path, application_id: str, recording_id: str, write: Writer,

@@ -28,6 +28,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from harness.record.streams import save_with_blueprint, sweep_orphans
 from harness.review.names import GREEN, GREY, ORANGE, PURPLE, SKY, VERMILLION, YELLOW
 from harness.review.spectrum import (
     FINAL,
@@ -122,7 +123,7 @@ def write_calibration_rrd(c: Any, path: Path | None = None) -> Path:
     path = path or Path(c.folder) / "calibration.rrd"
     window = c.spec.window_s if getattr(c, "spec", None) is not None else None
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=Path(path).parent.name)
-    rec.save(str(path), default_blueprint=calibration_blueprint(window))
+    save_with_blueprint(rec, path, calibration_blueprint(window))
     try:
         ident = c.identification
         sp = ident.primary.spectrum
@@ -177,4 +178,6 @@ def write_calibration_rrd(c: Any, path: Path | None = None) -> Path:
     finally:
         rec.flush()
         rec.disconnect()
+        del rec
+        sweep_orphans()  # the stream dropped: its threads end (issue 23)
     return Path(path)

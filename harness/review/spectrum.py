@@ -29,6 +29,7 @@ import rerun.blueprint as rrb
 
 from harness.identification.windows import MultiWindowResult
 from harness.record.recording import APPLICATION_ID
+from harness.record.streams import save_with_blueprint, sweep_orphans
 from harness.review.layouts import blueprint_for_run_dir, layout_for_run, spectrum_views
 
 # short roots: Rerun 0.41's bar-chart legend is the whole entity path
@@ -135,7 +136,7 @@ def write_identify_rrd(path: Path, run_dir: Path, result: MultiWindowResult,
     model's values when known) for the table; ``cfg``: the run's config.yaml, for its
     layout. The recording id is the run directory's name, as run.rrd's."""
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=run_dir.name)
-    rec.save(str(path), default_blueprint=identify_blueprint(run_dir, cfg))
+    save_with_blueprint(rec, path, identify_blueprint(run_dir, cfg))
     try:
         f_top = max((m.freq_hz for m in result.modes), default=1.0)
         primary = result.primary
@@ -177,4 +178,6 @@ def write_identify_rrd(path: Path, run_dir: Path, result: MultiWindowResult,
     finally:
         rec.flush()
         rec.disconnect()
+        del rec
+        sweep_orphans()  # the stream dropped: its threads end (issue 23)
     return path

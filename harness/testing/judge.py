@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.record.streams import save_with_blueprint, sweep_orphans
 from harness.testing.criteria import Criterion, apply_overrides, parse_criteria
 from harness.testing.evaluate import (
     ERROR,
@@ -496,8 +497,7 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
     # is written through a link placed in the run folder
     write_text_atomic(out, json.dumps(v.to_dict(), indent=2) + "\n")
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=run_dir.name)
-    rec.save(str(fresh_output_path(run_dir / "verdict.rrd")),
-             default_blueprint=_run_layout(run_dir))
+    save_with_blueprint(rec, fresh_output_path(run_dir / "verdict.rrd"), _run_layout(run_dir))
     rec.log("/run/verdict", rr.TextDocument(_verdict_text(v, run_dir),
                                             media_type="text/markdown"), static=True)
     events = sorted((t, c) for c in v.criteria for t in c.violations_s)
@@ -512,6 +512,8 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
         raise OutputError(run_dir, f"verdict.rrd could not be written ({exc})") from exc
     finally:
         rec.disconnect()
+        del rec
+        sweep_orphans()  # the stream dropped: its threads end (issue 23)
     _into_run_rrd(run_dir, v, [(t, "ERROR" if c.verdict == ERROR else "WARN",
                                 f"{c.name} {c.verdict}: {c.message}") for t, c in events])
     return out
