@@ -221,8 +221,12 @@ def test_canopen_run_completes_and_is_left_safe(tmp_path):
     assert result.summary["stopped_by"] == "completed", result.summary.get("faults")
     assert result.summary["frames"]["malformed"] == 0
     assert result.summary["frames"]["unknown"] == 0
+    # every due frame came (the valves' and rotor's every-5th-SYNC TPDOs from tick 5 on)
+    assert result.summary["frames"]["missing"] == 0
     assert abs(result.summary["final_angle_error_deg"]) < 0.05
     _assert_left_safe(result)
+    _, late = read_scalar_channel(result.run_dir / "run.rrd", "/bus/late_or_missing")
+    assert late.sum() == 0
     # the recording's bus view decoded the PDOs through the binding, by quantity, in SI,
     # and every node's heartbeat state
     rrd = result.run_dir / "run.rrd"

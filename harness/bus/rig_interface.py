@@ -185,6 +185,10 @@ class RigInterface:
 
     # ------------------------------------------------------------------ receiving
     def expected_frames(self, tick: int) -> int:
+        if tick == 0 and self.co is not None:
+            # a CANopen TPDO sent every n-th SYNC (n > 1) counts from the SYNC whose counter
+            # is its start value (CiA 301): its first frame comes at tick n, never tick 0
+            return sum(n for d, n in self._due_groups if d == 1)
         return sum(n for d, n in self._due_groups if tick % d == 0)
 
     def receive(self, tick: int, timeout_s: float, lockstep: bool = False) -> int:

@@ -108,7 +108,9 @@ def write_bus_binding(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime:
     def close_tick() -> None:
         if tick < 0:
             return
-        missing = [d for d, n in due.items() if tick % n == 0 and d not in seen]
+        # tick 0: a CANopen TPDO every n-th SYNC (n > 1) first comes at tick n (CiA 301)
+        missing = [d for d, n in due.items() if tick % n == 0 and d not in seen
+                   and not (tick == 0 and n > 1 and co is not None)]
         missing_col.add(tick * dt_s, float(len(missing)))
         stats.ticks += 1
         if missing:
