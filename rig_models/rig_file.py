@@ -199,9 +199,17 @@ class RigConfig:
         return self.data["accelerometer"]["range_g"] * G0_M_S2
 
 
+def _exists(path: Path) -> bool:
+    """``path.exists()``, False for a name the file system refuses (too long, a NUL)."""
+    try:
+        return path.exists()
+    except (OSError, ValueError):
+        return False
+
+
 def rig_path(name_or_path: str | Path) -> Path:
     candidate = Path(name_or_path)
-    if candidate.suffix in (".yaml", ".yml") or candidate.exists():
+    if candidate.suffix in (".yaml", ".yml") or _exists(candidate):
         return candidate
     return RIGS_DIR / f"{name_or_path}.yaml"
 
@@ -209,7 +217,7 @@ def rig_path(name_or_path: str | Path) -> Path:
 def load_rig(name_or_path: str | Path = "sgsrt") -> RigConfig:
     """Load and validate a rig file (built-in name or path)."""
     path = rig_path(name_or_path)
-    if not path.exists():
+    if not _exists(path):
         builtin = ", ".join(sorted(p.stem for p in RIGS_DIR.glob("*.yaml")))
         raise ConfigError(f"rig file {name_or_path}: not found (built-in rigs: {builtin})")
     raw = _read_rig_yaml(path, ())
@@ -228,9 +236,9 @@ def _read_rig_yaml(path: Path, seen: tuple[Path, ...]) -> Any:
         raise ConfigError(f"rig file {path.name}: extends: expected a rig name or path, got "
                           f"{base_name!r}")
     base = rig_path(base_name)
-    if not base.is_absolute() and not base.exists() and (path.parent / base_name).exists():
+    if not base.is_absolute() and not _exists(base) and _exists(path.parent / base_name):
         base = path.parent / base_name
-    if not base.exists():
+    if not _exists(base):
         raise ConfigError(f"rig file {path.name}: extends: {base_name}: not found")
     if base.resolve() in seen or base.resolve() == path.resolve():
         raise ConfigError(f"rig file {path.name}: extends: {base_name}: a circle of extends")

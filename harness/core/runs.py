@@ -31,7 +31,7 @@ RUN_SCHEMA: dict[str, Any] = {
     "rig_overrides": Field("any", default=None),
     "bus": Field("str", default="virtual:sgsrt"),
     "clock": Field("str", default="lockstep", choices=("lockstep", "realtime")),
-    "rate_hz": Field("number", "Hz", default=500.0, exclusive_minimum=0.0, maximum=2000.0),
+    "rate_hz": Field("number", "Hz", default=500.0, minimum=1.0, maximum=2000.0),
     # at most 30 days: a duration of 1e308 s overflowed the tick count (a traceback)
     "duration_s": Field("number", "s", required=True, exclusive_minimum=0.0,
                         maximum=30 * 24 * 3600.0),
