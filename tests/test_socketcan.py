@@ -511,7 +511,7 @@ def test_canopen_rig_over_vcan0_sets_up_runs_and_is_left_safe(rate_and_run, tmp_
     summary = json.loads(out.stdout)
     assert summary["stopped_by"] == "completed", summary.get("faults")
     assert summary["frames"]["malformed"] == 0 and summary["frames"]["unknown"] == 0
-    (run_dir,) = (tmp_path / "logs").iterdir()
+    (run_dir,) = [p for p in (tmp_path / "logs").iterdir() if p.is_dir()]  # and history.sqlite
     frames = [(m.arbitration_id, bytes(m.data)) for m in read_can_log(run_dir / "can.blf")]
     assert (0x000, bytes((0x82, 0))) in frames  # reset communication, set-up
     assert (0x000, bytes((0x01, 0))) in frames  # start
