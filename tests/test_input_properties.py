@@ -70,10 +70,13 @@ def _main(argv: list[str]) -> tuple[int, str]:
     return code, err.getvalue()
 
 
-@settings(max_examples=30, deadline=None,
+@settings(max_examples=30, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(path=st.sampled_from(RUN_PATHS), value=st.sampled_from(ODD_VALUES))
 def test_mutated_run_file_is_refused_naming_the_key_or_runs(tmp_path, path, value):
+    # derandomized: CI runs the same examples every time; every (key, value) pair of this
+    # product was run once by hand on 2026-11-25 (one traceback found, fixed:
+    # residual_window_s 1e308)
     run_file = tmp_path / "mutated.yaml"
     _dump(_replace(BASE_RUN, path, value), run_file)
     code, err = _main(["run", str(run_file), "--out", str(tmp_path / "logs"), "--quiet"])
@@ -100,7 +103,7 @@ ODD_NUMBERS = ["nan", "inf", "-inf", "-1", "0", "1e400", "1e12", "99999999999999
                "0x10", "", "1_0", " 5", "NaN", "-0", "1e-400", "five"]
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=60, deadline=None, derandomize=True)
 @given(option=st.sampled_from(NUMERIC_OPTIONS), text=st.sampled_from(ODD_NUMBERS))
 def test_cli_numbers_are_finite_and_in_range_or_refused(option, text):
     command, positional, flag = option
@@ -141,7 +144,7 @@ SUITE = {"name": "mutated", "tests": [{"name": "a", "run": "slew-rw",
                                        "overrides": {"duration_s": 0.2}}]}
 
 
-@settings(max_examples=20, deadline=None,
+@settings(max_examples=20, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(value=st.sampled_from(ODD_VALUES), where=st.sampled_from(["name", "tests", "test_name"]))
 def test_mutated_suite_file_is_refused_or_listed(tmp_path, value, where):

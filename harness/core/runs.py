@@ -41,8 +41,11 @@ RUN_SCHEMA: dict[str, Any] = {
     "actuators": Field("any", default=["reaction_wheel"]),
     "controller": Field("any", required=True),
     "settle_band_deg": Field("number", "deg", default=0.1, exclusive_minimum=0.0),
-    "residual_window_s": Field("number", "s", default=10.0, exclusive_minimum=0.0),
-    "steady_window_s": Field("number", "s", default=30.0, exclusive_minimum=0.0),
+    # windows at most 30 days too: 1e308 s overflowed the rows the recorder keeps
+    "residual_window_s": Field("number", "s", default=10.0, exclusive_minimum=0.0,
+                               maximum=30 * 24 * 3600.0),
+    "steady_window_s": Field("number", "s", default=30.0, exclusive_minimum=0.0,
+                             maximum=30 * 24 * 3600.0),
     "variants": Field("any", default=None),
     "receive_timeout_ms": Field("number", "ms", default=50.0, exclusive_minimum=0.0),
     "faults": Field("any", default=None),
