@@ -34,6 +34,7 @@ from drivers.binding.frames import (
     SignalMap,
     SyncMap,
     TelemetryMap,
+    finite_number,
 )
 from drivers.binding.quantities import (
     COMMANDS,
@@ -179,21 +180,6 @@ def _mapping(value: Any, key: str) -> Mapping[str, Any]:
     return value
 
 
-def _number(value: Any, key: str, positive: bool = False) -> float:
-    import math
-
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise BindingError(f"{key}: expected a number, got {value!r}")
-    try:
-        v = float(value)
-    except OverflowError:
-        raise BindingError(f"{key}: expected a finite number, got {value!r}") from None
-    if not math.isfinite(v) or (positive and v == 0.0):
-        raise BindingError(f"{key}: expected a finite{' non-zero' if positive else ''} number, "
-                           f"got {value!r}")
-    return v
-
-
 def _load_dbc(path: Path, key: str) -> Protocol:
     try:
         return load_protocol(str(path))
@@ -234,10 +220,10 @@ def _signal_map(quantity: str, spec: Any, key: str, protocol: Protocol, path: Pa
         raise BindingError(f"{key}: give scale (SI per DBC unit) or sensitivity (DBC unit per "
                            "SI unit), not both")
     if "sensitivity" in spec:
-        scale = 1.0 / _number(spec["sensitivity"], f"{key}.sensitivity", positive=True)
+        scale = 1.0 / finite_number(spec["sensitivity"], f"{key}.sensitivity", nonzero=True)
     else:
-        scale = _number(spec.get("scale", 1.0), f"{key}.scale", positive=True)
-    offset = _number(spec.get("offset", 0.0), f"{key}.offset")
+        scale = finite_number(spec.get("scale", 1.0), f"{key}.scale", nonzero=True)
+    offset = finite_number(spec.get("offset", 0.0), f"{key}.offset")
     mux = spec.get("mux")
     mux_signal = getattr(codec, "multiplexer", None)
     if mux is not None:

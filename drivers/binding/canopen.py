@@ -18,7 +18,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-from drivers.binding.frames import BindingError
+from drivers.binding.frames import BindingError, finite_number
 from drivers.binding.quantities import COMMANDS, REQUIRED_COMMANDS, REQUIRED_TELEMETRY, TELEMETRY
 
 PROFILES = ("cia401", "cia402", "cia406")
@@ -396,21 +396,6 @@ def _int(value: Any, key: str, lo: int, hi: int) -> int:
     return value
 
 
-def _num(value: Any, key: str, nonzero: bool = False) -> float:
-    import math
-
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise BindingError(f"{key}: expected a number, got {value!r}")
-    try:
-        v = float(value)
-    except OverflowError:
-        raise BindingError(f"{key}: expected a finite number, got {value!r}") from None
-    if not math.isfinite(v) or (nonzero and v == 0.0):
-        raise BindingError(f"{key}: expected a finite{' non-zero' if nonzero else ''} number, "
-                           f"got {value!r}")
-    return v
-
-
 def _quantity(q: str, spec: Any, key: str, od: Any, eds: str, command: bool) -> QuantityRef:
     if not isinstance(spec, Mapping):
         raise BindingError(f"{key}: expected a mapping with object (and sub, scale, ...), got "
@@ -443,11 +428,11 @@ def _quantity(q: str, spec: Any, key: str, od: Any, eds: str, command: bool) -> 
     if "sensitivity" in spec and "scale" in spec:
         raise BindingError(f"{key}: give scale or sensitivity, not both")
     if "sensitivity" in spec:
-        scale = 1.0 / _num(spec["sensitivity"], f"{key}.sensitivity", nonzero=True)
+        scale = 1.0 / finite_number(spec["sensitivity"], f"{key}.sensitivity", nonzero=True)
     else:
-        scale = _num(spec.get("scale", 1.0), f"{key}.scale", nonzero=True)
-    return QuantityRef(q, ref, Conversion(scale=scale,
-                                          offset=_num(spec.get("offset", 0.0), f"{key}.offset")))
+        scale = finite_number(spec.get("scale", 1.0), f"{key}.scale", nonzero=True)
+    offset = finite_number(spec.get("offset", 0.0), f"{key}.offset")
+    return QuantityRef(q, ref, Conversion(scale=scale, offset=offset))
 
 
 def _pack(name: str, refs: list[ObjRef], base: tuple[int, ...], node_id: int, trans: int,

@@ -8,13 +8,30 @@ of its DBC signal (``physical`` being the DBC's own scaled value, in the DBC's u
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import Any
 
 from drivers.dbc import FrameCodec
 
 
 class BindingError(ValueError):
     """A rig file's device binding is wrong; the message starts with the key path."""
+
+
+def finite_number(value: Any, key: str, nonzero: bool = False) -> float:
+    """A rig file's conversion constant: a real, finite number (non-zero for a scale); NaN
+    or infinity would turn every value it converts into nonsense."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise BindingError(f"{key}: expected a number, got {value!r}")
+    try:
+        v = float(value)
+    except OverflowError:
+        raise BindingError(f"{key}: expected a finite number, got {value!r}") from None
+    if not math.isfinite(v) or (nonzero and v == 0.0):
+        raise BindingError(f"{key}: expected a finite{' non-zero' if nonzero else ''} number, "
+                           f"got {value!r}")
+    return v
 
 
 @dataclass(frozen=True)

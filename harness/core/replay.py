@@ -220,6 +220,43 @@ def _decode(codec: FrameCodec, data: bytes) -> dict[str, float]:
         return {}
 
 
+class _Ticks:
+    """A replay's ticks as they close: each tick's received frames through the drivers, its
+    state and commands, the counts the report needs; kept only when asked (a streamed
+    replay holds none), handed to ``on_tick`` as they come."""
+
+    def __init__(self, iface: RigInterface, dt_s: float,
+                 on_tick: Callable[[RigInterface, ReplayTick], None] | None,
+                 keep: bool) -> None:
+        self.iface, self.dt_s, self.on_tick, self.keep = iface, dt_s, on_tick, keep
+        self.ticks: list[ReplayTick] = []
+        self.n = self.missing = 0
+        self.first: int | None = None
+        self.last: int | None = None
+        self.t0 = self.t1 = 0.0
+
+    def close(self, tick: int, rx: list[can.Message], cmds: list[CommandFrame]) -> None:
+        iface = self.iface
+        got = sum(iface.feed(msg, tick) for msg in rx)
+        state = copy.copy(iface.snapshot(tick, tick * self.dt_s))
+        t = ReplayTick(tick, tick * self.dt_s, state, list(cmds), got,
+                       max(0, iface.expected_frames(tick) - got))
+        if self.keep:
+            self.ticks.append(t)
+        self.n += 1
+        if self.first is None:
+            self.first, self.t0 = tick, t.time_s
+        self.last, self.t1 = tick, t.time_s
+        self.missing += t.missing
+        if self.on_tick is not None:
+            self.on_tick(iface, t)
+
+    def totals(self) -> dict[str, Any]:
+        return {"n_ticks": self.n, "first_tick": self.first, "last_tick": self.last,
+                "first_time_s": self.t0, "last_time_s": self.t1,
+                "missing_total": self.missing}
+
+
 def replay_messages(messages: Iterable[can.Message], rig: RigConfig, dt_s: float,
                     source: Path = Path("-"), protocol: Protocol | None = None,
                     on_tick: Callable[[RigInterface, ReplayTick], None] | None = None,
@@ -240,29 +277,15 @@ def replay_messages(messages: Iterable[can.Message], rig: RigConfig, dt_s: float
     sync = protocol["SYNC"]
     frames_by_id: Counter[int] = Counter()
     harness_malformed: Counter[str] = Counter()
-    ticks: list[ReplayTick] = []
-    seen = {"n": 0, "first": None, "last": None, "t0": 0.0, "t1": 0.0, "missing": 0}
+    closer = _Ticks(iface, dt_s, on_tick, keep_ticks)
     sync_gaps = before = 0
     tick: int | None = None
     rx: list[can.Message] = []
     cmds: list[CommandFrame] = []
 
     def close_tick() -> None:
-        if tick is None:
-            return
-        got = sum(iface.feed(msg, tick) for msg in rx)
-        state = copy.copy(iface.snapshot(tick, tick * dt_s))
-        t = ReplayTick(tick, tick * dt_s, state, list(cmds), got,
-                       max(0, iface.expected_frames(tick) - got))
-        if keep_ticks:
-            ticks.append(t)
-        seen["n"] += 1
-        if seen["first"] is None:
-            seen["first"], seen["t0"] = tick, t.time_s
-        seen["last"], seen["t1"] = tick, t.time_s
-        seen["missing"] += t.missing
-        if on_tick is not None:
-            on_tick(iface, t)
+        if tick is not None:
+            closer.close(tick, rx, cmds)
 
     for msg in messages:
         if not msg.is_error_frame:
@@ -295,13 +318,11 @@ def replay_messages(messages: Iterable[can.Message], rig: RigConfig, dt_s: float
     malformed = {d.telemetry_frame: d.counters.malformed for d in iface.drivers.values()}
     malformed.update(harness_malformed)
     return Replay(
-        source=source, dt_s=dt_s, ticks=ticks, frames_by_id=dict(frames_by_id),
+        source=source, dt_s=dt_s, ticks=closer.ticks, frames_by_id=dict(frames_by_id),
         harness_ids=tx_ids, error_frames=iface.counters.error_frames,
         bus_off=iface.counters.bus_off, unknown=iface.counters.unknown, malformed=malformed,
         sequence_errors={n: d.counters.sequence_errors for n, d in iface.drivers.items()},
-        sync_gaps=sync_gaps, before_first_sync=before, n_ticks=seen["n"],
-        first_tick=seen["first"], last_tick=seen["last"], first_time_s=seen["t0"],
-        last_time_s=seen["t1"], missing_total=seen["missing"])
+        sync_gaps=sync_gaps, before_first_sync=before, **closer.totals())
 
 
 def _replay_binding(messages: Iterable[can.Message], rig: RigConfig, dt_s: float,
@@ -321,8 +342,7 @@ def _replay_binding(messages: Iterable[can.Message], rig: RigConfig, dt_s: float
     harness_malformed: Counter[str] = Counter()
     tx_ids: set[int] = {sync.key[0]} | ({hb.key[0]} if hb is not None else set()) | {
         k[0] for k in cmd}
-    ticks: list[ReplayTick] = []
-    seen = {"n": 0, "first": None, "last": None, "t0": 0.0, "t1": 0.0, "missing": 0}
+    closer = _Ticks(iface, dt_s, on_tick, keep_ticks)
     sync_gaps = before = 0
     tick: int | None = None
     raw_last: int | None = None
@@ -330,21 +350,8 @@ def _replay_binding(messages: Iterable[can.Message], rig: RigConfig, dt_s: float
     cmds: list[CommandFrame] = []
 
     def close_tick() -> None:
-        if tick is None:
-            return
-        got = sum(iface.feed(msg, tick) for msg in rx)
-        state = copy.copy(iface.snapshot(tick, tick * dt_s))
-        t = ReplayTick(tick, tick * dt_s, state, list(cmds), got,
-                       max(0, iface.expected_frames(tick) - got))
-        if keep_ticks:
-            ticks.append(t)
-        seen["n"] += 1
-        if seen["first"] is None:
-            seen["first"], seen["t0"] = tick, t.time_s
-        seen["last"], seen["t1"] = tick, t.time_s
-        seen["missing"] += t.missing
-        if on_tick is not None:
-            on_tick(iface, t)
+        if tick is not None:
+            closer.close(tick, rx, cmds)
 
     for msg in messages:
         if msg.is_error_frame:
@@ -393,13 +400,11 @@ def _replay_binding(messages: Iterable[can.Message], rig: RigConfig, dt_s: float
     malformed = {f"{n} telemetry": d.counters.malformed for n, d in iface.drivers.items()}
     malformed.update(harness_malformed)
     return Replay(
-        source=source, dt_s=dt_s, ticks=ticks, frames_by_id=dict(frames_by_id),
+        source=source, dt_s=dt_s, ticks=closer.ticks, frames_by_id=dict(frames_by_id),
         harness_ids=frozenset(tx_ids), error_frames=iface.counters.error_frames,
         bus_off=iface.counters.bus_off, unknown=iface.counters.unknown, malformed=malformed,
         sequence_errors={n: d.counters.sequence_errors for n, d in iface.drivers.items()},
-        sync_gaps=sync_gaps, before_first_sync=before, n_ticks=seen["n"],
-        first_tick=seen["first"], last_tick=seen["last"], first_time_s=seen["t0"],
-        last_time_s=seen["t1"], missing_total=seen["missing"])
+        sync_gaps=sync_gaps, before_first_sync=before, **closer.totals())
 
 
 def replay_log(path: Path, rig: RigConfig, dt_s: float,
