@@ -36,18 +36,13 @@ import can
 import numpy as np
 import rerun as rr
 
+from drivers.binding import SGSRT_FRAMES
 from drivers.dbc import FrameCodec, Protocol, load_protocol
 from harness.review.names import log_series_names
 
-# device -> (telemetry frame, command frame or None), as the drivers define them
-DEVICES: dict[str, tuple[str, str | None]] = {
-    "hub_sensor": ("HUB_TLM", None),
-    "accelerometer": ("ACCEL_TLM", None),
-    "reaction_wheel": ("WHEEL_TLM", "WHEEL_CMD"),
-    "thruster_valves": ("VALVE_TLM", "VALVE_CMD"),
-    "piezo_amplifier": ("PIEZO_TLM", "PIEZO_CMD"),
-    "disturbance_rotor": ("ROTOR_TLM", "ROTOR_CMD"),
-}
+# device -> (telemetry frame, command frame or None): the sgsrt protocol's, as its binding
+# defines them (another binding's frames: harness.review.bus_binding)
+DEVICES: dict[str, tuple[str, str | None]] = SGSRT_FRAMES
 UNIT_SUFFIX = {"N.m": "n_m", "rad/s": "rad_s", "rad": "rad", "m/s^2": "m_s2", "V": "v",
                "s": "s"}
 MAX_WARNINGS = 20
