@@ -131,8 +131,8 @@ class FrameCodec:
                 raise ValueError(f"{message.name}.{mux.name}: a multiplexer signal must be an "
                                  f"integer with scale 1 and offset 0")
         self.source = self._generate()
-        namespace: dict[str, object] = {"FrameError": FrameError, "_F32": _F32, "_F64": _F64,
-                                        "_encode_error": self._encode_error}
+        self._encoders: dict[tuple[str, ...], Callable[..., bytes]] = {}
+        namespace = self._namespace()
         exec(compile(self.source, f"<codec {self.name}>", "exec"), namespace)  # noqa: S102
         # instance attributes, not methods: one call level less on the hot path
         self.encode = cast(Callable[[dict[str, float]], bytes], namespace["encode"])
@@ -194,8 +194,15 @@ class FrameCodec:
             lo, hi = max(lo, min(a, b)), min(hi, max(a, b))
         return (lo if math.isfinite(lo) else None), (hi if math.isfinite(hi) else None)
 
-    def _encode_lines(self, s: SignalCodec, indent: str) -> list[str]:
-        lines = [f"{indent}v = values.get({s.name!r}, 0.0)"]
+    def _encode_lines(self, s: SignalCodec, indent: str,
+                      params: dict[str, str] | None = None) -> list[str]:
+        """``params``: a positional encoder's parameter per signal name (a signal not in it
+        encodes as 0, as a missing key does); None: the dict encoder's ``values``."""
+        if params is None:
+            src = f"values.get({s.name!r}, 0.0)"
+        else:
+            src = params.get(s.name, "0.0")
+        lines = [f"{indent}v = {src}"]
         lo, hi = self._range(s)
         if lo is not None and hi is not None:
             lines += [f"{indent}if v < {_number(lo)}: v = {_number(lo)}",
@@ -235,26 +242,48 @@ class FrameCodec:
                 f"    {var} = {var}{phys}"]
 
     def _generate(self) -> str:
+        return "\n".join(["from struct import error as struct_error",
+                          *self._encode_source(), *self._decode_source(), ""])
+
+    def _return_line(self) -> str:
         n = self.length
         orders = {s.byte_order for s in self.signals}
         big, little = "big_endian" in orders, "little_endian" in orders
         if big and little:  # each word's bytes OR-ed together in one order
-            ret = (f"return (wl | int.from_bytes(wb.to_bytes({n}, 'big'), 'little'))"
-                   f".to_bytes({n}, 'little')")
-        elif big:
-            ret = f"return wb.to_bytes({n}, 'big')"
-        else:
-            ret = f"return wl.to_bytes({n}, 'little')"
-        init = "wl = wb = 0"
+            return (f"return (wl | int.from_bytes(wb.to_bytes({n}, 'big'), 'little'))"
+                    f".to_bytes({n}, 'little')")
+        if big:
+            return f"return wb.to_bytes({n}, 'big')"
+        return f"return wl.to_bytes({n}, 'little')"
+
+    def _encode_source(self, names: tuple[str, ...] | None = None) -> list[str]:
+        """The encoder: ``encode(values)`` (a dict by signal name), or with ``names`` a
+        positional ``encode(p0, p1, ...)`` taking those signals in that order (a name that
+        is not a signal of this message is taken and ignored, as a dict's extra key is)."""
+        ret = self._return_line()
+        n = self.length
         mux = self.multiplexer
-        enc = ["def encode(values):", "    " + init, "    try:"]
+        if names is None:
+            params = None
+            enc = ["def encode(values):", "    wl = wb = 0", "    try:"]
+            mux_src = f"values.get({mux!r})"
+            as_dict = "values"
+        else:
+            params = {}
+            for k, name in enumerate(names):
+                params[name] = f"p{k}"  # a repeated name: the last, as in a dict
+            enc = [f"def encode({', '.join(f'p{k}' for k in range(len(names)))}):",
+                   "    wl = wb = 0", "    try:"]
+            mux_src = params.get(mux, "None") if mux is not None else "None"
+            # only for an error's message: the values by name, as the dict encoder has them
+            as_dict = "{" + ", ".join(f"{name!r}: p{k}" for k, name in enumerate(names)) + "}"
         if mux is None:
             for s in self.signals:
-                enc += self._encode_lines(s, "        ")
+                enc += self._encode_lines(s, "        ", params)
             if not self.signals:  # a frame with no signal (a bare request) is all zeros
                 enc.append("        pass")
         else:
-            enc += [f"        m = values.get({mux!r})",
+            enc += [f"        m = {mux_src}",
                     "        if m is None:",
                     f"            raise FrameError({f'{self.name}: multiplexer {mux} missing'!r})"]
             for k, (i, sigs) in enumerate(self._groups()):
@@ -265,14 +294,21 @@ class FrameCodec:
                         enc.append(f"            {word} |= {(i & s.mask) << s.shift(n)}"
                                    if i & s.mask else "            pass")
                     else:
-                        enc += self._encode_lines(s, "            ")
+                        enc += self._encode_lines(s, "            ", params)
             enc += ["        else:",
                     f"            raise FrameError({f'{self.name}: multiplexer {mux} = '!r} "
                     f"+ repr(m) + {f' not one of {list(self.multiplexer_ids)} in the DBC'!r})"]
         enc += ["    except (TypeError, ValueError, OverflowError, struct_error) as exc:",
                 "        if isinstance(exc, FrameError): raise",
-                "        raise _encode_error(values, exc) from exc",
+                f"        raise _encode_error({as_dict}, exc) from exc",
                 "    " + ret]
+        return enc
+
+    def _decode_source(self) -> list[str]:
+        n = self.length
+        orders = {s.byte_order for s in self.signals}
+        big, little = "big_endian" in orders, "little_endian" in orders
+        mux = self.multiplexer
         where = f"{self.name} (0x{self.frame_id:03X})"
         dec = ["def decode(data):",
                f"    if len(data) != {n}:",
@@ -304,7 +340,27 @@ class FrameCodec:
                 dec.append(f"        return {{{items}}}")
             dec.append(f"    raise FrameError({where + ': multiplexer ' + mux + ' = '!r} + str(m)"
                        f" + {' not one of ' + str(list(self.multiplexer_ids)) + ' in the DBC'!r})")
-        return "\n".join(["from struct import error as struct_error", *enc, *dec, ""])
+        return dec
+
+    def encoder(self, names: tuple[str, ...]) -> Callable[..., bytes]:
+        """A positional encoder: ``encoder(names)(v0, v1, ...)`` is ``encode(dict(zip(names,
+        (v0, v1, ...))))``, byte for byte, without building the dict (a tick's frames:
+        issue 23). Generated once per ``names`` and kept."""
+        names = tuple(names)
+        fn = self._encoders.get(names)
+        if fn is None:
+            if any(not isinstance(n, str) for n in names):
+                raise TypeError(f"{self.name}: signal names must be strings: {names!r}")
+            source = "\n".join(["from struct import error as struct_error",
+                                *self._encode_source(names), ""])
+            namespace = self._namespace()
+            exec(compile(source, f"<codec {self.name} encoder>", "exec"), namespace)  # noqa: S102
+            fn = self._encoders[names] = cast(Callable[..., bytes], namespace["encode"])
+        return fn
+
+    def _namespace(self) -> dict[str, object]:
+        return {"FrameError": FrameError, "_F32": _F32, "_F64": _F64,
+                "_encode_error": self._encode_error}
 
     def _encode_error(self, values: dict[str, float], exc: Exception) -> ValueError:
         """The first signal whose value cannot be encoded, named."""

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import can
 import numpy as np
 
-from drivers.binding.frames import CommandMap
+from drivers.binding.frames import CommandMap, TelemetryMap
 from drivers.dbc import FrameError, load_protocol
 from rig_models.devices import (
     Accelerometer,
@@ -43,6 +43,20 @@ from rig_models.rig_file import RigConfig
 UNKNOWN_ID = 0x6A5  # used by no device of the DBC
 CAN_ERR_BUSERROR = 0x080  # SocketCAN error classes (linux/can/error.h)
 CAN_ERR_BUSOFF = 0x040
+
+
+# each device's telemetry quantities (drivers.binding.quantities), in the order the rig
+# passes them to its frame encoders (positional: no dict per frame)
+TELEMETRY_QUANTITIES: dict[str, tuple[str, ...]] = {
+    "hub_sensor": ("angle", "rate"),
+    "accelerometer": ("accel", "sample_counter", "saturated"),
+    "reaction_wheel": ("speed", "torque", "enabled", "fault", "speed_limited",
+                       "torque_limited", "counter"),
+    "thruster_valves": ("valve_pos_open", "valve_neg_open", "fault", "firings", "on_time",
+                        "counter"),
+    "piezo_amplifier": ("sensor_ch1", "sensor_ch2", "overcurrent", "counter"),
+    "disturbance_rotor": ("angle", "speed", "enabled", "counter"),
+}
 
 
 @dataclass
@@ -198,6 +212,21 @@ class VirtualRig:
                                     max_current_a=pa["max_current_a"],
                                     capacitance_f=(caps[0], caps[1]), dt_s=dt_s)
         self.piezo_noise_v = pa["sensor_noise_rms_v"]
+        # one product a step gives x[k+1], the outputs y and the piezo sensor patches' volts
+        # (modal coordinates times each patch's sensor gains): the plant's fused
+        # [[Ad, Bd], [C Ad, C Bd + D]] with a row [S Ad, S Bd] per patch
+        n_x = rig.plant.n_states
+        fused = self.plant.fused
+        if self.piezo_gains:
+            sense = np.zeros((len(self.piezo_gains), n_x))
+            for i, g in enumerate(self.piezo_gains):
+                sense[i, 1:1 + self.n_modes] = g.sensor
+            fused = np.vstack([fused, sense @ fused[:n_x]])
+        self._fused = np.ascontiguousarray(fused)
+        self._n_x = n_x
+        self._n_y = self.plant.c.shape[0]
+        # the last step's outputs and patch volts (zero before the first step, as x and u)
+        self._out = np.zeros(fused.shape[0] - n_x)
         dr = rig.section("disturbance_rotor")
         self.rotor = DisturbanceRotor(
             mass_kg=dr["mass_kg"], eccentricity_m=dr["eccentricity_m"],
@@ -268,6 +297,7 @@ class VirtualRig:
                 if f.kind == "sdo_abort" and node is not None:
                     node.sdo_abort_next(int(f.value) if f.value is not None else 0x1017,
                                         0x08000020)
+        self._build_emitters()
 
     # ------------------------------------------------------------------ bus side
     def service(self) -> int:
@@ -331,6 +361,7 @@ class VirtualRig:
         next_collect = time.monotonic() + 1.0
         clock, cpu = time.time, time.thread_time
         self.time_ops = timing is not None
+        self._build_emitters()  # timed operations: through _send
         self.wall_clock = True
         while not stop():
             msg = self.bus.recv(poll_s)
@@ -364,16 +395,60 @@ class VirtualRig:
                 # state once, unprompted, so the trip is seen on the bus without a SYNC
                 self._sample_and_send(max(self.tick, 0))
 
-    def _send(self, device: str, values: dict[str, float]) -> None:
-        """The device's telemetry frames (one, or several pages) from its quantities."""
-        maps = self._tlm.get(device)
-        if maps is None:  # a CANopen device (its node sends), or none
-            if self.co_devices is not None and device in self._co_sensors:
-                self.co_devices.write_telemetry(device, values)
-            return
-        for tmap in maps:
+    def _build_emitters(self) -> None:
+        """Each device's telemetry sender, called with its quantities positionally
+        (``TELEMETRY_QUANTITIES`` order). A device of one frame, with no fault to inject
+        and no operation to time (a lockstep run), gets a closure that encodes and sends
+        in one call (issue 23: the tick near its floor); the rest go through ``_send``."""
+        emit: dict[str, Callable[..., None]] = {}
+        plain = not self.injector.faults and not self.time_ops and self.bus is not None
+        for device, names in TELEMETRY_QUANTITIES.items():
+            maps = self._tlm.get(device)
+            if maps is None:  # a CANopen device (its node sends), or none
+                if self.co_devices is not None and device in self._co_sensors:
+                    emit[device] = self._canopen_emitter(device, names)
+                else:
+                    emit[device] = _nothing
+                continue
+            encoders = tuple((tmap.encoder(names), tmap) for tmap in maps)
+            if plain and len(encoders) == 1:
+                emit[device] = self._frame_emitter(encoders[0][0], encoders[0][1].key)
+            else:
+                emit[device] = self._general_emitter(device, encoders)
+        self._emit = emit
+
+    def _frame_emitter(self, encode: Callable[..., bytes], key: tuple[int, bool]
+                       ) -> Callable[..., None]:
+        send, message, counters = self.bus.send, can.Message, self.counters
+        aid, ext = key
+
+        def emit(*values: float) -> None:
+            send(message(arbitration_id=aid, data=encode(*values), is_extended_id=ext))
+            counters.frames_out += 1
+        return emit
+
+    def _general_emitter(self, device: str,
+                         encoders: tuple[tuple[Callable[..., bytes], TelemetryMap], ...]
+                         ) -> Callable[..., None]:
+        def emit(*values: float) -> None:
+            self._send(device, encoders, values)
+        return emit
+
+    def _canopen_emitter(self, device: str, names: tuple[str, ...]) -> Callable[..., None]:
+        co = self.co_devices
+
+        def emit(*values: float) -> None:
+            co.write_telemetry(device, dict(zip(names, values, strict=True)))  # type: ignore[union-attr]
+        return emit
+
+    def _send(self, device: str,
+              encoders: tuple[tuple[Callable[..., bytes], TelemetryMap], ...],
+              values: tuple[float, ...]) -> None:
+        """The device's telemetry frames (one, or several pages) from its quantities,
+        through the frame faults and the operation timing."""
+        for encode, tmap in encoders:
             t0 = time.perf_counter() if self.time_ops else 0.0
-            data = tmap.encode(values)
+            data = encode(*values)
             payloads = [data] if not self.injector.faults else self.injector.telemetry(
                 self.time_s, self.tick, device, data)
             key = tmap.key
@@ -519,8 +594,12 @@ class VirtualRig:
             u[1:] = drive @ np.asarray(volts[:drive.shape[1]], dtype=float)
             self._piezo_forcing = bool(volts[0] or volts[1])
         xu = self._xu
-        xu[:len(self.x)] = self.x
-        self.x, self.y = self.plant.advance(xu)
+        n_x = self._n_x
+        xu[:n_x] = self.x
+        out = self._fused @ xu
+        self.x = out[:n_x]
+        self._out = out[n_x:]
+        self.y = out[n_x:n_x + self._n_y]
         self.time_s += self.dt_s
         self.counters.steps += 1
         if (not self.safe
@@ -556,46 +635,53 @@ class VirtualRig:
             self.co_devices.handle(self.binding.sync.key[0], data, now)
 
     def _sample_and_send(self, tick: int) -> None:
-        y = self.plant.c @ self.x + self.plant.d @ self.u
-        n = self.n_modes
+        # the last step's outputs and patch volts as Python floats, one conversion a tick
+        out = self._out.tolist()
+        y0, y1, y2 = out[0], out[1], out[2]
         truth = self.truth
-        truth.time_s, truth.angle_rad, truth.rate_rad_s = self.time_s, y[0], y[1]
-        truth.tip_accel_m_s2 = y[2]
-        truth.modal = self.x[1 : 1 + n]
+        truth.time_s, truth.angle_rad, truth.rate_rad_s = self.time_s, y0, y1
+        truth.tip_accel_m_s2 = y2
+        truth.modal = self.x[1 : 1 + self.n_modes]
         div = self.divider
+        emit = self._emit
         if tick % div["hub_sensor"] == 0:
-            angle, rate = self.hub_sensor.sample(y[0], y[1])
-            self._send("hub_sensor", {"angle": angle, "rate": rate})
+            angle, rate = self.hub_sensor.sample(y0, y1)
+            emit["hub_sensor"](angle, rate)
         if tick % div["accelerometer"] == 0:
             extra = 0.0
             if self.injector.faults:
                 f = self.injector.active(self.time_s, "accel_saturation")
                 extra = 0.0 if f is None else (f.value if f.value is not None else 30.0)
-            a = self.accel.sample(y[2] + extra)
-            self._send("accelerometer", {"accel": a, "sample_counter": self.accel.counter,
-                                         "saturated": int(self.accel.saturated)})
-        w = self.wheel
+            acc = self.accel
+            a = acc.sample(y2 + extra)
+            emit["accelerometer"](a, acc.counter, int(acc.saturated))
         if tick % div["reaction_wheel"] == 0:
+            w = self.wheel
             self.wheel_counter = (self.wheel_counter + 1) & 0xFF
-            self._send("reaction_wheel", {
-                "speed": w.speed_rad_s, "torque": w.torque_n_m, "enabled": int(w.enabled),
-                "fault": int(w.fault), "speed_limited": int(w.speed_limited),
-                "torque_limited": int(w.torque_limited), "counter": self.wheel_counter})
+            emit["reaction_wheel"](w.speed_rad_s, w.torque_n_m, int(w.enabled), int(w.fault),
+                                   int(w.speed_limited), int(w.torque_limited),
+                                   self.wheel_counter)
         if tick % div["thruster_valves"] == 0:
             v = self.valves
-            self._send("thruster_valves", {
-                "valve_pos_open": int(v.state > 0), "valve_neg_open": int(v.state < 0),
-                "fault": int(v.fault), "firings": v.firings & 0xFFFF, "on_time": v.on_time_s,
-                "counter": tick & 0xFF})
+            emit["thruster_valves"](int(v.state > 0), int(v.state < 0), int(v.fault),
+                                    v.firings & 0xFFFF, v.on_time_s, tick & 0xFF)
         if tick % div["piezo_amplifier"] == 0:
-            sensed = [float(g.sensor @ self.x[1 : 1 + n])
-                      + self.piezo_noise_v * self.noise.normal() for g in self.piezo_gains]
-            sensed += [0.0, 0.0]
-            self._send("piezo_amplifier", {"sensor_ch1": sensed[0], "sensor_ch2": sensed[1],
-                                           "overcurrent": int(self.piezo.overcurrent),
-                                           "counter": tick & 0xFF})
+            # the patches' volts plus the amplifier's sensor noise, a draw per patch in
+            # patch order (the noise sequence as before)
+            normal, rms = self.noise.normal, self.piezo_noise_v
+            s1 = s2 = 0.0
+            n_patches = len(self.piezo_gains)
+            if n_patches:
+                ny = self._n_y
+                s1 = out[ny] + rms * normal()
+                if n_patches > 1:
+                    s2 = out[ny + 1] + rms * normal()
+            emit["piezo_amplifier"](s1, s2, int(self.piezo.overcurrent), tick & 0xFF)
         if tick % div["disturbance_rotor"] == 0:
             r = self.rotor
-            self._send("disturbance_rotor", {
-                "angle": r.angle_rad % (2 * math.pi), "speed": r.speed_rad_s,
-                "enabled": int(r.enabled), "counter": tick & 0xFF})
+            emit["disturbance_rotor"](r.angle_rad % (2 * math.pi), r.speed_rad_s,
+                                      int(r.enabled), tick & 0xFF)
+
+
+def _nothing(*values: float) -> None:
+    """A device the rig does not have on this bus: nothing is sent."""

@@ -9,8 +9,9 @@ of its DBC signal (``physical`` being the DBC's own scaled value, in the DBC's u
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 from drivers.dbc import FrameCodec
 
@@ -83,6 +84,35 @@ class TelemetryMap:
         if self.mux is not None and v.get(self.mux_signal) != self.mux:  # type: ignore[arg-type]
             return None
         return {q: v[s] * a + b for q, s, a, b in self._dec if s in v}
+
+    def encoder(self, quantities: tuple[str, ...]) -> Callable[..., bytes]:
+        """A positional encoder: ``encoder(quantities)(v0, v1, ...)`` is ``encode(dict(zip(
+        quantities, (v0, v1, ...))))`` byte for byte, without a dict per frame (the virtual
+        rig's telemetry, issue 23). A quantity the map does not carry is taken and
+        ignored; one it carries that is not given encodes as a missing key does."""
+        quantities = tuple(quantities)
+        if self.identity:
+            return self.codec.encoder(quantities)
+        arg = {q: f"p{k}" for k, q in enumerate(quantities)}  # a repeated name: the last
+        wrap = dict(self._wrap)
+        signals: list[str] = []
+        exprs: list[str] = []
+        for q, sig, inv, b in self._enc:
+            # as encode(): a counter modulo its field first, then (q - offset) / scale
+            x = arg.get(q, "0" if q in wrap else "0.0")
+            if q in wrap:
+                x = f"({x} % {wrap[q]!r})"
+            signals.append(sig)
+            exprs.append(f"({x} - {float(b)!r}) * {float(inv)!r}")
+        if self.mux is not None:
+            signals.append(self.mux_signal)  # type: ignore[arg-type]
+            exprs.append(repr(self.mux))
+        params = ", ".join(f"p{k}" for k in range(len(quantities)))
+        source = (f"def encode({params}):\n"
+                  f"    return _codec({', '.join(exprs)})\n")
+        namespace: dict[str, Any] = {"_codec": self.codec.encoder(tuple(signals))}
+        exec(compile(source, f"<map {self.device} {self.codec.name}>", "exec"), namespace)  # noqa: S102
+        return cast(Callable[..., bytes], namespace["encode"])
 
     def encode(self, quantities: dict[str, float]) -> bytes:
         if self.identity:
