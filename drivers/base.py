@@ -8,6 +8,7 @@ reported stale.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 from drivers.dbc import FrameCodec, FrameError, Protocol
 
@@ -36,6 +37,8 @@ class DeviceDriver:
     command_frame = ""
     # (signal, modulus) of a counter that advances by one per frame, if the frame has one
     sequence: tuple[str, int] | None = None
+    # the command quantities, in the order ``command_args`` gives them (an actuator's)
+    command_quantities: ClassVar[tuple[str, ...]] = ()
 
     @property
     def telemetry_codec(self) -> FrameCodec:

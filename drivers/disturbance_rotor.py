@@ -14,10 +14,17 @@ class DisturbanceRotorDriver(DeviceDriver):
     telemetry_frame = "ROTOR_TLM"
     command_frame = "ROTOR_CMD"
 
-    def command_values(self, speed_rad_s: float, enable: bool) -> dict[str, float]:
+    command_quantities = ("speed_cmd", "enable")
+
+    def command_args(self, speed_rad_s: float, enable: bool) -> tuple[float, int]:
+        """The command quantities in ``command_quantities`` order (positional encoders)."""
         lim = self.max_speed_rad_s
         s = 0.0 if speed_rad_s != speed_rad_s else max(-lim, min(lim, speed_rad_s))
-        return {"speed_cmd": s if enable else 0.0, "enable": int(enable)}
+        return (s if enable else 0.0), int(enable)
+
+    def command_values(self, speed_rad_s: float, enable: bool) -> dict[str, float]:
+        return dict(zip(self.command_quantities, self.command_args(speed_rad_s, enable),
+                        strict=True))
 
     def encode(self, speed_rad_s: float, enable: bool, counter: int) -> bytes:
         """The sgsrt ROTOR_CMD payload."""

@@ -20,8 +20,14 @@ class PiezoAmplifierDriver(DeviceDriver):
         lim = self.max_voltage_v
         return -lim if volts < -lim else lim if volts > lim else volts
 
+    command_quantities = ("voltage_ch1", "voltage_ch2")
+
+    def command_args(self, ch1_v: float, ch2_v: float) -> tuple[float, float]:
+        """The command quantities in ``command_quantities`` order (positional encoders)."""
+        return self.clamp(ch1_v), self.clamp(ch2_v)
+
     def command_values(self, ch1_v: float, ch2_v: float) -> dict[str, float]:
-        return {"voltage_ch1": self.clamp(ch1_v), "voltage_ch2": self.clamp(ch2_v)}
+        return dict(zip(self.command_quantities, self.command_args(ch1_v, ch2_v), strict=True))
 
     def encode(self, ch1_v: float, ch2_v: float, counter: int) -> bytes:
         """The sgsrt PIEZO_CMD payload."""

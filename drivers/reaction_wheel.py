@@ -22,9 +22,16 @@ class ReactionWheelDriver(DeviceDriver):
             return 0.0
         return -limit if torque_n_m < -limit else limit if torque_n_m > limit else torque_n_m
 
+    command_quantities = ("torque_cmd", "enable")
+
+    def command_args(self, torque_n_m: float, enable: bool) -> tuple[float, int]:
+        """The command quantities in ``command_quantities`` order (positional encoders)."""
+        return (self.clamp(torque_n_m) if enable else 0.0), int(enable)
+
     def command_values(self, torque_n_m: float, enable: bool) -> dict[str, float]:
         """The command quantities (``drivers.binding.quantities``)."""
-        return {"torque_cmd": self.clamp(torque_n_m) if enable else 0.0, "enable": int(enable)}
+        return dict(zip(self.command_quantities, self.command_args(torque_n_m, enable),
+                        strict=True))
 
     def encode(self, torque_n_m: float, enable: bool, counter: int) -> bytes:
         """The sgsrt WHEEL_CMD payload."""

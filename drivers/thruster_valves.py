@@ -10,11 +10,17 @@ class ThrusterValvesDriver(DeviceDriver):
     telemetry_frame = "VALVE_TLM"
     command_frame = "VALVE_CMD"
 
-    def command_values(self, direction: int) -> dict[str, float]:
+    command_quantities = ("valve_pos", "valve_neg")
+
+    def command_args(self, direction: int) -> tuple[int, int]:
         """direction +1 opens the positive-torque valve, -1 the negative, 0 closes both.
-        Both valves are never opened together."""
+        Both valves are never opened together. In ``command_quantities`` order."""
         d = 0 if direction != direction else (1 if direction > 0 else -1 if direction < 0 else 0)
-        return {"valve_pos": int(d > 0), "valve_neg": int(d < 0)}
+        return int(d > 0), int(d < 0)
+
+    def command_values(self, direction: int) -> dict[str, float]:
+        """The command quantities by name (see ``command_args``)."""
+        return dict(zip(self.command_quantities, self.command_args(direction), strict=True))
 
     def encode(self, direction: int, counter: int) -> bytes:
         """The sgsrt VALVE_CMD payload."""

@@ -12,7 +12,7 @@ is CiA 301 itself (COB-IDs, the SYNC counter, NMT, EMCY meanings).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
@@ -265,6 +265,21 @@ class PdoCommandMap:
         pos = {e: i for i, e in enumerate(codec.entries)}
         self._n = len(codec.entries)
         self._f = tuple((f.quantity, pos[f.ref], f.ref, f.conv) for f in fields)
+
+    def encoder(self, quantities: tuple[str, ...]) -> Callable[..., bytes]:
+        """A positional encoder: ``encoder(quantities)(v0, v1, ..., counter)`` is
+        ``encode(dict(zip(quantities, (v0, v1, ...))), counter)`` (as ``CommandMap``'s)."""
+        pos = {q: k for k, q in enumerate(quantities)}
+        fields = tuple((pos.get(q), i, ref, conv) for q, i, ref, conv in self._f)
+        n, encode_raw = self._n, self.codec.encode_raw
+
+        def encode(*args: Any) -> bytes:
+            raw: list[Any] = [0] * n
+            for k, i, ref, conv in fields:
+                v = conv.to_raw(args[k] if k is not None else 0.0, ref)
+                raw[i] = raw[i] | v if conv.bit is not None else v
+            return encode_raw(raw)
+        return encode
 
     def encode(self, quantities: dict[str, float], counter: int = 0) -> bytes:
         raw: list[Any] = [0] * self._n

@@ -143,6 +143,30 @@ class CommandMap:
         self._enc = tuple((f.quantity, f.signal, 1.0 / f.scale, f.offset) for f in fields)
         self._dec = tuple((f.quantity, f.signal, f.scale, f.offset) for f in fields)
 
+    def encoder(self, quantities: tuple[str, ...]) -> Callable[..., bytes]:
+        """A positional encoder: ``encoder(quantities)(v0, v1, ..., counter)`` is
+        ``encode(dict(zip(quantities, (v0, v1, ...))), counter)`` byte for byte, without a
+        dict per frame (the harness's commands, issue 23)."""
+        quantities = tuple(quantities)
+        arg = {q: f"p{k}" for k, q in enumerate(quantities)}  # a repeated name: the last
+        signals: list[str] = []
+        exprs: list[str] = []
+        for q, sig, inv, b in self._enc:
+            signals.append(sig)
+            exprs.append(f"({arg.get(q, '0.0')} - {float(b)!r}) * {float(inv)!r}")
+        if self.counter is not None:  # after the fields, as encode() sets it (it wins)
+            signals.append(self.counter[0])
+            exprs.append(f"counter % {int(self.counter[1])!r}")
+        if self.mux is not None:
+            signals.append(self.mux_signal)  # type: ignore[arg-type]
+            exprs.append(repr(self.mux))
+        params = "".join(f"p{k}, " for k in range(len(quantities)))
+        source = (f"def encode({params}counter):\n"
+                  f"    return _codec({', '.join(exprs)})\n")
+        namespace: dict[str, Any] = {"_codec": self.codec.encoder(tuple(signals))}
+        exec(compile(source, f"<map {self.device} {self.codec.name}>", "exec"), namespace)  # noqa: S102
+        return cast(Callable[..., bytes], namespace["encode"])
+
     def encode(self, quantities: dict[str, float], counter: int) -> bytes:
         values = {s: (quantities.get(q, 0.0) - b) * inv for q, s, inv, b in self._enc}
         if self.counter is not None:

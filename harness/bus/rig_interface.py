@@ -7,6 +7,7 @@ are counted, never raised.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import can
@@ -98,6 +99,17 @@ class RigInterface:
         self._fast = {k[0]: v[0] for k, v in self._by_key.items()
                       if len(v) == 1 and not k[1] and v[0][0].identity}
         self._commands = b.commands
+        # each actuator's command frames as positional encoders of its driver's
+        # ``command_args`` and the counter (no dict per frame: issue 23)
+        self._command_encoders: dict[str, tuple[tuple[Callable[..., bytes],
+                                                      tuple[int, bool]], ...]] = {
+            device: tuple((cmap.encoder(every[device].command_quantities), cmap.key)
+                          for cmap in cmaps)
+            for device, cmaps in b.commands.items() if device in every}
+        self._wheel_on = "reaction_wheel" in actuators
+        self._valves_on = "thruster_valves" in actuators
+        self._piezo_on = "piezo_amplifier" in actuators
+        self._rotor_on = "disturbance_rotor" in actuators
         # CANopen: the nodes' heartbeats, boot-ups and EMCYs are watched here (the frames
         # are not telemetry); a fault among them waits in protocol_events for the monitor
         self.co = b.canopen
@@ -120,6 +132,12 @@ class RigInterface:
         self.counters.sent += 1
         if self.can_log is not None:
             self.can_log.log(msg)
+
+    def _send_args(self, device: str, args: tuple[float, ...], counter: int) -> None:
+        """The device's command frames from its driver's ``command_args``."""
+        send = self._send_key
+        for encode, key in self._command_encoders[device]:
+            send(key, encode(*args, counter))
 
     def send_sync(self, tick: int) -> None:
         sync = self.binding.sync
@@ -144,22 +162,21 @@ class RigInterface:
         self._counter = (self._counter + 1) & 0xFF
         c = self._counter
         sent = RigCommand()
-        acts = self.actuators
-        if "reaction_wheel" in acts:
-            sent.wheel_torque_n_m = self.wheel.clamp(cmd.wheel_torque_n_m)
-            self._send_command("reaction_wheel",
-                               self.wheel.command_values(cmd.wheel_torque_n_m, True), c)
-        if "thruster_valves" in acts:
+        if self._wheel_on:
+            args = self.wheel.command_args(cmd.wheel_torque_n_m, True)
+            sent.wheel_torque_n_m = args[0]  # the clamped torque (enabled)
+            self._send_args("reaction_wheel", args, c)
+        if self._valves_on:
             sent.valve_direction = cmd.valve_direction
-            self._send_command("thruster_valves",
-                               self.valves.command_values(cmd.valve_direction), c)
-        if "piezo_amplifier" in acts:
-            sent.piezo_v = (self.piezo.clamp(cmd.piezo_v[0]), self.piezo.clamp(cmd.piezo_v[1]))
-            self._send_command("piezo_amplifier",
-                               self.piezo.command_values(cmd.piezo_v[0], cmd.piezo_v[1]), c)
-        if "disturbance_rotor" in acts:
+            self._send_args("thruster_valves", self.valves.command_args(cmd.valve_direction),
+                            c)
+        if self._piezo_on:
+            args = self.piezo.command_args(cmd.piezo_v[0], cmd.piezo_v[1])
+            sent.piezo_v = args
+            self._send_args("piezo_amplifier", args, c)
+        if self._rotor_on:
             sent.rotor_speed_rad_s, sent.rotor_enable = cmd.rotor_speed_rad_s, cmd.rotor_enable
-            self._send_command("disturbance_rotor", self.rotor.command_values(
+            self._send_args("disturbance_rotor", self.rotor.command_args(
                 cmd.rotor_speed_rad_s, cmd.rotor_enable), c)
         return sent
 
@@ -196,11 +213,18 @@ class RigInterface:
         passes (0: only what is already waiting). Returns the number of frames read."""
         expected = self.expected_frames(tick)
         got = 0
-        deadline = time.monotonic() + timeout_s
         recv = self.bus.recv
+        if lockstep:  # the rig answered already: what is waiting, up to the frames due
+            feed = self.feed
+            while got < expected:
+                msg = recv(0.0)
+                if msg is None:
+                    return got
+                if feed(msg, tick):
+                    got += 1
+            return got
+        deadline = time.monotonic() + timeout_s
         while True:
-            if lockstep and got >= expected:
-                return got  # lockstep: the rig answered already; later frames wait a tick
             remaining = deadline - time.monotonic()
             msg = recv(remaining if remaining > 0 and got < expected else 0.0)
             if msg is None:
