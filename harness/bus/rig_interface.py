@@ -15,7 +15,7 @@ import can
 from drivers.accelerometer import AccelerometerDriver
 from drivers.base import DeviceDriver
 from drivers.binding import RigBinding
-from drivers.binding.frames import TelemetryMap
+from drivers.binding.frames import SyncMap, TelemetryMap
 from drivers.dbc import FrameError, Protocol
 from drivers.disturbance_rotor import DisturbanceRotorDriver
 from drivers.hub_sensor import HubSensorDriver
@@ -96,8 +96,16 @@ class RigInterface:
         self._by_key: dict[tuple[int, bool], tuple[tuple[TelemetryMap, DeviceDriver], ...]] = {
             k: tuple((m, every[m.device]) for m in maps)
             for k, maps in b.telemetry_by_key().items()}
-        self._fast = {k[0]: v[0] for k, v in self._by_key.items()
+        # id -> (decode, driver): one identity-mapped frame (the sgsrt protocol)
+        self._fast = {k[0]: (v[0][0].codec.decode, v[0][1]) for k, v in self._by_key.items()
                       if len(v) == 1 and not k[1] and v[0][0].identity}
+        self._driver_items = tuple(self.drivers.items())
+        sync = b.sync
+        if isinstance(sync, SyncMap):  # a DBC's SYNC: its counter through a positional encoder
+            sync_encode, modulus = sync.codec.encoder((sync.signal,)), sync.modulus
+            self._sync_payload: Callable[[int], bytes] = lambda tick: sync_encode(tick % modulus)
+        else:
+            self._sync_payload = sync.encode
         self._commands = b.commands
         # each actuator's command frames as positional encoders of its driver's
         # ``command_args`` and the counter (no dict per frame: issue 23)
@@ -113,6 +121,8 @@ class RigInterface:
         # CANopen: the nodes' heartbeats, boot-ups and EMCYs are watched here (the frames
         # are not telemetry); a fault among them waits in protocol_events for the monitor
         self.co = b.canopen
+        # only a CANopen bus reports protocol faults (the monitor asks only then)
+        self.has_protocol_faults = self.co is not None
         self.protocol_events: list[tuple[str, str, str]] = []
         self._hb_tick: dict[int, int] = {}
         self._hb_timeout_ticks: dict[int, int] = {}
@@ -140,8 +150,7 @@ class RigInterface:
             send(key, encode(*args, counter))
 
     def send_sync(self, tick: int) -> None:
-        sync = self.binding.sync
-        self._send_key(sync.key, sync.encode(tick))
+        self._send_key(self.binding.sync.key, self._sync_payload(tick))
 
     def send_heartbeat(self, armed: bool) -> None:
         self._hb_counter = (self._hb_counter + 1) & 0xFF
@@ -250,9 +259,9 @@ class RigInterface:
         if not msg.is_extended_id:
             fast = self._fast.get(msg.arbitration_id)
             if fast is not None:  # one identity-mapped frame (the sgsrt protocol)
-                tmap, drv = fast
+                decode, drv = fast
                 try:
-                    values = tmap.codec.decode(msg.data)
+                    values = decode(msg.data)
                 except FrameError as exc:
                     drv.malformed(str(exc))
                     return False
@@ -362,5 +371,9 @@ class RigInterface:
         s.rotor_angle_rad = rv.get("angle", 0.0)
         s.rotor_speed_rad_s = rv.get("speed", 0.0)
         s.rotor_sample_tick = r.last_tick
-        s.stale = tuple(n for n, d in self.drivers.items() if d.is_stale(tick))
+        stale: tuple[str, ...] = ()
+        for n, d in self._driver_items:  # DeviceDriver.is_stale, inline (every tick)
+            if tick - d.last_tick > d.stale_after_ticks:
+                stale += (n,)
+        s.stale = stale
         return s

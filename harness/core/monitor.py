@@ -89,6 +89,9 @@ MONITOR_SCHEMA = {
 }
 WARNING_KINDS = ("wheel_speed", "torque_saturated", "hub_angle", "hub_rate", "tip_accel",
                  "accel_range", "telemetry_missing")
+LOST_WINDOW = 20
+"""A device's frames lost: ``lost_frames`` of its last this many due frames missing."""
+
 LIMITS_SCHEMA = {
     "max_angle_deg": Field("number", "deg", default=180.0, exclusive_minimum=0.0),
     "max_rate_deg_s": Field("number", "deg/s", default=10.0, exclusive_minimum=0.0),
@@ -168,13 +171,16 @@ class FaultMonitor:
         self.grace = max(2 * d + 2 for d in self.div.values())
         self.startup_ticks = math.ceil(monitor["startup_s"] / dt_s)
         # per device, built once (the tick's checks then touch only what changed):
-        # [name, driver, divider, ticks after which it is stale, its last 20 due frames
-        # (True: missing), how many of those are missing]
+        # [name, driver, divider, ticks after which it is stale, the numbers of its due
+        # frames that were missing among its last LOST_WINDOW due frames, how many of its
+        # frames were due so far]
         self._lost: list[list[Any]] = [
             [name, drv, self.div[name],
-             getattr(drv, "stale_after_ticks", 2 * self.div[name] + 1), deque(maxlen=20), 0]
+             getattr(drv, "stale_after_ticks", 2 * self.div[name] + 1), deque(), 0]
             for name, drv in interface.drivers.items()]
         self._drivers = list(interface.drivers.items())
+        self._max_error_frames = monitor["max_error_frames"]
+        self._max_unknown_frames = monitor["max_unknown_frames"]
         self._lost_limit = int(monitor["lost_frames"])
         self._max_malformed = monitor["max_malformed_frames"]
         self._accel_div = self.div.get("accelerometer", 1)
@@ -188,7 +194,8 @@ class FaultMonitor:
                               lim["max_wheel_speed_rad_s"] * inside,
                               lim["max_tip_accel_m_s2"] * inside)
         # the bus protocol's own fault reports only where the interface has them (CANopen)
-        self._protocol_fault = getattr(interface, "protocol_fault", None)
+        self._protocol_fault = (getattr(interface, "protocol_fault", None)
+                                if getattr(interface, "has_protocol_faults", True) else None)
         self._enabled = bool(monitor["enabled"])
         # the devices whose telemetry check() looks at (None: not on this rig's bus)
         self._device_drivers = tuple(interface.drivers.get(name) for name in (
@@ -240,6 +247,15 @@ class FaultMonitor:
         self._missing_since: int | None = None
         self._last_tick = 0
         self._due = [(name, drv, self.div[name]) for name, drv in self.iface.drivers.items()]
+        # the devices due at each tick, by tick modulo the dividers' least common multiple
+        # (built once; the tick then looks only at what is due)
+        period = math.lcm(*self.div.values()) if self.div else 1
+        self._due_period = period if period <= 10_000 else 0
+        self._due_at = [tuple((name, drv) for name, drv, div in self._due if k % div == 0)
+                        for k in range(self._due_period)]
+        h = self._hyst
+        self._hyst_seq = (h["wheel_speed"], h["hub_angle"], h["hub_rate"], h["tip_accel"],
+                          h["accel_range"])
 
     def _warn(self, tick: int, kind: str, message: str) -> None:
         self.warning_counts[kind] += 1
@@ -248,19 +264,23 @@ class FaultMonitor:
 
     def _warnings(self, tick: int, state: RigState, sent: RigCommand) -> None:
         self._last_tick = tick
-        h = self._hyst
+        h_speed, h_angle, h_rate, h_tip, h_range = self._hyst_seq
         accel = abs(state.tip_accel_m_s2)
-        values = (("wheel_speed", abs(state.wheel_speed_rad_s)),
-                  ("hub_angle", abs(state.hub_angle_rad) * 57.29577951308232),
-                  ("hub_rate", abs(state.hub_rate_rad_s) * 57.29577951308232),
-                  ("tip_accel", accel), ("accel_range", accel))
-        for kind, x in values:
-            hyst = h[kind]
-            # the usual tick: no warning active and every value below its level
-            if (hyst.active or x > hyst.on) and hyst.update(x):
-                frac, limit, unit, what = self._levels[kind]
-                self._warn(tick, kind, f"{x:.5g} {unit} is past {100 * frac:g} % of {what} "
-                                       f"{limit:.4g} {unit} ({frac * limit:.5g} {unit})")
+        speed = abs(state.wheel_speed_rad_s)
+        angle = abs(state.hub_angle_rad) * 57.29577951308232
+        rate = abs(state.hub_rate_rad_s) * 57.29577951308232
+        # the usual tick: no warning active and every value below its level (one test
+        # each, in the order the warnings are reported)
+        if h_speed.active or speed > h_speed.on:
+            self._level(tick, "wheel_speed", h_speed, speed)
+        if h_angle.active or angle > h_angle.on:
+            self._level(tick, "hub_angle", h_angle, angle)
+        if h_rate.active or rate > h_rate.on:
+            self._level(tick, "hub_rate", h_rate, rate)
+        if h_tip.active or accel > h_tip.on:
+            self._level(tick, "tip_accel", h_tip, accel)
+        if h_range.active or accel > h_range.on:
+            self._level(tick, "accel_range", h_range, accel)
         torque = abs(sent.wheel_torque_n_m)
         if torque >= self._torque_limit * (1.0 - 1e-9):
             self._torque_held += 1
@@ -276,16 +296,30 @@ class FaultMonitor:
                        f"{self._torque_held * self.dt_s:.3g} s (since t = "
                        f"{(tick - self._torque_held + 1) * self.dt_s:.3f} s)")
         missed = False
-        for name, drv, div in self._due:
-            if tick % div == 0 and drv.last_tick != tick \
-                    and (drv.last_tick > -10**8 or tick >= self.startup_ticks):
-                self._missing[name] += 1
-                missed = True
+        if self._due_period:
+            for name, drv in self._due_at[tick % self._due_period]:
+                if drv.last_tick != tick \
+                        and (drv.last_tick > -10**8 or tick >= self.startup_ticks):
+                    self._missing[name] += 1
+                    missed = True
+        else:
+            for name, drv, div in self._due:
+                if tick % div == 0 and drv.last_tick != tick \
+                        and (drv.last_tick > -10**8 or tick >= self.startup_ticks):
+                    self._missing[name] += 1
+                    missed = True
         if missed:
             if self._missing_since is None:
                 self._missing_since = tick
             if tick >= self._missing_next:
                 self._report_missing(tick)
+
+    def _level(self, tick: int, kind: str, hyst: Hysteresis, x: float) -> None:
+        """One value past (or back under) its warning level."""
+        if hyst.update(x):
+            frac, limit, unit, what = self._levels[kind]
+            self._warn(tick, kind, f"{x:.5g} {unit} is past {100 * frac:g} % of {what} "
+                                   f"{limit:.4g} {unit} ({frac * limit:.5g} {unit})")
 
     def _report_missing(self, tick: int) -> None:
         counts = {n: c for n, c in self._missing.items() if c}
@@ -371,10 +405,10 @@ class FaultMonitor:
         c = self.iface.counters
         if c.bus_off:
             return self._event(tick, "bus", "bus-off", "error frame with the bus-off class")
-        if c.error_frames > self.cfg["max_error_frames"]:
+        if c.error_frames > self._max_error_frames:
             return self._event(tick, "bus", "error frames",
                                f"{c.error_frames} error frames on the bus")
-        if c.unknown > self.cfg["max_unknown_frames"]:
+        if c.unknown > self._max_unknown_frames:
             return self._event(tick, "bus", "unknown ids",
                                f"{c.unknown} frames with ids no device uses "
                                f"(last 0x{c.last_unknown_id:03X})")
@@ -396,22 +430,26 @@ class FaultMonitor:
         for entry in self._lost:
             last = entry[1].last_tick
             age = tick - last
-            if age > 10**8 and startup:
-                continue  # not heard from yet: a device may take a moment to answer at first
             if age > entry[3] and age > grace:
+                if age > 10**8 and startup:
+                    # not heard from yet: a device may take a moment to answer at first
+                    continue
                 return self._event(tick, entry[0], "silent",
                                    f"no telemetry for {age if age < 10**8 else 'all'} ticks")
             if not grace and tick % entry[2] == 0:
-                # a running count of the last 20 due frames' misses, not a sum each tick
+                # the missing ones among the last LOST_WINDOW due frames, kept by number: a
+                # tick whose frame came touches no window
+                n = entry[5] = entry[5] + 1
                 misses = entry[4]
-                missed = last != tick
-                if len(misses) == misses.maxlen:
-                    entry[5] -= misses[0]
-                misses.append(missed)
-                entry[5] += missed
-                if entry[5] >= self._lost_limit:
-                    return self._event(tick, entry[0], "frames lost",
-                                       f"{entry[5]} of its last {len(misses)} frames missing")
+                if last != tick:
+                    misses.append(n)
+                if misses:
+                    while misses and misses[0] <= n - LOST_WINDOW:
+                        misses.popleft()
+                    if len(misses) >= self._lost_limit:
+                        return self._event(tick, entry[0], "frames lost",
+                                           f"{len(misses)} of its last {min(n, LOST_WINDOW)} "
+                                           "frames missing")
         return None
 
     def _accelerometer(self, tick: int, state: RigState, sent: RigCommand
