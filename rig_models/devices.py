@@ -178,10 +178,13 @@ class Accelerometer:
     def sample(self, true_accel_m_s2: float) -> float:
         self.filtered += self._alpha * (true_accel_m_s2 - self.filtered)
         v = self.filtered + self.noise_rms_m_s2 * self.noise.normal()
-        self.saturated = abs(v) >= self.range_m_s2
-        v = max(-self.range_m_s2, min(self.range_m_s2, v))
+        rng = self.range_m_s2
+        self.saturated = abs(v) >= rng
+        v = v if v < rng else rng  # max(-rng, min(rng, v)), NaN included, inline
+        v = v if v > -rng else -rng
         self.counter = (self.counter + 1) & 0xFFFF
-        return quantise(v, self.lsb_m_s2)
+        lsb = self.lsb_m_s2
+        return round(v / lsb) * lsb if lsb > 0 else v  # quantise(v, lsb), inline: every tick
 
 
 @dataclass
@@ -196,7 +199,10 @@ class HubSensor:
         n_angle, n_rate = self.noise.normal2()
         a = angle_rad + self.angle_noise_rms_rad * n_angle
         r = rate_rad_s + self.rate_noise_rms_rad_s * n_rate
-        return quantise(a, self.angle_lsb_rad), quantise(r, self.rate_lsb_rad_s)
+        # quantise(), inline: every tick
+        lsb_a, lsb_r = self.angle_lsb_rad, self.rate_lsb_rad_s
+        return (round(a / lsb_a) * lsb_a if lsb_a > 0 else a,
+                round(r / lsb_r) * lsb_r if lsb_r > 0 else r)
 
 
 @dataclass

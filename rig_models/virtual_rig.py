@@ -186,7 +186,6 @@ class VirtualRig:
         # (DiscreteHubBeam.advance); u is a view into it, as before a persistent array
         self._xu = np.zeros(rig.plant.n_states + self.plant.bd.shape[1])
         self.u = self._xu[rig.plant.n_states:]
-        self.y = np.zeros(self.plant.c.shape[0])  # outputs after the last step
         noise = NoiseSource(rig.data["noise_seed"])
         self.noise = noise
         rw, acc, hs = (rig.section(k) for k in ("reaction_wheel", "accelerometer", "hub_sensor"))
@@ -225,8 +224,8 @@ class VirtualRig:
         self._fused = np.ascontiguousarray(fused)
         self._n_x = n_x
         self._n_y = self.plant.c.shape[0]
-        # the last step's outputs and patch volts (zero before the first step, as x and u)
-        self._out = np.zeros(fused.shape[0] - n_x)
+        # the last step's product: [x; y; patch volts] (zero before the first step, as x, u)
+        self._state = np.zeros(fused.shape[0])
         dr = rig.section("disturbance_rotor")
         self.rotor = DisturbanceRotor(
             mass_kg=dr["mass_kg"], eccentricity_m=dr["eccentricity_m"],
@@ -244,6 +243,10 @@ class VirtualRig:
             angle_lsb_rad=hs["angle_lsb_rad"], rate_lsb_rad_s=hs["rate_lsb_rad_s"], noise=noise,
         )
         self.divider = rig.data["bus"]["sync_divider"]
+        period = math.lcm(*(self.divider[d] for d in TELEMETRY_QUANTITIES))
+        self._due_period = period if period <= 10_000 else 0
+        self._due_at = [tuple(k % self.divider[d] == 0 for d in TELEMETRY_QUANTITIES)
+                        for k in range(self._due_period)]
         self.watchdog_timeout_s = rig.data["watchdog"]["heartbeat_timeout_s"]
         self.counters = RigCounters()
         self.truth = TruthSample(modal=np.zeros(self.n_modes))
@@ -596,10 +599,8 @@ class VirtualRig:
         xu = self._xu
         n_x = self._n_x
         xu[:n_x] = self.x
-        out = self._fused @ xu
+        out = self._state = self._fused @ xu
         self.x = out[:n_x]
-        self._out = out[n_x:]
-        self.y = out[n_x:n_x + self._n_y]
         self.time_s += self.dt_s
         self.counters.steps += 1
         if (not self.safe
@@ -607,6 +608,12 @@ class VirtualRig:
             self.make_safe(watchdog=True)
         for hook in self._hooks:
             hook(self)
+
+    @property
+    def y(self) -> np.ndarray:
+        """The outputs (hub angle, rate, tip acceleration) after the last step: C x + D u."""
+        n_x = self._n_x
+        return self._state[n_x:n_x + self._n_y]
 
     def _on_sync(self, data: bytes) -> None:
         tick = self.binding.sync.decode(data)
@@ -636,18 +643,23 @@ class VirtualRig:
 
     def _sample_and_send(self, tick: int) -> None:
         # the last step's outputs and patch volts as Python floats, one conversion a tick
-        out = self._out.tolist()
-        y0, y1, y2 = out[0], out[1], out[2]
+        n_y0 = self._n_x
+        out = self._state.tolist()
+        y0, y1, y2 = out[n_y0], out[n_y0 + 1], out[n_y0 + 2]
         truth = self.truth
         truth.time_s, truth.angle_rad, truth.rate_rad_s = self.time_s, y0, y1
         truth.tip_accel_m_s2 = y2
         truth.modal = self.x[1 : 1 + self.n_modes]
-        div = self.divider
+        # which devices answer this SYNC: a table by tick modulo the dividers' least common
+        # multiple (or the dividers themselves beyond 10 000)
+        due = (self._due_at[tick % self._due_period] if self._due_period
+               else tuple(tick % self.divider[d] == 0 for d in TELEMETRY_QUANTITIES))
+        hub_due, acc_due, wheel_due, valves_due, piezo_due, rotor_due = due
         emit = self._emit
-        if tick % div["hub_sensor"] == 0:
+        if hub_due:
             angle, rate = self.hub_sensor.sample(y0, y1)
             emit["hub_sensor"](angle, rate)
-        if tick % div["accelerometer"] == 0:
+        if acc_due:
             extra = 0.0
             if self.injector.faults:
                 f = self.injector.active(self.time_s, "accel_saturation")
@@ -655,29 +667,29 @@ class VirtualRig:
             acc = self.accel
             a = acc.sample(y2 + extra)
             emit["accelerometer"](a, acc.counter, int(acc.saturated))
-        if tick % div["reaction_wheel"] == 0:
+        if wheel_due:
             w = self.wheel
             self.wheel_counter = (self.wheel_counter + 1) & 0xFF
             emit["reaction_wheel"](w.speed_rad_s, w.torque_n_m, int(w.enabled), int(w.fault),
                                    int(w.speed_limited), int(w.torque_limited),
                                    self.wheel_counter)
-        if tick % div["thruster_valves"] == 0:
+        if valves_due:
             v = self.valves
             emit["thruster_valves"](int(v.state > 0), int(v.state < 0), int(v.fault),
                                     v.firings & 0xFFFF, v.on_time_s, tick & 0xFF)
-        if tick % div["piezo_amplifier"] == 0:
+        if piezo_due:
             # the patches' volts plus the amplifier's sensor noise, a draw per patch in
             # patch order (the noise sequence as before)
             normal, rms = self.noise.normal, self.piezo_noise_v
             s1 = s2 = 0.0
             n_patches = len(self.piezo_gains)
             if n_patches:
-                ny = self._n_y
-                s1 = out[ny] + rms * normal()
+                k = n_y0 + self._n_y
+                s1 = out[k] + rms * normal()
                 if n_patches > 1:
-                    s2 = out[ny + 1] + rms * normal()
+                    s2 = out[k + 1] + rms * normal()
             emit["piezo_amplifier"](s1, s2, int(self.piezo.overcurrent), tick & 0xFF)
-        if tick % div["disturbance_rotor"] == 0:
+        if rotor_due:
             r = self.rotor
             emit["disturbance_rotor"](r.angle_rad % (2 * math.pi), r.speed_rad_s,
                                       int(r.enabled), tick & 0xFF)
