@@ -45,6 +45,14 @@ _OBJ = struct.Struct("<" + blf.OBJ_HEADER_BASE_STRUCT.format.lstrip("<") +
 _HEADER_SIZE = blf.OBJ_HEADER_BASE_STRUCT.size + blf.OBJ_HEADER_V1_STRUCT.size
 _OBJ_SIZE = _HEADER_SIZE + blf.CAN_MSG_STRUCT.size
 assert _OBJ.size == _OBJ_SIZE and _OBJ_SIZE % 4 == 0
+# every field up to the v1 header's timestamp is the same for every such object: an object
+# is this template with its timestamp and frame packed over its tail (one struct call of
+# six values, not sixteen)
+_CONSTANT = _OBJ.pack(b"LOBJ", _HEADER_SIZE, 1, _OBJ_SIZE, blf.CAN_MESSAGE,
+                      blf.TIME_ONE_NANS, 0, 0, 0, 0, 0, 0, 0, b"")
+_TAIL_AT = _HEADER_SIZE - 8  # the v1 header's 8-byte timestamp, then the CAN_MSG fields
+_TAIL = struct.Struct("<Q" + blf.CAN_MSG_STRUCT.format.lstrip("<"))
+assert _TAIL_AT + _TAIL.size == _OBJ_SIZE
 
 
 class CanLog:
@@ -98,19 +106,21 @@ class CanLog:
         self._pending.clear()
         self._taken += len(pending)
         writer = self._writer
-        packed = bytearray(_OBJ_SIZE * len(pending))
-        pack_into = _OBJ.pack_into
+        packed = bytearray(_CONSTANT * len(pending))
+        pack_into = _TAIL.pack_into
         channels = self._blf_channel  # channel -> BLF channel number, filled as seen
+        ext_bit, remote_flag, dir_flag = blf.CAN_MSG_EXT, blf.REMOTE_FLAG, blf.DIR
         start = writer.start_timestamp
         offset = 0
         last_ts = 0.0
         for msg in pending:
             if msg.is_error_frame or msg.is_fd:
+                ch = msg.channel
                 if offset:  # what is packed so far goes first: the file keeps the order
                     self._append(packed[:offset], offset // _OBJ_SIZE, last_ts)
-                    packed = bytearray(_OBJ_SIZE * len(pending))
+                    packed = bytearray(_CONSTANT * len(pending))
                     offset = 0
-                if msg.channel is not None and self._numbered_as(msg.channel) is None:
+                if ch is not None and self._numbered_as(ch) is None:
                     msg.channel = None  # written as the default channel either way
                 writer.on_message_received(msg)
                 start = writer.start_timestamp
@@ -119,19 +129,17 @@ class CanLog:
             if start is None:
                 # python-can's rule: the start truncated to milliseconds
                 start = writer.start_timestamp = int(ts * 1000) / 1000
-            arb_id = msg.arbitration_id
-            if msg.is_extended_id:
-                arb_id |= blf.CAN_MSG_EXT
-            flags = blf.REMOTE_FLAG if msg.is_remote_frame else 0
-            if not msg.is_rx:
-                flags |= blf.DIR
             ns = int((ts - start) * 1e9)
-            channel = channels.get(msg.channel)
+            ch = msg.channel
+            channel = channels.get(ch)
             if channel is None:
-                channel = channels[msg.channel] = self._channel_number(msg.channel)
-            pack_into(packed, offset, b"LOBJ", _HEADER_SIZE, 1, _OBJ_SIZE, blf.CAN_MESSAGE,
-                      blf.TIME_ONE_NANS, 0, 0, ns if ns > 0 else 0, channel, flags, msg.dlc,
-                      arb_id, msg.data)
+                channel = channels[ch] = self._channel_number(ch)
+            flags = remote_flag if msg.is_remote_frame else 0
+            if not msg.is_rx:
+                flags |= dir_flag
+            arb_id = msg.arbitration_id
+            pack_into(packed, offset + _TAIL_AT, ns if ns > 0 else 0, channel, flags, msg.dlc,
+                      arb_id | ext_bit if msg.is_extended_id else arb_id, msg.data)
             offset += _OBJ_SIZE
             last_ts = ts
         if offset:
