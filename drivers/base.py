@@ -37,6 +37,7 @@ class DeviceDriver:
     command_frame = ""
     # (signal, modulus) of a counter that advances by one per frame, if the frame has one
     sequence: tuple[str, int] | None = None
+    _last_seq: ClassVar[int | None] = None  # the last sequence counter (set per instance)
     # the command quantities, in the order ``command_args`` gives them (an actuator's)
     command_quantities: ClassVar[tuple[str, ...]] = ()
 
@@ -67,10 +68,11 @@ class DeviceDriver:
         else:
             self.values = values
         self.counters.received += 1
-        if self.sequence is not None and self.sequence[0] in values:
-            name, modulus = self.sequence
+        sequence = self.sequence
+        if sequence is not None and sequence[0] in values:
+            name, modulus = sequence
             new = int(values[name])
-            last = getattr(self, "_last_seq", None)
+            last = self._last_seq
             if last is not None and (new - last) % modulus != 1:
                 self.counters.sequence_errors += 1
                 self.counters.last_error = f"{self.name}: {name} went {last} -> {new}"

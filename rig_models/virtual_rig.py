@@ -273,6 +273,13 @@ class VirtualRig:
         apply = {"reaction_wheel": self._wheel_cmd, "thruster_valves": self._valve_cmd,
                  "piezo_amplifier": self._piezo_cmd, "disturbance_rotor": self._rotor_cmd}
         self._apply = apply
+        self._command_args: dict[str, tuple[tuple[str, ...], tuple[float, ...],
+                                             Callable[..., None]]] = {
+            "reaction_wheel": (("torque_cmd", "enable"), (0.0, 1), self._wheel_args),
+            "thruster_valves": (("valve_pos", "valve_neg"), (0, 0), self._valve_args),
+            "piezo_amplifier": (("voltage_ch1", "voltage_ch2"), (0.0, 0.0), self._piezo_args),
+            "disturbance_rotor": (("speed_cmd", "enable"), (0.0, 1), self._rotor_args),
+        }
         for key, cmaps in b.commands_by_key().items():
             if b.kinds[cmaps[0].device] != "canopen":  # a CANopen node takes its own RPDOs
                 self._handlers[key] = self._command_handler(cmaps, apply)
@@ -541,27 +548,48 @@ class VirtualRig:
     def _command_handler(self, cmaps: tuple[CommandMap, ...],
                          apply: dict[str, Callable[[dict[str, float]], None]]
                          ) -> Callable[[bytes], None]:
+        # each map decodes straight into its device's command arguments (positional: no
+        # dict of quantities per frame)
+        decoders = []
+        for cmap in cmaps:
+            names, defaults, apply_args = self._command_args[cmap.device]
+            decoders.append((cmap.decoder(names, defaults), apply_args))
+
         def handler(data: bytes) -> None:
-            for cmap in cmaps:
-                values = cmap.decode(data)
+            for decode, apply_args in decoders:
+                values = decode(data)
                 if values is not None:
                     if self.armed:
-                        apply[cmap.device](values)
+                        apply_args(*values)
                     return
         return handler
 
-    def _wheel_cmd(self, v: dict[str, float]) -> None:
-        self.wheel.command(v.get("torque_cmd", 0.0), bool(v.get("enable", 1)))
+    # each actuator's command quantities with the value a frame without one means, and
+    # what applies them; the dict forms serve the CANopen nodes' commands
+    def _wheel_args(self, torque_cmd: float, enable: float) -> None:
+        self.wheel.command(torque_cmd, bool(enable))
 
-    def _valve_cmd(self, v: dict[str, float]) -> None:
-        pos, neg = int(v.get("valve_pos", 0)), int(v.get("valve_neg", 0))
+    def _valve_args(self, valve_pos: float, valve_neg: float) -> None:
+        pos, neg = int(valve_pos), int(valve_neg)
         self.valves.command(0 if pos and neg else pos - neg)
 
+    def _piezo_args(self, voltage_ch1: float, voltage_ch2: float) -> None:
+        self.piezo.command(voltage_ch1, voltage_ch2)
+
+    def _rotor_args(self, speed_cmd: float, enable: float) -> None:
+        self.rotor.command(speed_cmd, bool(enable))
+
+    def _wheel_cmd(self, v: dict[str, float]) -> None:
+        self._wheel_args(v.get("torque_cmd", 0.0), v.get("enable", 1))
+
+    def _valve_cmd(self, v: dict[str, float]) -> None:
+        self._valve_args(v.get("valve_pos", 0), v.get("valve_neg", 0))
+
     def _piezo_cmd(self, v: dict[str, float]) -> None:
-        self.piezo.command(v.get("voltage_ch1", 0.0), v.get("voltage_ch2", 0.0))
+        self._piezo_args(v.get("voltage_ch1", 0.0), v.get("voltage_ch2", 0.0))
 
     def _rotor_cmd(self, v: dict[str, float]) -> None:
-        self.rotor.command(v.get("speed_cmd", 0.0), bool(v.get("enable", 1)))
+        self._rotor_args(v.get("speed_cmd", 0.0), v.get("enable", 1))
 
     def make_safe(self, watchdog: bool = False) -> None:
         self.wheel.make_safe()

@@ -182,6 +182,28 @@ class CommandMap:
             return None
         return {q: v[s] * a + b for q, s, a, b in self._dec if s in v}
 
+    def decoder(self, quantities: tuple[str, ...], defaults: tuple[float, ...]
+                ) -> Callable[[bytes | bytearray], tuple[float, ...] | None]:
+        """A positional decoder: ``decoder(quantities, defaults)(data)`` is the tuple of
+        ``decode(data).get(q, default)`` for each quantity (None for another mux page),
+        without a dict of quantities (the virtual rig's commands, issue 23)."""
+        exprs = []
+        for q, default in zip(quantities, defaults, strict=True):
+            expr = repr(default)
+            for _, s, a, b in (f for f in self._dec if f[0] == q):
+                # decode()'s dict: the last field of the quantity present in the frame wins
+                expr = f"(v[{s!r}] * {float(a)!r} + {float(b)!r} if {s!r} in v else {expr})"
+            exprs.append(expr)
+        lines = ["def decode(data):", "    v = _codec(data)"]
+        if self.mux is not None:
+            lines.append(f"    if v.get({self.mux_signal!r}) != {self.mux!r}: return None")
+        lines.append(f"    return ({''.join(e + ', ' for e in exprs)})")
+        namespace: dict[str, Any] = {"_codec": self.codec.decode}
+        exec(compile("\n".join(lines) + "\n", f"<map {self.device} {self.codec.name} decoder>",  # noqa: S102
+                     "exec"), namespace)
+        return cast(Callable[[bytes | bytearray], tuple[float, ...] | None],
+                    namespace["decode"])
+
 
 class SyncMap:
     """The harness's SYNC frame of a DBC: a tick counter signal."""

@@ -144,10 +144,19 @@ class RigInterface:
             self.can_log.log(msg)
 
     def _send_args(self, device: str, args: tuple[float, ...], counter: int) -> None:
-        """The device's command frames from its driver's ``command_args``."""
-        send = self._send_key
-        for encode, key in self._command_encoders[device]:
-            send(key, encode(*args, counter))
+        """The device's command frames from its driver's ``command_args`` (``_send_key``
+        inline: every tick)."""
+        for encode, (aid, ext) in self._command_encoders[device]:
+            msg = can.Message(arbitration_id=aid, data=encode(*args, counter),
+                              is_extended_id=ext, timestamp=time.time(), is_rx=False)
+            try:
+                self.bus.send(msg)
+            except can.CanError:
+                self.counters.send_errors += 1
+                continue
+            self.counters.sent += 1
+            if self.can_log is not None:
+                self.can_log.log(msg)
 
     def send_sync(self, tick: int) -> None:
         self._send_key(self.binding.sync.key, self._sync_payload(tick))
@@ -217,10 +226,13 @@ class RigInterface:
             return sum(n for d, n in self._due_groups if d == 1)
         return sum(n for d, n in self._due_groups if tick % d == 0)
 
-    def receive(self, tick: int, timeout_s: float, lockstep: bool = False) -> int:
+    def receive(self, tick: int, timeout_s: float, lockstep: bool = False,
+                expected: int | None = None) -> int:
         """Read telemetry until every device due at ``tick`` has answered or the timeout
-        passes (0: only what is already waiting). Returns the number of frames read."""
-        expected = self.expected_frames(tick)
+        passes (0: only what is already waiting). Returns the number of frames read.
+        ``expected``: ``expected_frames(tick)``, if the caller has it already."""
+        if expected is None:
+            expected = self.expected_frames(tick)
         got = 0
         recv = self.bus.recv
         if lockstep:  # the rig answered already: what is waiting, up to the frames due

@@ -131,8 +131,9 @@ def run_loop(
     # one go at the end)
     div = getattr(interface, "divider", None)
     period = math.lcm(*div.values()) if div else 1
-    expected_at = [interface.expected_frames(k) for k in range(period)] if period <= 10_000 \
-        else None
+    # from tick `period` on (tick 0 may differ: a CANopen TPDO's first frame)
+    expected_at = [interface.expected_frames(period + k) for k in range(period)] \
+        if period <= 10_000 else None
     lockstep = not realtime
     lateness = 0.0
     lateness_add = stats.lateness_s.add
@@ -160,9 +161,11 @@ def run_loop(
             if realtime:  # never wait for telemetry past most of this tick's period
                 timeout = min(receive_timeout_s,
                               max(0.0, clock.time_left(tick) - RESERVE_FRACTION * dt_s))
-            got = interface.receive(tick, timeout, lockstep=pump is not None and not realtime)
-            missing = (expected_at[tick % period] if expected_at is not None
-                       else interface.expected_frames(tick)) - got
+            expected = (expected_at[tick % period] if expected_at is not None and tick >= period
+                        else interface.expected_frames(tick))
+            got = interface.receive(tick, timeout, lockstep=pump is not None and not realtime,
+                                    expected=expected)
+            missing = expected - got
             if missing > 0:
                 stats.missing_frames += missing
             t_s = tick * dt_s
