@@ -136,6 +136,9 @@ class ThrusterValves:
         self.state = 1 if self.stuck_open else 0
 
     def step(self) -> float:
+        if not self._pending and not self.state and not self.stuck_open:
+            self._step += 1  # closed, nothing pending (most ticks): what the full step gives
+            return self.state * self.couple_n_m
         min_on = round(self.min_on_time_s / self.dt_s)
         while self._pending and self._pending[0][0] <= self._step:
             _, new = self._pending[0]

@@ -249,7 +249,6 @@ class VirtualRig:
                         for k in range(self._due_period)]
         self.watchdog_timeout_s = rig.data["watchdog"]["heartbeat_timeout_s"]
         self.counters = RigCounters()
-        self.truth = TruthSample(modal=np.zeros(self.n_modes))
         self.tick = -1
         self.time_s = 0.0
         self.armed = False
@@ -314,12 +313,31 @@ class VirtualRig:
         """Handle every frame waiting on the bus; return how many were handled."""
         n = 0
         recv = self.bus.recv
+        if self.co_devices is not None:
+            while True:
+                msg = recv(0.0)
+                if msg is None:
+                    return n
+                self.handle(msg)
+                n += 1
+        # handle() inline (no CANopen node on this bus): every frame of a lockstep tick
+        handlers, counters = self._handlers, self.counters
         while True:
             msg = recv(0.0)
             if msg is None:
                 return n
-            self.handle(msg)
             n += 1
+            counters.frames_in += 1
+            if msg.is_error_frame or msg.is_remote_frame:
+                continue
+            handler = handlers.get((msg.arbitration_id, msg.is_extended_id))
+            if handler is None:
+                counters.unknown += 1
+                continue
+            try:
+                handler(bytes(msg.data))
+            except FrameError:
+                counters.malformed += 1
 
     def _send_raw(self, can_id: int, data: bytes) -> None:
         """A CANopen node's frame onto the bus; a TPDO through the frame faults of its
@@ -638,6 +656,14 @@ class VirtualRig:
             hook(self)
 
     @property
+    def truth(self) -> TruthSample:
+        """The physics' true values at the last SYNC (the last step's; read on demand, not
+        kept every tick)."""
+        y = self.y
+        return TruthSample(self.time_s, float(y[0]), float(y[1]), float(y[2]),
+                           self.x[1 : 1 + self.n_modes])
+
+    @property
     def y(self) -> np.ndarray:
         """The outputs (hub angle, rate, tip acceleration) after the last step: C x + D u."""
         n_x = self._n_x
@@ -674,10 +700,6 @@ class VirtualRig:
         n_y0 = self._n_x
         out = self._state.tolist()
         y0, y1, y2 = out[n_y0], out[n_y0 + 1], out[n_y0 + 2]
-        truth = self.truth
-        truth.time_s, truth.angle_rad, truth.rate_rad_s = self.time_s, y0, y1
-        truth.tip_accel_m_s2 = y2
-        truth.modal = self.x[1 : 1 + self.n_modes]
         # which devices answer this SYNC: a table by tick modulo the dividers' least common
         # multiple (or the dividers themselves beyond 10 000)
         due = (self._due_at[tick % self._due_period] if self._due_period

@@ -179,6 +179,8 @@ class FaultMonitor:
              getattr(drv, "stale_after_ticks", 2 * self.div[name] + 1), deque(), 0]
             for name, drv in interface.drivers.items()]
         self._drivers = list(interface.drivers.items())
+        self._frame_counters = tuple(drv.counters for _, drv in self._drivers
+                                     if hasattr(drv, "counters"))
         self._max_error_frames = monitor["max_error_frames"]
         self._max_unknown_frames = monitor["max_unknown_frames"]
         self._lost_limit = int(monitor["lost_frames"])
@@ -413,6 +415,11 @@ class FaultMonitor:
                                f"{c.unknown} frames with ids no device uses "
                                f"(last 0x{c.last_unknown_id:03X})")
         max_malformed = self._max_malformed
+        for counters in self._frame_counters:  # the usual tick: none past its limit
+            if counters.malformed > max_malformed or counters.sequence_errors:
+                break
+        else:
+            return None
         for name, drv in self._drivers:
             counters = drv.counters
             if counters.malformed > max_malformed:
