@@ -181,6 +181,15 @@ class FaultMonitor:
         self._drivers = list(interface.drivers.items())
         self._frame_counters = tuple(drv.counters for _, drv in self._drivers
                                      if hasattr(drv, "counters"))
+        # _silent_and_lost: no device can be silent before this tick (from the last full
+        # pass); the devices due at each tick modulo the dividers' least common multiple
+        self._silent_from = 0
+        for entry in self._lost:  # [6]: silent past this age: its stale ticks and the grace
+            entry.append(max(entry[3], self.realtime_grace))
+        lost_period = math.lcm(*(e[2] for e in self._lost)) if self._lost else 1
+        self._lost_due_period = lost_period if lost_period <= 10_000 else 0
+        self._lost_due_at = [tuple(e for e in self._lost if k % e[2] == 0)
+                             for k in range(self._lost_due_period)]
         self._max_error_frames = monitor["max_error_frames"]
         self._max_unknown_frames = monitor["max_unknown_frames"]
         self._lost_limit = int(monitor["lost_frames"])
@@ -432,31 +441,59 @@ class FaultMonitor:
                          ) -> FaultEvent | None:
         if tick < self.grace:
             return None
-        startup = tick < self.startup_ticks
         grace = self.realtime_grace
+        if tick < self._silent_from and self._lost_due_period:
+            # no device can be silent before then (a driver's last tick only grows): only
+            # the windows of the devices due now, in the same order as below
+            if grace:
+                return None
+            for entry in self._lost_due_at[tick % self._lost_due_period]:
+                last = entry[1].last_tick
+                if tick - last > entry[6]:
+                    continue  # not heard from yet, in the start-up time (skipped below too)
+                event = self._count_due(tick, entry, last)
+                if event is not None:
+                    return event
+            return None
+        startup = tick < self.startup_ticks
+        silent_from = 1 << 62
         for entry in self._lost:
             last = entry[1].last_tick
             age = tick - last
-            if age > entry[3] and age > grace:
+            limit = entry[6]
+            if age > limit:
                 if age > 10**8 and startup:
-                    # not heard from yet: a device may take a moment to answer at first
+                    # not heard from yet: a device may take a moment to answer at first;
+                    # silent from the end of the start-up time on
+                    silent_from = min(silent_from, self.startup_ticks - 1)
                     continue
                 return self._event(tick, entry[0], "silent",
                                    f"no telemetry for {age if age < 10**8 else 'all'} ticks")
+            if last + limit < silent_from:
+                silent_from = last + limit
             if not grace and tick % entry[2] == 0:
-                # the missing ones among the last LOST_WINDOW due frames, kept by number: a
-                # tick whose frame came touches no window
-                n = entry[5] = entry[5] + 1
-                misses = entry[4]
-                if last != tick:
-                    misses.append(n)
-                if misses:
-                    while misses and misses[0] <= n - LOST_WINDOW:
-                        misses.popleft()
-                    if len(misses) >= self._lost_limit:
-                        return self._event(tick, entry[0], "frames lost",
-                                           f"{len(misses)} of its last {min(n, LOST_WINDOW)} "
-                                           "frames missing")
+                event = self._count_due(tick, entry, last)
+                if event is not None:
+                    return event
+        # the first tick a device could be silent at (its age past its limit)
+        self._silent_from = silent_from + 1
+        return None
+
+    def _count_due(self, tick: int, entry: list[Any], last: int) -> FaultEvent | None:
+        """One due frame of a device (``entry`` of ``_lost``): the missing ones among its
+        last LOST_WINDOW due frames, kept by number (a tick whose frame came touches no
+        window)."""
+        n = entry[5] = entry[5] + 1
+        misses = entry[4]
+        if last != tick:
+            misses.append(n)
+        if misses:
+            while misses and misses[0] <= n - LOST_WINDOW:
+                misses.popleft()
+            if len(misses) >= self._lost_limit:
+                return self._event(tick, entry[0], "frames lost",
+                                   f"{len(misses)} of its last {min(n, LOST_WINDOW)} "
+                                   "frames missing")
         return None
 
     def _accelerometer(self, tick: int, state: RigState, sent: RigCommand
