@@ -129,6 +129,8 @@ class RigInterface:
         self._counter = 0
         self._hb_counter = 0
         self.state = RigState()
+        # the drivers' values dicts the state was last read from (snapshot)
+        self._snapshot_seen: list[dict[str, float] | None] = [None] * 6
 
     # ------------------------------------------------------------------ sending
     def _send_key(self, key: tuple[int, bool], data: bytes) -> None:
@@ -366,22 +368,38 @@ class RigInterface:
     def snapshot(self, tick: int, time_s: float) -> RigState:
         s = self.state
         s.tick, s.time_s = tick, time_s
-        h, a, w, v, p, r = self.hub, self.accel, self.wheel, self.valves, self.piezo, self.rotor
-        hv, av, wv, vv, pv, rv = h.values, a.values, w.values, v.values, p.values, r.values
-        s.hub_angle_rad = hv.get("angle", 0.0)
-        s.hub_rate_rad_s = hv.get("rate", 0.0)
-        s.tip_accel_m_s2 = av.get("accel", 0.0)
-        s.accel_saturated = bool(av.get("saturated", 0))
-        s.wheel_speed_rad_s = wv.get("speed", 0.0)
-        s.wheel_torque_n_m = wv.get("torque", 0.0)
-        s.wheel_enabled = bool(wv.get("enabled", 0))
-        s.wheel_fault = bool(wv.get("fault", 0))
-        s.valve_state = int(vv.get("valve_pos_open", 0)) - int(vv.get("valve_neg_open", 0))
-        s.valve_firings = int(vv.get("firings", 0))
-        s.valve_on_time_s = vv.get("on_time", 0.0)
-        s.piezo_sensor_v = (pv.get("sensor_ch1", 0.0), pv.get("sensor_ch2", 0.0))
-        s.rotor_angle_rad = rv.get("angle", 0.0)
-        s.rotor_speed_rad_s = rv.get("speed", 0.0)
+        r = self.rotor
+        hv, av, wv, vv, pv, rv = (self.hub.values, self.accel.values, self.wheel.values,
+                                  self.valves.values, self.piezo.values, r.values)
+        # a device's fields are read again only when its values changed (a driver replaces
+        # its values dict with every frame; valves and rotor answer every 5th SYNC)
+        seen = self._snapshot_seen
+        if hv is not seen[0]:
+            seen[0] = hv
+            s.hub_angle_rad = hv.get("angle", 0.0)
+            s.hub_rate_rad_s = hv.get("rate", 0.0)
+        if av is not seen[1]:
+            seen[1] = av
+            s.tip_accel_m_s2 = av.get("accel", 0.0)
+            s.accel_saturated = bool(av.get("saturated", 0))
+        if wv is not seen[2]:
+            seen[2] = wv
+            s.wheel_speed_rad_s = wv.get("speed", 0.0)
+            s.wheel_torque_n_m = wv.get("torque", 0.0)
+            s.wheel_enabled = bool(wv.get("enabled", 0))
+            s.wheel_fault = bool(wv.get("fault", 0))
+        if vv is not seen[3]:
+            seen[3] = vv
+            s.valve_state = int(vv.get("valve_pos_open", 0)) - int(vv.get("valve_neg_open", 0))
+            s.valve_firings = int(vv.get("firings", 0))
+            s.valve_on_time_s = vv.get("on_time", 0.0)
+        if pv is not seen[4]:
+            seen[4] = pv
+            s.piezo_sensor_v = (pv.get("sensor_ch1", 0.0), pv.get("sensor_ch2", 0.0))
+        if rv is not seen[5]:
+            seen[5] = rv
+            s.rotor_angle_rad = rv.get("angle", 0.0)
+            s.rotor_speed_rad_s = rv.get("speed", 0.0)
         s.rotor_sample_tick = r.last_tick
         stale: tuple[str, ...] = ()
         for n, d in self._driver_items:  # DeviceDriver.is_stale, inline (every tick)
