@@ -449,6 +449,9 @@ class FaultMonitor:
                 return None
             for entry in self._lost_due_at[tick % self._lost_due_period]:
                 last = entry[1].last_tick
+                if last == tick and not entry[4]:
+                    entry[5] += 1  # came, no miss in its window: _count_due's whole work
+                    continue
                 if tick - last > entry[6]:
                     continue  # not heard from yet, in the start-up time (skipped below too)
                 event = self._count_due(tick, entry, last)
