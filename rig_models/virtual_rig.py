@@ -223,7 +223,8 @@ class VirtualRig:
         self.watchdog_timeout_s = rig.data["watchdog"]["heartbeat_timeout_s"]
         self.counters = RigCounters()
         self.truth = TruthSample(modal=np.zeros(self.n_modes))
-        self.tick = -1
+        self.tick = -1  # the SYNC's own count (modulo its counter's range)
+        self.sync_index = -1  # the same, unwrapped: the harness's tick in its own process
         self.time_s = 0.0
         self.armed = False
         self.safe = True
@@ -375,7 +376,7 @@ class VirtualRig:
                         work, work_cpu = clock() - woke, cpu() - ran
                         ru1 = _thread_usage()
                         if msg.timestamp > 0:
-                            timing.add(self.tick, woke - msg.timestamp, work, work_cpu,
+                            timing.add(self.sync_index, woke - msg.timestamp, work, work_cpu,
                                        self.longest_op_s, self.longest_op,
                                        ru1[0] - ru0[0], ru1[1] - ru0[1])
                     if collect and time.monotonic() > next_collect:
@@ -572,6 +573,12 @@ class VirtualRig:
             else:
                 for _ in range(steps):
                     self.step()
+        if self.tick >= 0:
+            # unwrapped (a CANopen SYNC counts 1..240): the rig's timing names the harness's
+            # tick, which the run's missing frames are matched against
+            self.sync_index += (tick - self.tick) % self.binding.sync.modulus or 1
+        else:
+            self.sync_index = tick
         self.tick = tick
         if self.injector.faults:
             self._apply_device_faults()
