@@ -490,7 +490,8 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
     import rerun as rr
 
     run_dir = Path(run_dir or v.run_dir or ".")
-    from harness.record.output import OutputError, fresh_output_path, write_text_atomic
+    from harness.record.output import fresh_output_path, write_text_atomic
+    from harness.record.recording import close_stream
 
     out = run_dir / "verdict.json"
     # atomic: a full disk leaves the old verdict or none, never an empty one; neither file
@@ -507,11 +508,9 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
                                               level="ERROR" if c.verdict == ERROR else "WARN"))
     _mark_on_plots(rec, run_dir, [(t, f"VERDICT {c.name} {c.verdict}") for t, c in events])
     try:
-        rec.flush(timeout_sec=30.0)  # without a bound it waited forever on a full disk
-    except Exception as exc:
-        raise OutputError(run_dir, f"verdict.rrd could not be written ({exc})") from exc
+        # without a bound it waited forever on a full disk
+        close_stream(rec, run_dir / "verdict.rrd")
     finally:
-        rec.disconnect()
         del rec
         sweep_orphans()  # the stream dropped: its threads end (issue 23)
     _into_run_rrd(run_dir, v, [(t, "ERROR" if c.verdict == ERROR else "WARN",
