@@ -15,7 +15,8 @@ deviations its mean lies beyond the limit. tests/test_builtin_criteria_fail.py r
 same degradations (noise seed 1) and expects FAIL.
 
 Why not paper 003's Table 2 amplitudes: they are 3-10 times above what our model gives even
-without compensation, so they could not fail (docs/claims.md). About 3 minutes a variant:
+without compensation, so they could not fail (docs/criteria.md). Under 2 minutes a variant on
+one core (15 runs of 100 s in lockstep), cached:
 
     .venv/bin/python tools/steady_amplitude_limits.py [--seeds 10] [--degraded-seeds 5]
         [--logs logs] [--case case-a ...] [--variant beta-0.8 ...] [--json]
