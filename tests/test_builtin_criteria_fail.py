@@ -493,3 +493,20 @@ def test_the_study_checks_are_on_their_measures():
     assert len(STUDY_CHECKS) >= 70
     assert all(c.target.startswith("measures.") for _, c in STUDY_CHECKS)
 
+
+
+def test_the_document_test_catches_a_check_the_study_cannot_pass_or_fail():
+    """The study-document test above fails for a check on a measure the study does not
+    write, and for one its real value already fails."""
+    from harness.testing.suite import parse_checks
+
+    class Suites:
+        def document(self, item: str) -> dict[str, Any]:
+            return {"measures": {"peak_energy_ratio": 0.7}}
+
+    typo, failing = parse_checks({
+        "typo": {"measure": "measures.peak_energy_ratios", "max_ratio": 0.9},
+        "failing": {"measure": "measures.peak_energy_ratio", "max_ratio": 0.5}}, "test", "check")
+    for c in (typo, failing):
+        with pytest.raises(AssertionError):
+            test_a_degraded_study_document_fails_the_check("paper000::study", c, Suites())
