@@ -245,11 +245,19 @@ def _read_rig_yaml(path: Path, seen: tuple[Path, ...]) -> Any:
     return _merge(_read_rig_yaml(base, seen + (path.resolve(),)) or {}, raw)
 
 
-def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+def _merge(base: dict[str, Any], over: dict[str, Any],
+           path: tuple[str, ...] = ()) -> dict[str, Any]:
+    """``over`` on ``base`` key by key; a device under ``devices:`` that names its
+    ``binding`` replaces the base's device whole (another binding is another device: the
+    base's node id or EDS would not belong to a DBC device)."""
     out = dict(base)
     for k, v in over.items():
-        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k),
-                                                                          dict) else v
+        if path == ("devices",) and isinstance(v, dict) and "binding" in v:
+            out[k] = v
+        elif isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _merge(out[k], v, (*path, str(k)))
+        else:
+            out[k] = v
     return out
 
 

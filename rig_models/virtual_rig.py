@@ -43,6 +43,13 @@ from rig_models.rig_file import RigConfig
 UNKNOWN_ID = 0x6A5  # used by no device of the DBC
 CAN_ERR_BUSERROR = 0x080  # SocketCAN error classes (linux/can/error.h)
 CAN_ERR_BUSOFF = 0x040
+LOCKSTEP_BACKSTOP_S = 10.0
+"""A rig process in lockstep (``run_forever(lockstep=True)``) keeps its devices' timers on the
+rig's own time, which stands still between SYNCs; after this long without a SYNC on the wall
+clock its time runs on with the wall clock's, so a harness that died mid-run still trips the
+heartbeat consumers and the watchdog (later by this much than in real time). Long: a harness
+in lockstep pauses between ticks to let its recording's file sink catch up, and under CPU
+emulation (CI's VM) such a pause lasted over 2 s and tripped a node's consumer."""
 
 
 # each device's telemetry quantities (drivers.binding.quantities), in the order the rig
@@ -249,12 +256,16 @@ class VirtualRig:
                         for k in range(self._due_period)]
         self.watchdog_timeout_s = rig.data["watchdog"]["heartbeat_timeout_s"]
         self.counters = RigCounters()
-        self.tick = -1
+        self.tick = -1  # the SYNC's own count (modulo its counter's range)
+        self.sync_index = -1  # the same, unwrapped: the harness's tick in its own process
         self.time_s = 0.0
         self.armed = False
         self.safe = True
         self.last_heartbeat_s = 0.0  # rig time
         self.last_heartbeat_wall = time.monotonic()
+        self.lockstep_process = False  # run_forever(lockstep=True): SYNC-driven, own process
+        self.last_sync_wall = time.monotonic()
+        self.idle_s = 0.0  # wall time without SYNC beyond the backstop, added to co_now
         self.wheel_counter = 0
         # the longest single operation of the current answer (run_forever with timing only:
         # lockstep runs do not pay for the clock readings)
@@ -354,8 +365,19 @@ class VirtualRig:
 
     def co_now(self) -> float:
         """The CANopen nodes' time: the rig's in lockstep, the wall clock in its own
-        process (a harness that stops sending SYNC must still time out as a consumer)."""
-        return time.monotonic() if self.wall_clock else self.time_s
+        process (a harness that stops sending SYNC must still time out as a consumer). A
+        process in lockstep runs on the rig's time, plus the wall time that passed beyond
+        ``LOCKSTEP_BACKSTOP_S`` without a SYNC (kept, so this time never runs backwards)."""
+        if self.wall_clock:
+            return time.monotonic()
+        if self.lockstep_process:
+            now = time.monotonic()
+            idle = now - self.last_sync_wall - LOCKSTEP_BACKSTOP_S
+            if idle > 0:
+                self.idle_s += idle
+                self.last_sync_wall = now - LOCKSTEP_BACKSTOP_S
+            return self.time_s + self.idle_s
+        return self.time_s
 
     def handle(self, msg: can.Message) -> None:
         self.counters.frames_in += 1
@@ -377,8 +399,14 @@ class VirtualRig:
             self.counters.malformed += 1
 
     def run_forever(self, stop: Callable[[], bool], poll_s: float = 0.05,
-                    timing: SyncTiming | None = None) -> None:
+                    timing: SyncTiming | None = None, lockstep: bool = False) -> None:
         """Own-process mode: block on the bus; watchdog on the wall clock as well.
+
+        ``lockstep``: the harness runs in lockstep over the bus (``harness run --clock
+        lockstep --bus socketcan:vcan0``), as fast as this process answers: the physics
+        already steps once per SYNC; the devices' timers (CANopen heartbeats and consumers)
+        then run on the rig's time too, and the wall-clock watchdog waits
+        ``LOCKSTEP_BACKSTOP_S`` longer (a backstop for a harness that died).
 
         ``timing`` measures every SYNC's wake-up and answer (``SyncTiming``). With the
         collector disabled (``gc.disable()`` by the caller), generations 0-1 are collected
@@ -390,13 +418,16 @@ class VirtualRig:
         clock, cpu = time.time, time.thread_time
         self.time_ops = timing is not None
         self._build_emitters()  # timed operations: through _send
-        self.wall_clock = True
+        self.wall_clock = not lockstep
+        self.lockstep_process = lockstep
+        wall_timeout_s = self.watchdog_timeout_s + (LOCKSTEP_BACKSTOP_S if lockstep else 0.0)
         while not stop():
             msg = self.bus.recv(poll_s)
             if msg is not None:
                 if ((msg.arbitration_id, msg.is_extended_id) == sync_key
                         and not msg.is_error_frame):
                     woke, ran = clock(), cpu()
+                    self.last_sync_wall = time.monotonic()
                     if timing is None:
                         self.handle(msg)
                     else:
@@ -406,7 +437,7 @@ class VirtualRig:
                         work, work_cpu = clock() - woke, cpu() - ran
                         ru1 = _thread_usage()
                         if msg.timestamp > 0:
-                            timing.add(self.tick, woke - msg.timestamp, work, work_cpu,
+                            timing.add(self.sync_index, woke - msg.timestamp, work, work_cpu,
                                        self.longest_op_s, self.longest_op,
                                        ru1[0] - ru0[0], ru1[1] - ru0[1])
                     if collect and time.monotonic() > next_collect:
@@ -417,7 +448,7 @@ class VirtualRig:
             if self.co_devices is not None:
                 self.co_devices.poll(self.co_now())
             if (not self.safe and
-                    time.monotonic() - self.last_heartbeat_wall > self.watchdog_timeout_s):
+                    time.monotonic() - self.last_heartbeat_wall > wall_timeout_s):
                 self.make_safe(watchdog=True)
                 # like a CANopen emergency message: every device reports its (now safe)
                 # state once, unprompted, so the trip is seen on the bus without a SYNC
@@ -684,6 +715,12 @@ class VirtualRig:
             else:
                 for _ in range(steps):
                     self.step()
+        if self.tick >= 0:
+            # unwrapped (a CANopen SYNC counts 1..240): the rig's timing names the harness's
+            # tick, which the run's missing frames are matched against
+            self.sync_index += (tick - self.tick) % self.binding.sync.modulus or 1
+        else:
+            self.sync_index = tick
         self.tick = tick
         if self.injector.faults:
             self._apply_device_faults()

@@ -141,8 +141,10 @@ def _wait_for(predicate, what: str, timeout_s: float, proc: subprocess.Popen | N
 class RigProcess:
     """`harness virtual-rig --bus socketcan:vcan0` in its own process."""
 
-    def __init__(self, rate_hz: float, log_dir: Path, rig: str = "sgsrt") -> None:
+    def __init__(self, rate_hz: float, log_dir: Path, rig: str = "sgsrt",
+                 lockstep: bool = False) -> None:
         self.rig = rig
+        self.lockstep = lockstep
         self.rate_hz = rate_hz
         self.log_dir = log_dir
         self.proc: subprocess.Popen | None = None
@@ -156,7 +158,8 @@ class RigProcess:
         with self.log.open("w") as err:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "harness", "virtual-rig", "--bus", f"socketcan:{CHANNEL}",
-                 "--rate-hz", f"{self.rate_hz:g}", "--rig", self.rig],
+                 "--rate-hz", f"{self.rate_hz:g}", "--rig", self.rig]
+                + (["--lockstep"] if self.lockstep else []),
                 stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
         _wait_for(lambda: "Ctrl-C to stop" in self.log.read_text(), "virtual rig ready line",
                   START_TIMEOUT_S, self.proc, self.log)
@@ -517,3 +520,32 @@ def test_canopen_rig_over_vcan0_sets_up_runs_and_is_left_safe(rate_and_run, tmp_
     assert (0x000, bytes((0x01, 0))) in frames  # start
     assert frames[-1] == (0x000, bytes((0x80, 0))) or (0x000, bytes((0x80, 0))) in frames[-8:]
     assert any(cid == 0x202 for cid, _ in frames)  # the wheel drive's RPDO
+
+
+def test_acceptance_suite_on_the_canopen_rig_over_vcan0_in_lockstep(tmp_path):
+    """The lab's daily check (`harness test acceptance`) against the CANopen rig over the
+    kernel's bus: the virtual rig as its own process on vcan0 in lockstep (its nodes' timers
+    on the rig's time; an emulated CPU cannot hold 500 Hz in real time), the harness as the
+    CANopen master setting each node up again for every run. The verdicts must be those of
+    the suite in process (tests/test_acceptance_rigs.py): the probe, the slew, the free decay
+    and its identification PASS; the two fault tests inject in the harness's own virtual rig
+    and are skipped on a bus."""
+    rig = RigProcess(500.0, tmp_path, rig="sgsrt-canopen", lockstep=True)
+    rig.start()
+    try:
+        out = subprocess.run(
+            [sys.executable, "-m", "harness", "test", "acceptance", "--rig", "sgsrt-canopen",
+             "--bus", f"socketcan:{CHANNEL}", "--clock", "lockstep", "--quiet",
+             "--out", str(tmp_path / "logs")],
+            capture_output=True, text=True, timeout=RUN_TIMEOUT_S)
+    finally:
+        log = rig.stop()
+    (suite_dir,) = [p for p in (tmp_path / "logs").iterdir()
+                    if p.is_dir() and p.name.endswith("-acceptance")]
+    results = json.loads((suite_dir / "results.json").read_text())
+    verdicts = {t["nodeid"].split("::")[-1]: t["verdict"] for t in results["tests"]}
+    print(f"acceptance over {CHANNEL} in lockstep: {verdicts}, wall {results['wall_time_s']} s")
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:] + log[-2000:]
+    assert verdicts == {"probe": "PASS", "slew-rw": "PASS", "free-decay": "PASS",
+                        "identify[free-decay]": "PASS", "fault-hub-silent": "SKIPPED",
+                        "fault-accel-malformed": "SKIPPED"}, verdicts

@@ -18,6 +18,9 @@ EDS_DIR = Path(__file__).resolve().parent.parent / "drivers" / "eds"
 FAKE_VENDOR_ID = 0x53475254  # "SGRT": not a CiA-assigned vendor id
 FILE_DATE = "11-25-2026"
 
+POSITION_COUNTS_PER_REV = 16384  # a 14-bit motor encoder
+POSITION_RAD_PER_COUNT = 2 * 3.141592653589793 / POSITION_COUNTS_PER_REV
+
 BOOLEAN, INTEGER8, INTEGER16, INTEGER32 = 0x1, 0x2, 0x3, 0x4
 UNSIGNED8, UNSIGNED16, UNSIGNED32, VISIBLE_STRING = 0x5, 0x6, 0x7, 0x9
 
@@ -178,6 +181,9 @@ def ds402(name: str, product: int, serial: int, modes: list[int], mode: int,
                             {9: "9 cyclic synchronous velocity",
                              10: "10 cyclic synchronous torque"}[x] for x in modes))),
         var(0x6061, Var("Modes of operation display", INTEGER8, "ro", 0, pdo=True)),
+        var(0x6064, Var("Position actual value", INTEGER32, "ro", 0, pdo=True,
+                        unit="counts", factor=POSITION_RAD_PER_COUNT,
+                        description=f"{POSITION_COUNTS_PER_REV} counts per revolution")),
         var(0x606C, Var("Velocity actual value", INTEGER32, "ro", 0, pdo=True, **vel)),
         var(0x60FF, Var("Target velocity", INTEGER32, "rw", 0, pdo=True, **vel)),
         var(0x6502, Var("Supported drive modes", UNSIGNED32, "ro", supported)),
@@ -221,6 +227,7 @@ def rotor_drive() -> tuple[list[Obj], list[str]]:
         "Virtual CiA 402 drive of the SGSRT disturbance rotor (fake vendor 0x53475254).",
         "Cyclic synchronous velocity (mode 9) only.",
         "Velocity 0x606C and 0x60FF: vendor unit 0.001 rad/s per count.",
+        "Position 0x6064: 16384 counts per revolution.",
     ]
 
 

@@ -101,8 +101,7 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
             if name is not None:
                 over = dict(variants[name])
                 over["name"] = f"{base.name}-{name}"
-                if args.duration_s is not None:
-                    over["duration_s"] = args.duration_s
+                over.update(overrides or {})  # --duration-s and --rig win over the variant's
                 run = load_run(args.run, over)
             runs.append((name, run))
         for name, run in runs:

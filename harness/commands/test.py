@@ -61,6 +61,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--bus", help="run every test on this bus; a real one (socketcan:can0, "
                    "socketcand:127.0.0.1:PORT, loopback only) means the lab rig: probe "
                    "first, one test at a time")
+    p.add_argument("--clock", choices=("lockstep", "realtime"),
+                   help="on a --bus that is not the in-process one the tests run in real "
+                        "time; lockstep runs them as fast as the rig answers, only against "
+                        "a virtual rig started with 'harness virtual-rig --lockstep' (CI over "
+                        "vcan0), never the lab rig")
     p.add_argument("--rig", metavar="R",
                    help="run every test on this rig file (built-in name or path) instead of "
                         "the run files' own, e.g. sgsrt-canopen: the same tests over the "
@@ -108,6 +113,9 @@ def cmd_test(args: argparse.Namespace) -> int:
         real_bus = False
         if args.bus:
             real_bus = not parse_bus(args.bus).in_process
+        if args.clock and not real_bus:
+            raise ConfigError(f"--clock {args.clock}: only with a --bus other than the "
+                              "in-process virtual one (whose rig runs in lockstep already)")
         if real_bus and (args.cluster or os.environ.get(CLUSTER_ENV)):
             raise ConfigError(f"--bus {args.bus}: a real rig runs its tests one at a time "
                               "from this machine, not on a cluster")
@@ -140,7 +148,7 @@ def cmd_test(args: argparse.Namespace) -> int:
             return InlineEngine()
         return cluster or make_engine(None, args.workers)
     plugin = SuitePlugin(suites, out_dir, factory, bus=args.bus, real_bus=real_bus,
-                         progress=not args.quiet)
+                         progress=not args.quiet, clock=args.clock)
     pargs = [*paths, "-c", str(ini), "--rootdir", str(Path(paths[0]).parent),
              "-o", f"cache_dir={cache.resolve()}", "-o", f"junit_suite_name={names}",
              "-o", "junit_family=xunit1",

@@ -44,6 +44,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="take the memory measures of a real-time run in this process "
                         "(mlockall, the collector off and run in the slack after a SYNC); "
                         "the harness sets the CPU and SCHED_FIFO from outside")
+    p.add_argument("--lockstep", action="store_true",
+                   help="for a harness in lockstep over this bus (harness run/test --clock "
+                        "lockstep): the devices' timers (CANopen heartbeats) on the rig's "
+                        "time, which advances one step per SYNC; the wall-clock watchdog "
+                        "10 s later, as a backstop")
     p.set_defaults(func=cmd_virtual_rig)
 
 
@@ -90,10 +95,11 @@ def cmd_virtual_rig(args: argparse.Namespace) -> int:
         gc.freeze()  # keep the collector's pauses small while serving the bus
     # a SYNC woken later than a quarter period is kept with its tick (SyncTiming)
     timing = SyncTiming(late_s=0.25 / args.rate_hz)
-    print(f"harness virtual-rig: {rig_cfg.name} on {where} at {args.rate_hz:g} Hz; "
-          "Ctrl-C to stop", file=sys.stderr, flush=True)
+    print(f"harness virtual-rig: {rig_cfg.name} on {where} at {args.rate_hz:g} Hz"
+          f"{' in lockstep' if args.lockstep else ''}; Ctrl-C to stop", file=sys.stderr,
+          flush=True)
     try:
-        rig.run_forever(stop.is_set, timing=timing)
+        rig.run_forever(stop.is_set, timing=timing, lockstep=args.lockstep)
     except KeyboardInterrupt:
         pass
     finally:

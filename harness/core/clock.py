@@ -17,6 +17,12 @@ import sys
 import time
 from dataclasses import dataclass, field
 
+BUS_LOCKSTEP_WAIT_S = 0.5
+"""Lockstep over a bus (a virtual rig in its own process, ``harness virtual-rig --lockstep``):
+how long a tick waits for the devices' answers at most. Time does not matter in lockstep, so
+the wait is long (an emulated machine answers in milliseconds, not in microseconds); a
+device that stays silent costs this much a tick until the monitor stops the run."""
+
 
 class LockstepClock:
     realtime = False

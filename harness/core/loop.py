@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from harness.bus.rig_interface import RigInterface
-from harness.core.clock import LockstepClock, RealTimeClock
+from harness.core.clock import BUS_LOCKSTEP_WAIT_S, LockstepClock, RealTimeClock
 from harness.core.streaming import LatencyHistogram
 from harness.record.recording import Recorder
 from harness.state import RigCommand
@@ -118,7 +118,9 @@ def run_loop(
     step = controller.step  # type: ignore[attr-defined]
     perf = time.perf_counter
     realtime = clock.realtime
-    timeout = receive_timeout_s if (realtime or pump is None) else 0.0
+    # lockstep in process: the rig answered inside pump(); over a bus: wait for its answers
+    timeout = (receive_timeout_s if realtime else 0.0 if pump is not None
+               else max(receive_timeout_s, BUS_LOCKSTEP_WAIT_S))
     can_log = interface.can_log
     cmd = RigCommand()
     sent = RigCommand()

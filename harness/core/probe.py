@@ -22,7 +22,7 @@ import can
 
 from drivers.dbc import load_protocol
 from harness.bus.rig_interface import RigInterface
-from harness.core.clock import LockstepClock, RealTimeClock
+from harness.core.clock import BUS_LOCKSTEP_WAIT_S, LockstepClock, RealTimeClock
 from rig_models.rig_file import RigConfig
 
 HEARTBEAT_HZ = 20.0
@@ -131,7 +131,7 @@ def probe(bus: can.BusABC, rig: RigConfig, rate_hz: float, duration_s: float, *,
         iface.send_sync(tick)
         if pump is not None:
             pump()
-        timeout = 0.0
+        timeout = 0.0 if pump is not None else BUS_LOCKSTEP_WAIT_S
         if realtime:
             timeout = min(receive_timeout_s, max(0.0, clock.time_left(tick) - 0.3 * dt_s))
         iface.receive(tick, timeout, lockstep=lockstep)

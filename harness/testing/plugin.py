@@ -57,13 +57,15 @@ class SuiteError(Exception):
 class SuitePlugin:
     def __init__(self, suites: list[Suite], out_dir: Path,
                  engine_factory: Callable[[], Engine], bus: str | None = None,
-                 real_bus: bool = False, progress: bool = True) -> None:
+                 real_bus: bool = False, progress: bool = True,
+                 clock: str | None = None) -> None:
         self.suites = {s.source.resolve(): s for s in suites}
         self.out_dir = out_dir
         self.engine_factory = engine_factory
         self.engine: Engine | None = None
         self.bus = bus
         self.real_bus = real_bus
+        self.clock = clock  # "lockstep" on a bus: a virtual rig process in lockstep
         self.show_progress = progress
         self.refused: str | None = None
         self.preflight: dict[str, Any] | None = None
@@ -119,7 +121,7 @@ class SuitePlugin:
                 continue
             self.cases[key] = case
             fut = self.engine.submit(run_case, case, str(self.out_dir),
-                                     self.engine.ships_files, self.bus)
+                                     self.engine.ships_files, self.bus, self.clock)
             self.futures[key] = fut
             fut.add_done_callback(lambda f, k=key: self._finished(k, f))
 
@@ -129,7 +131,7 @@ class SuitePlugin:
                      if c.kind == "probe"), {})
         self._say(f"pre-flight probe on {self.bus} (never arms) ...")
         try:
-            self.preflight = run_probe(opts, self.bus)
+            self.preflight = run_probe(opts, self.bus, clock=self.clock)
             v = probe_verdict(self.preflight)
         except Exception as exc:  # noqa: BLE001 - a bus that does not open refuses too
             v = item_result("ERROR", f"{type(exc).__name__}: {exc}")

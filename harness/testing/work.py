@@ -65,7 +65,8 @@ def private_channel() -> str:
     return f"virtual:job-{uuid.uuid4().hex[:12]}-sgsrt"
 
 
-def _run(case: Case, out_dir: Path, bus: str | None) -> tuple[dict[str, Any], Path | None]:
+def _run(case: Case, out_dir: Path, bus: str | None,
+         clock: str | None = None) -> tuple[dict[str, Any], Path | None]:
     from harness.bus import BusSpecError, parse_bus
     from harness.bus.rig_process import RigProcessError
     from harness.core.runs import load_run
@@ -75,11 +76,11 @@ def _run(case: Case, out_dir: Path, bus: str | None) -> tuple[dict[str, Any], Pa
     items: dict[str, Any] = {}
     try:
         run = load_run(case.run, case.overrides)
-        clock = None
         if parse_bus(bus or run.data["bus"]).in_process:
             bus = private_channel()
-        else:
-            clock = "realtime"  # a rig in its own process, or the real one: its own time
+            clock = None
+        else:  # a rig in its own process, or the real one: its own time, unless the rig is
+            clock = clock or "realtime"  # a virtual one in lockstep (--clock lockstep)
         result = execute_run(run, out_dir=out_dir, bus=bus, clock=clock, show_progress=False,
                              should_stop=stop_requested)
     except (ConfigError, BusSpecError, RunRefused, RigProcessError) as exc:
@@ -134,8 +135,10 @@ def _modes_table(ident: dict[str, Any]) -> list[dict[str, Any]]:
     return [{k: float(m[k]) for k in keys if k in m} for m in ident.get("modes", [])]
 
 
-def run_probe(opts: dict[str, Any], bus: str | None, rig: str = "sgsrt") -> dict[str, Any]:
-    """The pre-flight probe (``harness probe``) as a JSON document."""
+def run_probe(opts: dict[str, Any], bus: str | None, rig: str = "sgsrt",
+              clock: str | None = None) -> dict[str, Any]:
+    """The pre-flight probe (``harness probe``) as a JSON document; ``clock`` "lockstep" on
+    a bus: against a virtual rig in lockstep (``harness virtual-rig --lockstep``)."""
     from harness.bus import open_bus, parse_bus
     from harness.commands.probe import to_dict
     from harness.core.probe import probe
@@ -154,7 +157,8 @@ def run_probe(opts: dict[str, Any], bus: str | None, rig: str = "sgsrt") -> dict
             buses.append(open_bus(spec))
             pump = VirtualRig(rig_cfg, buses[1], 1.0 / rate).service
         res = probe(buses[0], rig_cfg, rate, float(opts.get("duration_s", 2.0)),
-                    bus_name=str(spec), pump=pump, realtime=pump is None,
+                    bus_name=str(spec), pump=pump,
+                    realtime=pump is None and clock != "lockstep",
                     settle_s=float(opts.get("settle_s", 0.5)),
                     receive_timeout_s=float(opts.get("receive_timeout_ms", 5.0)) / 1e3)
     finally:
@@ -208,14 +212,14 @@ def _study(case: Case, out_dir: Path) -> dict[str, Any]:
 
 
 def run_case(case: Case, out_dir: str, ship: bool = False,
-             bus: str | None = None) -> dict[str, Any]:
+             bus: str | None = None, clock: str | None = None) -> dict[str, Any]:
     t0 = time.perf_counter()
     out: dict[str, Any] = {"case": case.id, "kind": case.kind, "worker": current_worker(),
                            "run_dir": None, "summary": None, "items": {}, "files": {}}
     tmp = Path(tempfile.mkdtemp(prefix="sgsrt-case-")) if ship else None
     try:
         if case.kind == "run":
-            items, run_dir = _run(case, tmp or Path(out_dir), bus)
+            items, run_dir = _run(case, tmp or Path(out_dir), bus, clock)
             out["items"] = items
             if run_dir is not None:
                 out["run_dir"] = run_dir.name
@@ -226,7 +230,7 @@ def run_case(case: Case, out_dir: str, ship: bool = False,
                     out["files"] = {f"{run_dir.name}/{p.name}": p.read_bytes()
                                     for p in sorted(run_dir.iterdir()) if p.is_file()}
         elif case.kind == "probe":
-            report = run_probe(case.probe, bus)
+            report = run_probe(case.probe, bus, clock=clock)
             res = probe_verdict(report)
             res = _with_checks(res, judge_checks(case.checks, report))
             out["items"] = {case.id: {**res, "document": report}}
