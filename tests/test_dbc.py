@@ -57,6 +57,7 @@ def test_encode_matches_cantools(name, data):
                      get_message_by_name(name).get_signal_by_name(k).maximum)
               for k, v in values.items()}
     assert PROTOCOL[name].encode(values) == msg.encode(values, strict=False)
+    _check_positional(PROTOCOL[name], msg, values, data)
 
 
 def test_encode_clamps_to_dbc_range():
@@ -135,6 +136,18 @@ def _draw_values(data: st.DataObject, msg: cantools.database.Message) -> dict[st
     return values
 
 
+def _check_positional(codec: FrameCodec, msg: cantools.database.Message,
+                      values: dict[str, float], data: st.DataObject) -> None:
+    """The positional encoder (issue 23) gives cantools' bytes for the same values, taking
+    the signals in any order, with a name that is no signal taken and ignored."""
+    names = data.draw(st.permutations(list(values)))
+    extra = data.draw(st.booleans())
+    args = [values[n] for n in names]
+    if extra:
+        names, args = [*names, "not_a_signal"], [*args, 12345.0]
+    assert codec.encoder(tuple(names))(*args) == msg.encode(values, strict=False), codec.source
+
+
 @st.composite
 def _random_dbc(draw: st.DrawFn) -> str:
     """One message: 1-8 bytes, signals of either byte order at any free position and
@@ -206,6 +219,7 @@ def test_random_messages_match_cantools(text, data):
     ours = codec.encode(values)
     assert ours == msg.encode(values, strict=False), codec.source
     _same(codec.decode(ours), msg.decode(ours, decode_choices=False))
+    _check_positional(codec, msg, values, data)
 
 
 def test_motorola_signal_across_three_bytes():
@@ -232,6 +246,7 @@ def test_dbc2_round_trips_against_cantools(name, data):
     ours = codec.encode(values)
     assert ours == msg.encode(values, strict=False)
     _same(codec.decode(ours), msg.decode(ours, decode_choices=False))
+    _check_positional(codec, msg, values, data)
 
 
 def test_dbc2_frames_ids_and_byte_orders():
