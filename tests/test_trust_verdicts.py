@@ -176,13 +176,15 @@ def test_harness_test_runs_a_run_file_as_a_one_test_suite(tmp_path):
 
 # ------------------------------------------------------------------ calibrate's criteria
 @pytest.mark.slow
-def test_the_unshaped_calibration_run_fails_recommended_yaml(tmp_path):
+def test_the_unshaped_calibration_run_fails_recommended_yaml(sgsrt_wheel_calibration, capsys):
     """Issue 24's generated criterion that could not fail: judged by recommended.yaml, the
     unshaped slew of the same calibration must FAIL (and the shaped one PASS); judged by
-    baseline.yaml, the shaped slew must FAIL (the baseline no longer unshaped)."""
-    proc = harness("calibrate", "--max-verify", "1", "--out", str(tmp_path), "--json")
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    data = json.loads(proc.stdout)
+    baseline.yaml, the shaped slew must FAIL (the baseline no longer unshaped). The session's
+    calibration (tests/conftest.py, shared with test_calibrate's end-to-end test)."""
+    from harness.cli import main
+
+    assert sgsrt_wheel_calibration.code == 0, sgsrt_wheel_calibration.err[-2000:]
+    data = sgsrt_wheel_calibration.data
     runs = Path(data["folder"]) / "runs"
     [unshaped] = runs.glob("*-unshaped")
     rec_key = data["recommended"]
@@ -190,9 +192,11 @@ def test_the_unshaped_calibration_run_fails_recommended_yaml(tmp_path):
     measured = next(c for c in data["candidates"] if c["key"] == rec_key)["measured"]
 
     def judged(run_dir: Path, expect: str) -> tuple[int, dict]:
-        p = harness("judge", str(run_dir), "--expect", data[expect], "--json")
-        assert p.returncode in (0, 1), p.stderr[-2000:]
-        return p.returncode, json.loads(p.stdout)
+        capsys.readouterr()
+        code = main(["judge", str(run_dir), "--expect", data[expect], "--json"])
+        out = capsys.readouterr()
+        assert code in (0, 1), out.err[-2000:]
+        return code, json.loads(out.out)
 
     code, v = judged(unshaped, "run_file")
     assert code == 1 and v["verdict"] == "FAIL"
@@ -206,6 +210,14 @@ def test_the_unshaped_calibration_run_fails_recommended_yaml(tmp_path):
     code, v = judged(shaped, "baseline_run_file")
     assert code == 1 and v["criteria"][0]["name"] == "vibrates_beyond_shaped_limit"
     assert judged(unshaped, "baseline_run_file")[0] == 0
+
+
+def test_calibrate_from_the_command_line_refuses_bad_input():
+    """`harness calibrate` through its entry point (the calibration itself runs in process,
+    once a session): a bad option is one line and exit 2, nothing started."""
+    proc = harness("calibrate", "--max-verify", "0")
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "--max-verify" in proc.stderr and "Traceback" not in proc.stderr
 
 
 def test_modal_residual_criterion_refuses_bad_modes():
