@@ -13,13 +13,19 @@ from pathlib import Path
 
 import pytest
 import yaml
+from in_process import harness_in_process
 
 ENV = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
 
 
-def harness(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "harness", *args], capture_output=True,
-                          text=True, env=ENV, cwd=cwd, timeout=300, check=False)
+def harness(*args: str, cwd: Path | None = None,
+            process: bool = False) -> subprocess.CompletedProcess[str]:
+    """`harness ARGS` in this process (tests/in_process.py) unless ``process``: a new
+    interpreter, to cover the entry point."""
+    if process or cwd is not None:
+        return subprocess.run([sys.executable, "-m", "harness", *args], capture_output=True,
+                              text=True, env=ENV, cwd=cwd, timeout=300, check=False)
+    return harness_in_process(*args)
 
 
 def results_of(out: Path, name: str) -> dict:
@@ -101,7 +107,8 @@ def test_a_refused_run_leaves_no_run_folder(tmp_path):
     assert proc.returncode == 2, proc.stderr
     assert "nosuch0" in proc.stderr and "Traceback" not in proc.stderr
     assert [p for p in tmp_path.iterdir() if p.is_dir()] == []
-    assert harness("logs", "--logs", str(tmp_path), "--failed").returncode == 1
+    # `harness logs` through its entry point
+    assert harness("logs", "--logs", str(tmp_path), "--failed", process=True).returncode == 1
 
 
 def _run_file(tmp: Path, name: str, expect: dict | None) -> Path:
@@ -215,7 +222,7 @@ def test_the_unshaped_calibration_run_fails_recommended_yaml(sgsrt_wheel_calibra
 def test_calibrate_from_the_command_line_refuses_bad_input():
     """`harness calibrate` through its entry point (the calibration itself runs in process,
     once a session): a bad option is one line and exit 2, nothing started."""
-    proc = harness("calibrate", "--max-verify", "0")
+    proc = harness("calibrate", "--max-verify", "0", process=True)
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert "--max-verify" in proc.stderr and "Traceback" not in proc.stderr
 
