@@ -48,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="for a harness in lockstep over this bus (harness run/test --clock "
                         "lockstep): the devices' timers (CANopen heartbeats) on the rig's "
                         "time, which advances one step per SYNC; the wall-clock watchdog "
-                        "2 s later, as a backstop")
+                        "10 s later, as a backstop")
     p.set_defaults(func=cmd_virtual_rig)
 
 

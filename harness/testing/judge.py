@@ -500,7 +500,8 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
     save_with_blueprint(rec, fresh_output_path(run_dir / "verdict.rrd"), _run_layout(run_dir))
     rec.log("/run/verdict", rr.TextDocument(_verdict_text(v, run_dir),
                                             media_type="text/markdown"), static=True)
-    events = sorted((t, c) for c in v.criteria for t in c.violations_s)
+    # by time only: two criteria violated at the same instant must not be compared
+    events = sorted(((t, c) for c in v.criteria for t in c.violations_s), key=lambda e: e[0])
     for t, c in events:
         rec.set_time("time", duration=t)
         rec.log("/events/verdict", rr.TextLog(f"{c.name} {c.verdict}: {c.message}",
