@@ -4,7 +4,9 @@ and ``identify.check:``), a degradation it is meant to catch is judged and must 
 criterion by name.
 
 Degraded runs are real where cheap (the unshaped slew and the thruster bang-bang, judged by
-the shaped slews' run files: the shaper removed); otherwise the run's data is the data the
+the shaped slews' run files: the shaper removed; case A and B with their compensation made
+25 % too strong or switched off, judged by each variant's ``steady_amplitude``, whose limits
+come from tools/steady_amplitude_limits.py); otherwise the run's data is the data the
 degradation gives: a summary value measured on such a run or that the degradation stands
 for, a channel with the degradation's shape, a CAN log whose last command leaves the wheel
 enabled. ``DEGRADATIONS`` is keyed by criterion name: a new built-in criterion without an
@@ -19,6 +21,8 @@ Calibrate's generated criteria are tested on a real calibration
 
 from __future__ import annotations
 
+import importlib.util
+import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -38,6 +42,21 @@ from harness.testing.judge import left_safe_problems
 from harness.testing.suite import load_suite
 
 RATE_HZ = 500.0
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _limits_tool() -> Any:
+    """tools/steady_amplitude_limits.py: the case runs' degradations (and their limits'
+    measurement) in one place."""
+    spec = importlib.util.spec_from_file_location(
+        "steady_amplitude_limits", ROOT / "tools" / "steady_amplitude_limits.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+LIMITS_TOOL = _limits_tool()
 
 
 # ------------------------------------------------------------------ the built-in criteria
@@ -206,9 +225,10 @@ DEGRADATIONS: dict[str, Degradation] = {
         "the compensation sized on the hub-free mode: case C at beta 1 needs 0.080 N m "
         "(case-a.yaml's note)", _scalar(compensation_amplitude_n_m=0.080)),
     "steady_amplitude": Degradation(
-        "the compensation off (beta 0): the rotor's disturbance alone, the steady amplitude "
-        "measured on each case with controller.beta 0 over 100 s (2026-11-25)",
-        lambda c, tmp: Facts(_summary())),  # the case's measured value: STEADY_OFF_M_S2
+        "case C: the compensation off (beta 0): the rotor's disturbance alone, the steady "
+        "amplitude measured with controller.beta 0 over 100 s (2026-11-25); cases A and B: "
+        "real runs (LIMITS_TOOL.DEGRADED, test_a_degraded_case_run_fails_steady_amplitude)",
+        lambda c, tmp: Facts(_summary())),  # case C's measured value: STEADY_OFF_M_S2
     "residual_vibration": Degradation(
         "the accelerometer's noise raised to 0.012 m/s^2 rms (a loose mount)", _noisy_accel),
     "detected": Degradation(
@@ -226,16 +246,13 @@ DEGRADATIONS: dict[str, Degradation] = {
 }
 
 
-STEADY_OFF_M_S2 = {"case-a": 0.00674, "case-b": 0.01130, "case-c": 0.05755}
-"""steady_tip_accel_amplitude_m_s2 of each case run with the compensation off (beta 0)."""
+STEADY_OFF_M_S2 = {"case-c": 0.05755}
+"""steady_tip_accel_amplitude_m_s2 of case C run with the compensation off (beta 0)."""
 
-CANNOT_FAIL = {
-    ("case-a", "steady_amplitude"): "case A's limits are the paper's amplitudes (0.020-0.041 "
-    "m/s^2); our rig model's uncompensated amplitude is 0.0067: the criterion cannot catch "
-    "the compensation lost (ours with it: 0.0055-0.0079, docs/papers.md)",
-    ("case-b", "steady_amplitude"): "case B's limits are the paper's (0.043-0.072 m/s^2); "
-    "uncompensated ours is 0.0113: the criterion cannot catch the compensation lost",
-}
+REAL_STEADY = tuple(LIMITS_TOOL.DEGRADED)
+"""The cases whose ``steady_amplitude`` is judged on a real degraded run (not by table)."""
+
+CANNOT_FAIL: dict[tuple[str, str], str] = {}
 """Known built-in criteria that their degradation does not fail (issue 24: reported, not
 tuned away; strict xfail, so a fix shows)."""
 
@@ -262,8 +279,12 @@ def _params(pairs: list[tuple[str, Criterion]]) -> list[Any]:
     return out
 
 
+def _real_steady(where: str, c: Criterion) -> bool:
+    return c.name == "steady_amplitude" and where.split("[")[0] in REAL_STEADY
+
+
 CASES = [(w, c) for w, c in all_criteria() if DEGRADATIONS.get(c.name) is not None
-         and DEGRADATIONS[c.name].real_run is None]
+         and DEGRADATIONS[c.name].real_run is None and not _real_steady(w, c)]
 
 
 @pytest.mark.parametrize(("where", "criterion"), _params(CASES))
@@ -306,6 +327,45 @@ def test_a_real_degraded_run_fails_the_criterion(where, criterion, degraded_runs
     [r] = [x for x in v.criteria if x.name == criterion.name]
     assert r.verdict == "FAIL", f"{where}: {r.message}"
 
+
+
+STEADY = [(w, c) for w, c in run_file_criteria() if _real_steady(w, c)]
+
+
+@pytest.fixture(scope="module")
+def steady_degraded(tmp_path_factory):
+    """The case runs' real degradations (LIMITS_TOOL.DEGRADED: case A's compensation 25 %
+    too strong, case B's off), 100 s each in lockstep, one run per distinct degraded
+    configuration (case B's is the same at every beta: 4 runs in all)."""
+    out = tmp_path_factory.mktemp("steady")
+    made: dict[str, Path] = {}
+
+    def run_dir(case: str, variant: str | None) -> Path:
+        _, extra = LIMITS_TOOL.DEGRADED[case]
+        run = LIMITS_TOOL.case_run(case, variant, extra)
+        key = json.dumps([case, extra(float(run.controller["beta"]))], sort_keys=True)
+        if key not in made:
+            made[key] = execute_run(run, out_dir=out, show_progress=False).run_dir
+        return made[key]
+    return run_dir
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("where", "criterion"), _params(STEADY))
+def test_a_degraded_case_run_fails_steady_amplitude(where, criterion, steady_degraded):
+    case, _, variant = where.rstrip("]").partition("[")
+    run_dir = steady_degraded(case, variant or None)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    [r] = evaluate([criterion], Facts(summary))
+    what = LIMITS_TOOL.DEGRADED[case][0]
+    assert r.verdict == "FAIL", f"{where}: steady_amplitude under '{what}': {r.message}"
+
+
+def test_every_case_variant_has_a_real_steady_degradation():
+    assert {w for w, _ in STEADY} == {
+        f"{case}{v}" for case in REAL_STEADY
+        for v in ["", *(f"[{n}]" for n in yaml.safe_load(
+            (RUNS_DIR / f"{case}.yaml").read_text())["variants"])]}
 
 
 # ------------------------------------------------------------------ the paper suites' checks
@@ -398,3 +458,55 @@ def test_the_guard_finds_a_check_that_cannot_fail():
         "energy": {"measure": "measures.peak_energy_ratio", "max_ratio": 0.5},
         "modes": {"measure": "modes", "len_min_count": 0}}, "test", "check")
     assert [_failing_value(c) is None for c in vacuous] == [True, False, True]
+
+
+# A study's own document, degraded: the study's results as the paper suites produced them
+# (the session's one run of the four suites, conftest.paper_suites: no study runs again),
+# with the claim's value moved past its limit, as a study that lost what the claim states
+# would write it. Beyond the guard above, the check reads the path the study really writes
+# and passes on its real value.
+STUDY_CHECKS = [(f"{name}::{case.id}", c)
+                for name in ("paper001", "paper002", "paper003", "paper004")
+                for case in load_suite(name).cases if case.kind == "study"
+                for c in case.checks]
+
+
+def _with_measure(doc: dict[str, Any], target: str, value: Any) -> dict[str, Any]:
+    key = target.split(".", 1)[1]
+    assert key in doc["measures"], f"{target}: the study writes no such measure"
+    return {**doc, "measures": {**doc["measures"], key: value}}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("where", "criterion"), STUDY_CHECKS,
+                         ids=[f"{w}:{c.name}" for w, c in STUDY_CHECKS])
+def test_a_degraded_study_document_fails_the_check(where, criterion, paper_suites):
+    doc = paper_suites.document(where.split("::", 1)[1])
+    [real] = judge_checks([criterion], doc)
+    assert real["verdict"] in ("PASS", "MARGINAL"), f"{where}: {real['message']}"
+    value = _failing_value(criterion)
+    [r] = judge_checks([criterion], _with_measure(doc, criterion.target, value))
+    assert r["verdict"] == "FAIL", f"{where}: {criterion.name} at {value!r}: {r['message']}"
+
+
+def test_the_study_checks_are_on_their_measures():
+    assert len(STUDY_CHECKS) >= 70
+    assert all(c.target.startswith("measures.") for _, c in STUDY_CHECKS)
+
+
+
+def test_the_document_test_catches_a_check_the_study_cannot_pass_or_fail():
+    """The study-document test above fails for a check on a measure the study does not
+    write, and for one its real value already fails."""
+    from harness.testing.suite import parse_checks
+
+    class Suites:
+        def document(self, item: str) -> dict[str, Any]:
+            return {"measures": {"peak_energy_ratio": 0.7}}
+
+    typo, failing = parse_checks({
+        "typo": {"measure": "measures.peak_energy_ratios", "max_ratio": 0.9},
+        "failing": {"measure": "measures.peak_energy_ratio", "max_ratio": 0.5}}, "test", "check")
+    for c in (typo, failing):
+        with pytest.raises(AssertionError):
+            test_a_degraded_study_document_fails_the_check("paper000::study", c, Suites())

@@ -32,7 +32,7 @@ from harness.testing.evaluate import (
     grade,
     window_mask,
 )
-from harness.testing.measures import WORST_SAMPLE
+from harness.testing.measures import WORST_SAMPLE, unit_text
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -65,7 +65,7 @@ def _ref_channel(c, measures, t, x):
         worst = float(t[i])
         violations = _ref_violation_starts(t, margins < 0, worst) if verdict == FAIL else []
         return _result(c, float(x[i]), margin, verdict, worst,
-                       f"{c.target} worst sample {_fmt(float(x[i]))} {c.unit} at t = "
+                       f"{c.target} worst sample {_fmt(float(x[i]))} {unit_text(c.unit)} at t = "
                        f"{worst:.3f} s ({where}) {_verb(verdict)} {_limits_text(c)}",
                        violations)
     if c.reduce == "rms":
@@ -78,7 +78,7 @@ def _ref_channel(c, measures, t, x):
     verdict = grade(margin, c.marginal)
     at = worst if worst is not None else float(t[-1])
     return _result(c, value, margin, verdict, worst,
-                   f"{c.reduce} of {c.target} ({where}) = {_fmt(value)} {c.unit} "
+                   f"{c.reduce} of {c.target} ({where}) = {_fmt(value)} {unit_text(c.unit)} "
                    f"{_verb(verdict)} {_limits_text(c)}", [at] if verdict == FAIL else [])
 
 
@@ -94,7 +94,7 @@ def _ref_settles(c, measures, t, x):
         if t[b] - t[a] >= stays - 1e-9:
             entry = float(t[a])
             break
-    what = f"{c.target} within {center:g} +- {band:g} {u} for {stays:g} s"
+    what = f"{c.target} within {center:g} +- {band:g} {unit_text(u)} for {stays:g} s"
     if entry is None and len(starts) and ends[-1] == len(t) - 1 \
             and t[starts[-1]] - trigger <= c.limit["max"] + 1e-9:
         a = float(t[starts[-1]])
@@ -108,7 +108,8 @@ def _ref_settles(c, measures, t, x):
         i = int(np.argmax(np.where(sel, dev, -np.inf)))
         return _result(c, None, None, FAIL, float(t[i]),
                        f"{what}: never settled after t = {trigger:.3f} s (worst "
-                       f"{_fmt(float(x[i]))} {u} at t = {float(t[i]):.3f} s)", [float(t[i])])
+                       f"{_fmt(float(x[i]))} {unit_text(u)} at t = {float(t[i]):.3f} s)",
+                       [float(t[i])])
     value = round(entry - trigger, 9)
     margin = c.limit["max"] - value
     verdict = grade(margin, c.marginal)

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from harness.engine import CLUSTER_ENV, EngineError, make_engine
+from harness.record.recording import close_stream
 from harness.record.streams import save_with_blueprint, sweep_orphans
 from harness.studies.sweep import SweepSpec, run_sweep
 from rig_models.rig_file import load_rig
@@ -158,10 +159,11 @@ def save_rrd(path: Path, name: str, lambdas: np.ndarray, betas: np.ndarray,
         "Maps: log10 of each amplitude over lambda x beta with their colour scales "
         "(maps.png; the raw arrays are under /sweep/map).", media_type="text/markdown"),
         static=True)
-    rec.flush()
-    rec.disconnect()
-    del rec
-    sweep_orphans()  # the stream dropped: its threads end (issue 23)
+    try:
+        close_stream(rec, path)  # bounded: a full disk's stuck sink never hangs the sweep
+    finally:
+        del rec
+        sweep_orphans()  # the stream dropped: its threads end (issue 23)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

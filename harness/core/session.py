@@ -26,7 +26,7 @@ from drivers.dbc import load_protocol
 from harness.bus import BusSpec, open_bus, parse_bus
 from harness.bus.load import binding_bus_load, compute_bus_load
 from harness.bus.rig_interface import RigInterface
-from harness.bus.rig_process import RigProcess
+from harness.bus.rig_process import RigProcess, RigProcessError
 from harness.core.clock import LockstepClock, RealTimeClock, RealTimeSetup, choose_cpus
 from harness.core.loop import CHANNELS, HELD_FRACTION, RESERVE_FRACTION, LoopStats, run_loop
 from harness.core.monitor import FaultMonitor, MonitorWarning
@@ -159,7 +159,10 @@ def execute_run(
                               cpu=rig_cpu,
                               priority=rt["rig_priority"] if rt["sched_fifo"] else 0,
                               realtime=rt["lock_memory"] or rt["gc_freeze"])
-            where = stack.enter_context(proc)
+            try:
+                where = stack.enter_context(proc)
+            except RigProcessError as exc:
+                raise _rig_did_not_start(run, proc, run_dir, exc) from exc
             rig_measures = proc.measures
             spec = parse_bus(where)
             faults = []
@@ -284,6 +287,22 @@ on a CPU taken from under it (``attribute_missing``)."""
 STALL_OP_MIN_FRACTION = 0.1
 """... and at least this fraction of the period (0.2 ms at 500 Hz), so that a run whose
 operations are all fast does not call a 0.1 ms hiccup a stall."""
+
+
+def _rig_did_not_start(run: RunConfig, proc: RigProcess, run_dir: Path,
+                       exc: RigProcessError) -> RunRefused:
+    """A rig process that did not start refuses the run, nothing sent: its folder (only
+    config.yaml, rig.yaml and rig.log) goes, since a refused run leaves none ('harness logs
+    --failed' read it as a run killed on the way), and rig.log's diagnosis, the process's
+    last line (its own one-line error, or a traceback's exception), goes into the error."""
+    try:
+        lines = [ln.strip() for ln in proc.log_path.read_text(errors="replace").splitlines()]
+    except OSError:
+        lines = []
+    said = next((ln for ln in reversed(lines) if ln), "")
+    shutil.rmtree(run_dir, ignore_errors=True)
+    what = str(exc).split("; see ")[0]  # rig.log is gone with the folder
+    return RunRefused(f"{run.source}: {what}; it said: {said[:500] or '(nothing)'}")
 
 
 REALTIME_RIG_DEFAULT = "process-unix"

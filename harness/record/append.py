@@ -27,6 +27,7 @@ from pathlib import Path
 import rerun as rr
 import rerun.blueprint as rrb
 
+from harness.record.recording import close_stream
 from harness.record.streams import save_with_blueprint, sweep_orphans
 
 FILE_HEADER = 12
@@ -68,10 +69,11 @@ def _write_stream(path: Path, application_id: str, recording_id: str, write: Wri
     try:
         write(rec)
     finally:
-        rec.flush()
-        rec.disconnect()
-        del rec
-        sweep_orphans()  # the stream dropped: its threads end (issue 23)
+        try:
+            close_stream(rec, path)
+        finally:
+            del rec
+            sweep_orphans()  # the stream dropped: its threads end (issue 23)
 
 
 def append_stream(path: Path, application_id: str, recording_id: str, write: Writer,

@@ -74,6 +74,36 @@ def _bounded(call: Callable[[], object], timeout_s: float) -> None:
         raise errors[0]
 
 
+_FAILED_STREAMS: list[rr.RecordingStream] = []
+"""Streams whose sink failed or stopped answering (one per such failure, so bounded)."""
+
+
+def flush_within(rec: rr.RecordingStream, timeout_s: float | None = None) -> None:
+    """``rec.flush()`` waited for at most ``timeout_s`` (default ``FLUSH_TIMEOUT_S``, read at
+    the call: Rerun's own timeout did not hold); ``TimeoutError`` after, the sink's own error
+    as raised."""
+    bound = FLUSH_TIMEOUT_S if timeout_s is None else timeout_s
+    _bounded(lambda: rec.flush(timeout_sec=bound), bound + 1)
+
+
+def close_stream(rec: rr.RecordingStream, path: Path | str) -> None:
+    """Flush a recording stream saving to ``path`` within ``FLUSH_TIMEOUT_S``, then
+    disconnect it (the caller drops it and calls ``sweep_orphans``). ``OutputError`` naming
+    the file when its sink failed or did not answer; then it is not disconnected, since a
+    stuck sink would hold the disconnect too (and ``harness.cli`` ends the process without
+    Rerun's shutdown, ``ABANDONED``)."""
+    path = Path(path)
+    try:
+        flush_within(rec)
+    except Exception as exc:
+        if isinstance(exc, TimeoutError) or "timed out" in str(exc).lower():
+            ABANDONED.set()
+        # held, never orphaned: sweep_orphans flushes orphans, and would wait on its sink
+        _FAILED_STREAMS.append(rec)
+        raise OutputError(path.parent, f"{path.name} could not be written ({exc})") from exc
+    rec.disconnect()
+
+
 START_TIMEOUT_S = 20.0
 """Rerun's ``save`` waited forever when its file sink's first write failed (a disk with
 64 KB free: the sink's thread died and ``set_sink`` waited for its flush). A Rust call cannot
@@ -312,7 +342,7 @@ class Recorder:
             raise self.failed
         rec = self._stream()
         try:
-            _bounded(lambda: rec.flush(timeout_sec=FLUSH_TIMEOUT_S), FLUSH_TIMEOUT_S + 1)
+            flush_within(rec)
         except Exception as exc:
             viewer = f"; or the live viewer at {self.live_view_url} stopped answering" \
                 if self.live_view_url else ""

@@ -28,6 +28,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from harness.record.recording import close_stream
 from harness.record.streams import save_with_blueprint, sweep_orphans
 from harness.review.names import GREEN, GREY, ORANGE, PURPLE, SKY, VERMILLION, YELLOW
 from harness.review.spectrum import (
@@ -176,8 +177,9 @@ def write_calibration_rrd(c: Any, path: Path | None = None) -> Path:
         rec.log(MODES, rr.TextDocument(modes_markdown(_mode_dicts(c), []),
                                        media_type="text/markdown"), static=True)
     finally:
-        rec.flush()
-        rec.disconnect()
-        del rec
-        sweep_orphans()  # the stream dropped: its threads end (issue 23)
+        try:
+            close_stream(rec, path)  # bounded: a full disk's stuck sink never hangs calibrate
+        finally:
+            del rec
+            sweep_orphans()  # the stream dropped: its threads end (issue 23)
     return Path(path)

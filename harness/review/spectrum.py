@@ -28,7 +28,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from harness.identification.windows import MultiWindowResult
-from harness.record.recording import APPLICATION_ID
+from harness.record.recording import APPLICATION_ID, close_stream
 from harness.record.streams import save_with_blueprint, sweep_orphans
 from harness.review.layouts import blueprint_for_run_dir, layout_for_run, spectrum_views
 
@@ -176,8 +176,9 @@ def write_identify_rrd(path: Path, run_dir: Path, result: MultiWindowResult,
             modes_markdown(modes if modes is not None else result.to_dict()["modes"],
                            [*means, *result.notes]), media_type="text/markdown"), static=True)
     finally:
-        rec.flush()
-        rec.disconnect()
-        del rec
-        sweep_orphans()  # the stream dropped: its threads end (issue 23)
+        try:
+            close_stream(rec, path)  # bounded: a full disk's stuck sink never hangs identify
+        finally:
+            del rec
+            sweep_orphans()  # the stream dropped: its threads end (issue 23)
     return path

@@ -459,6 +459,8 @@ def print_tables(out: dict) -> None:
 def write_rrd(path: Path, cases: list[CaseResult]) -> None:
     import rerun as rr
 
+    from harness.record.recording import close_stream
+    from harness.record.streams import sweep_orphans
     from harness.review.names import log_series_names
 
     rec = rr.RecordingStream("harness_parman2022")
@@ -484,7 +486,11 @@ def write_rrd(path: Path, cases: list[CaseResult]) -> None:
         log_series_names(rec, [f"{base}/node27_m"]
                          + [f"{base}/{q}/{axis}" for q in ("attitude_deg", "torque_n_m")
                             for axis in AXES])
-    rec.flush()
+    try:
+        close_stream(rec, path)  # bounded: a full disk's stuck sink never hangs the study
+    finally:
+        del rec
+        sweep_orphans()  # the stream dropped: its threads end
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -297,6 +297,8 @@ def write_recording(
     """Histories to a Rerun .rrd (columnar sends, no viewer): wang2022/drive/shaper/case/..."""
     import rerun as rr
 
+    from harness.record.recording import close_stream
+    from harness.record.streams import sweep_orphans
     from harness.review.names import log_multi_series_names
 
     rec = rr.RecordingStream("sgsrt_wang2022")
@@ -325,7 +327,11 @@ def write_recording(
             rec.send_columns(
                 f"{base}/{name}", indexes=times, columns=rr.Scalars.columns(scalars=values)
             )
-    rec.flush()
+    try:
+        close_stream(rec, path)  # bounded: a full disk's stuck sink never hangs the study
+    finally:
+        del rec
+        sweep_orphans()  # the stream dropped: its threads end
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -21,7 +21,13 @@ import numpy as np
 
 from harness.identification.residual_fit import ModalResidualFit
 from harness.testing.criteria import Criterion, Window
-from harness.testing.measures import NULL_MEANS_FAIL, WORST_SAMPLE, FieldMissing, find
+from harness.testing.measures import (
+    NULL_MEANS_FAIL,
+    WORST_SAMPLE,
+    FieldMissing,
+    find,
+    unit_text,
+)
 
 PASS, MARGINAL, FAIL, ERROR = "PASS", "MARGINAL", "FAIL", "ERROR"
 SEVERITY = {PASS: 0, MARGINAL: 1, FAIL: 2, ERROR: 3}
@@ -110,6 +116,12 @@ def _fmt(v: Any) -> str:
     if isinstance(v, int):
         return str(v)
     return f"{v:.4g}"
+
+
+def _u(unit: str) -> str:
+    """`` N m`` after a number, nothing for a dimensionless one."""
+    text = unit_text(unit)
+    return f" {text}" if text else ""
 
 
 def limit_dict(c: Criterion) -> dict[str, Any]:
@@ -238,7 +250,7 @@ def evaluate_scalar(c: Criterion, measures: Mapping[str, Any]) -> CriterionResul
         return _error(c, f"missing data: {where} {text}")
     if "is" in c.limit:
         return _result(c, value, None, verdict, None, f"{where} = {_fmt_any(value)} {text}")
-    unit = "" if c.unit in ("ratio", "count") else f" {c.unit}"
+    unit = _u(c.unit)
     shown = f"{what} = {_fmt(value) if value is not None else 'null'}{unit}"
     if text:  # a null that is a result
         msg = f"{where} {text}"
@@ -419,7 +431,7 @@ def _channel_core(c: Criterion, start: float) -> Generator[None, Any, CriterionR
     if c.reduce == "each":
         verdict = grade(best, c.marginal)
         return _result(c, best_x, best, verdict, best_t,
-                       f"{c.target} worst sample {_fmt(best_x)} {c.unit} at t = "
+                       f"{c.target} worst sample {_fmt(best_x)}{_u(c.unit)} at t = "
                        f"{best_t:.3f} s ({where}) {_verb(verdict)} {_limits_text(c)}",
                        starts.times(best_t) if verdict == FAIL else [])
     worst: float | None
@@ -433,7 +445,7 @@ def _channel_core(c: Criterion, start: float) -> Generator[None, Any, CriterionR
     verdict = grade(margin, c.marginal)
     at = worst if worst is not None else t_last
     return _result(c, value, margin, verdict, worst,
-                   f"{c.reduce} of {c.target} ({where}) = {_fmt(value)} {c.unit} "
+                   f"{c.reduce} of {c.target} ({where}) = {_fmt(value)}{_u(c.unit)} "
                    f"{_verb(verdict)} {_limits_text(c)}",
                    [at] if verdict == FAIL else [])
 
@@ -470,7 +482,7 @@ def _settles_core(c: Criterion, trigger: float) -> Generator[None, Any, Criterio
             i = int(np.argmax(dev if sel is None else np.where(sel, dev, -np.inf)))
             if not worst[k][3] or dev[i] > worst[k][0]:
                 worst[k] = (float(dev[i]), float(t[i]), float(x[i]), True)
-    what = f"{c.target} within {center:g} +- {band:g} {u} for {stays:g} s"
+    what = f"{c.target} within {center:g} +- {band:g}{_u(u)} for {stays:g} s"
     if entry is None and seg is not None and seg - trigger <= c.limit["max"] + 1e-9:
         # in the band in time and still in it at the end, but the run ended before it had
         # stayed stays_s: too short to judge, not a failure to settle
@@ -481,7 +493,7 @@ def _settles_core(c: Criterion, trigger: float) -> Generator[None, Any, Criterio
         _, wt, wx, _ = worst[1] if worst[1][3] else worst[0]
         return _result(c, None, None, FAIL, wt,
                        f"{what}: never settled after t = {trigger:.3f} s (worst "
-                       f"{_fmt(wx)} {u} at t = {wt:.3f} s)", [wt])
+                       f"{_fmt(wx)}{_u(u)} at t = {wt:.3f} s)", [wt])
     value = round(entry - trigger, 9)  # sample times minus an event time: no float dust
     margin = c.limit["max"] - value
     verdict = grade(margin, c.marginal)
@@ -518,7 +530,7 @@ def _modal_core(c: Criterion, start: float) -> Generator[None, Any, CriterionRes
     return _result(c, r.peak, margin, verdict, at,
                    f"{len(c.params['modes'])} modes fitted to {c.target} "
                    f"({c.window.describe()}, from t = {start:.3f} s): residual peak "
-                   f"{_fmt(r.peak)} +- {r.sigma:.2g} {c.unit} (1 sigma; noise rms "
+                   f"{_fmt(r.peak)} +- {r.sigma:.2g}{_u(c.unit)} (1 sigma; noise rms "
                    f"{r.noise_rms:.2g}) at t = {at:.3f} s {_verb(verdict)} {_limits_text(c)}",
                    [at] if verdict == FAIL else [])
 
@@ -570,9 +582,9 @@ def evaluate_baseline(c: Criterion, facts: Facts) -> CriterionResult:
     tol_i = tol + rel * abs(float(b[i]))
     return _result(
         c, dev, margin, verdict, worst,
-        f"{c.target} vs baseline {base}: worst deviation {_fmt(dev)} {c.unit} at t = "
+        f"{c.target} vs baseline {base}: worst deviation {_fmt(dev)}{_u(c.unit)} at t = "
         f"{worst:.3f} s (run {_fmt(float(xc[i]))}, baseline {_fmt(float(b[i]))}; tolerance "
-        f"{_fmt(tol_i)} {c.unit}; time shift {shift:+.3f} s) {_verb(verdict)} tolerance",
+        f"{_fmt(tol_i)}{_u(c.unit)}; time shift {shift:+.3f} s) {_verb(verdict)} tolerance",
         _Starts().feed(tc, excess > 0).times(worst) if verdict == FAIL else [])
 
 

@@ -34,6 +34,7 @@ from harness.testing.evaluate import (
     run_checks,
     worst_verdict,
 )
+from harness.testing.measures import unit_text
 from rig_models.schema import ConfigError
 
 APPLICATION_ID = "sgsrt-harness"  # as harness.record.recording's (same recording in the viewer)
@@ -490,7 +491,8 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
     import rerun as rr
 
     run_dir = Path(run_dir or v.run_dir or ".")
-    from harness.record.output import OutputError, fresh_output_path, write_text_atomic
+    from harness.record.output import fresh_output_path, write_text_atomic
+    from harness.record.recording import close_stream
 
     out = run_dir / "verdict.json"
     # atomic: a full disk leaves the old verdict or none, never an empty one; neither file
@@ -508,11 +510,9 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
                                               level="ERROR" if c.verdict == ERROR else "WARN"))
     _mark_on_plots(rec, run_dir, [(t, f"VERDICT {c.name} {c.verdict}") for t, c in events])
     try:
-        rec.flush(timeout_sec=30.0)  # without a bound it waited forever on a full disk
-    except Exception as exc:
-        raise OutputError(run_dir, f"verdict.rrd could not be written ({exc})") from exc
+        # without a bound it waited forever on a full disk
+        close_stream(rec, run_dir / "verdict.rrd")
     finally:
-        rec.disconnect()
         del rec
         sweep_orphans()  # the stream dropped: its threads end (issue 23)
     _into_run_rrd(run_dir, v, [(t, "ERROR" if c.verdict == ERROR else "WARN",
@@ -573,11 +573,6 @@ def _mark_on_plots(rec: Any, run_dir: Path, events: list[tuple[float, str]]) -> 
               file=sys.stderr)
 
 
-UNIT_TEXT = {"n_m": "N m", "m_s2": "m/s^2", "deg_s": "deg/s", "rad_s": "rad/s", "m_s": "m/s",
-             "n_m_s": "N m s", "percent": "%", "bool": "", "count": "", "ratio": ""}
-"""How a unit suffix reads in the printed block (the keys keep the suffix)."""
-
-
 def format_block(v: Verdict, path: Path | None = None) -> str:
     """The verdict as printed at the end of ``harness run`` and by ``harness judge``."""
     lines = [f"VERDICT {v.verdict} (exit {v.exit_code}): {v.reason}"]
@@ -589,7 +584,7 @@ def format_block(v: Verdict, path: Path | None = None) -> str:
                         for k, val_ in c.limit.items())
         margin = "" if c.margin is None else f"  margin {c.margin:.4g}"
         at = "" if c.worst_time_s is None else f"  worst at t = {c.worst_time_s:.3f} s"
-        unit = UNIT_TEXT.get(c.unit, c.unit)
+        unit = unit_text(c.unit)
         lines.append(f"  {c.verdict:<8} {c.name:<{w}}  {val} {unit}".rstrip()
                      + (f"  limit {lim}" if lim else "") + margin + at)
         if c.verdict != "PASS":

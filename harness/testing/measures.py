@@ -248,3 +248,16 @@ def numeric_leaves(data: Mapping[str, Any], prefix: str = "") -> Iterable[str]:
             yield from numeric_leaves(v, p + ".")
         elif isinstance(v, bool | int | float) and not (isinstance(v, float) and math.isnan(v)):
             yield p
+
+
+UNIT_TEXT = {"n_m": "N m", "n_m_s": "N m s", "m_s2": "m/s^2", "deg_s": "deg/s",
+             "rad_s": "rad/s", "m_s": "m/s", "percent": "%", "hz": "Hz", "v": "V", "a": "A",
+             "bool": "", "count": "", "ratio": ""}
+"""How a unit suffix reads where people read it (messages, the printed block, the docs'
+tables); the keys keep the suffix (``max_n_m``)."""
+
+
+def unit_text(unit: str) -> str:
+    """``n_m`` -> ``N m``, ``m_s2`` -> ``m/s^2``; a unit without a spelling (deg, s, m) as it
+    is."""
+    return UNIT_TEXT.get(unit, unit)

@@ -11,6 +11,8 @@ import math
 import re
 from typing import Any
 
+from harness.testing.measures import unit_text
+
 PAPER_SUITES = ("paper001", "paper002", "paper003", "paper004")
 TITLES = {
     "paper001": "Paper 001 (Hu 2006): PWPF, CSVS and optimal PPF",
@@ -43,12 +45,9 @@ def fmt(v: Any) -> str:
     return str(v)
 
 
-UNITS = {"m_s2": "m/s^2", "deg_s": "deg/s", "rad_s": "rad/s", "n_m": "N m", "percent": "%",
-         "hz": "Hz", "v": "V", "a": "A"}
-
-
 def _unit(u: str) -> str:
-    return "" if u in ("", "ratio", "count", "bool") else f" {UNITS.get(u, u)}"
+    text = unit_text(u)
+    return f" {text}" if text else ""
 
 
 def fmt_limit(c: dict[str, Any]) -> str:
