@@ -69,3 +69,30 @@ def paper_suites(tmp_path_factory) -> PaperSuites:
                 documents[test["item"]] = test["document"]
     return PaperSuites(out, proc.returncode, proc.stdout[-3000:] + proc.stderr[-3000:],
                        documents)
+
+
+@dataclass
+class Calibration:
+    """One ``harness calibrate --json --max-verify 2`` of the sgsrt rig's wheel, in process:
+    its exit code, the printed JSON and its progress lines."""
+
+    code: int
+    data: dict
+    err: str
+
+
+@pytest.fixture(scope="session")
+def sgsrt_wheel_calibration(tmp_path_factory) -> Calibration:
+    """The wheel calibration of the default rig, shared (read-only: judging it with
+    ``--expect`` writes nothing) by the calibrate end-to-end test and the test that its
+    generated criteria can fail (tests/test_trust_verdicts.py), so it runs once."""
+    import io
+    from contextlib import redirect_stderr, redirect_stdout
+
+    from harness.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        code = main(["calibrate", "--json", "--max-verify", "2", "--out",
+                     str(tmp_path_factory.mktemp("calibration"))])
+    return Calibration(code, json.loads(out.getvalue()) if code == 0 else {}, err.getvalue())

@@ -414,8 +414,9 @@ def test_replay_decodes_a_canopen_run_by_name(tmp_path):
     import sys
 
     result = _run(tmp_path, [])
-    out = subprocess.run([sys.executable, "-m", "harness", "replay", str(result.run_dir),
-                          "--json"], capture_output=True, text=True, timeout=300)
+    from in_process import harness_in_process
+
+    out = harness_in_process("replay", str(result.run_dir), "--json")  # the entry point: below
     assert out.returncode == 0, out.stderr
     rep = json.loads(out.stdout)
     assert rep["ticks"] == result.summary["ticks"]

@@ -341,8 +341,11 @@ def _check_calibration_rrd(path: Path, data: dict) -> None:
     assert {SPECTRUM_VIEW, VERIFIED_VIEW, CANDIDATES_VIEW + ": predicted"} <= names
 
 
-def test_calibrate_sgsrt_wheel_end_to_end(tmp_path: Path, capsys) -> None:
-    code, data = _calibrate_json(tmp_path, capsys, "--max-verify", "2")
+def test_calibrate_sgsrt_wheel_end_to_end(tmp_path: Path, sgsrt_wheel_calibration) -> None:
+    # `harness calibrate --json --max-verify 2`, run once a session (tests/conftest.py)
+    cal = sgsrt_wheel_calibration
+    assert "calibrate 1/4: exciting" in cal.err and "calibrate 4/4" in cal.err
+    code, data = cal.code, cal.data
     _check_wheel_result(code, data)
     _check_calibration_rrd(Path(data["folder"]) / "calibration.rrd", data)
     ident = [m["omega_rad_s"] for m in data["identified_modes"]]

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import can
 import pytest
+from in_process import harness_in_process
 from rerun.chunk import RrdReader
 
 from drivers.dbc import load_protocol
@@ -76,10 +74,9 @@ def test_fault_detected_rig_safe_event_recorded(tmp_path, fault, device, kind, b
 
 
 def test_fault_exit_code_and_message_from_the_cli(tmp_path):
-    out = subprocess.run(
-        [sys.executable, "-m", "harness", "run", "slew-rw", "--duration-s", "4", "--quiet",
-         "--out", str(tmp_path), "--fault", "silent_sensor@2:accelerometer"],
-        capture_output=True, text=True, timeout=120)
+    # in process (tests/in_process.py): the run's exit code and message, not the process's
+    out = harness_in_process("run", "slew-rw", "--duration-s", "4", "--quiet", "--out",
+                             str(tmp_path), "--fault", "silent_sensor@2:accelerometer")
     assert out.returncode == 3
     assert "FAULT accelerometer: silent" in out.stderr
 

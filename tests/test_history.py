@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from in_process import harness_in_process
 
 from harness.cli import main
 from harness.core.runs import load_run
@@ -75,9 +76,14 @@ def first_json(text: str) -> dict:
     return json.JSONDecoder().raw_decode(text[text.index("{"):])[0]
 
 
-def cli(*args: str) -> tuple[int, str]:
-    proc = subprocess.run([sys.executable, "-m", "harness", *args], capture_output=True,
-                          text=True, env=ENV, timeout=300, check=False)
+def cli(*args: str, process: bool = False) -> tuple[int, str]:
+    """`harness ARGS`: exit code, stdout then stderr; in this process (tests/in_process.py)
+    unless ``process`` (a new interpreter: the entry point)."""
+    if process:
+        proc = subprocess.run([sys.executable, "-m", "harness", *args], capture_output=True,
+                              text=True, env=ENV, timeout=300, check=False)
+    else:
+        proc = harness_in_process(*args)
     return proc.returncode, proc.stdout + proc.stderr
 
 
@@ -212,7 +218,7 @@ def test_flaky_is_a_verdict_flip_on_one_configuration(tmp_path):
 def test_history_bad_input_is_a_clear_error(tmp_path):
     assert main(["history", "show", "x", "--mode", "1", "--logs", str(tmp_path)]) == 2
     (tmp_path / "history.sqlite").write_text("not a database")
-    code, out = cli("history", "list", "--logs", str(tmp_path))
+    code, out = cli("history", "list", "--logs", str(tmp_path), process=True)
     assert code == 2 and "Traceback" not in out and "history.sqlite" in out
     code, out = cli("history", "list", "--logs", str(tmp_path), "--since", "yesterday")
     assert code == 2 and "--since" in out
@@ -306,7 +312,7 @@ def test_twin_residual_finds_the_changed_rig(tmp_path):
     assert m1["change_percent"] > 1.5  # about +2.5 %: sqrt(1.05)
     code, text = cli("twin", str(changed), "--rig", str(RIGS_DIR / "sgsrt.yaml"))
     assert "largest residual over its noise: /piezo/sensor_ch1_v, worst" in text
-    code, text = cli("twin", str(tmp_path))
+    code, text = cli("twin", str(tmp_path), process=True)
     assert code == 2 and "no run.rrd" in text
 
 
@@ -340,9 +346,7 @@ def test_suite_report_shows_each_criterions_recent_trend(tmp_path):
     suite = tmp_path / "trend.yaml"
     suite.write_text(yaml.safe_dump({"name": "trend", "tests": [{"run": str(run_file)}]}))
     for _ in range(2):
-        proc = subprocess.run([sys.executable, "-m", "harness", "test", str(suite), "--out",
-                               str(out), "--workers", "1"], capture_output=True, text=True,
-                              env=ENV, timeout=300, check=False)
+        proc = harness_in_process("test", str(suite), "--out", str(out), "--workers", "1")
         assert proc.returncode == 0, proc.stderr[-2000:]
     report = sorted(out.glob("*-trend"))[-1]
     doc = json.loads((report / "results.json").read_text())

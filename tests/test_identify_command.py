@@ -8,6 +8,7 @@ import sys
 
 import numpy as np
 import pytest
+from in_process import harness_in_process
 
 
 @pytest.fixture
@@ -17,8 +18,8 @@ def free_decay(free_decay_run):
 
 
 def identify_json(*args):
-    out = subprocess.run([sys.executable, "-m", "harness", "identify", *map(str, args),
-                          "--json"], capture_output=True, text=True, timeout=300)
+    # in process (tests/in_process.py); the entry point: test_identify_bad_input_exit_code
+    out = harness_in_process("identify", *map(str, args), "--json")
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout)
 
@@ -66,9 +67,7 @@ def test_the_long_free_decay_alone_gives_modes_1_and_2_only(free_decay):
     start = _final_start(free_decay)
     report = identify_json(free_decay.run_dir, "--window", f"{start}:")
     assert [m["model_mode"] for m in report["modes"]] == [1, 2]
-    table = subprocess.run([sys.executable, "-m", "harness", "identify",
-                            str(free_decay.run_dir), "--n-modes", "2"],
-                           capture_output=True, text=True, timeout=300)
+    table = harness_in_process("identify", str(free_decay.run_dir), "--n-modes", "2")
     assert table.returncode == 0, table.stderr
     assert "mode 3" not in table.stdout and "from 35" in table.stdout
 

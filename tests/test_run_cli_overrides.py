@@ -2,19 +2,17 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import yaml
+from in_process import harness_in_process
 
 
 def test_rig_and_duration_reach_each_variant(tmp_path):
     """Before, `harness run case-a --rig sgsrt-canopen` ran its variants on the run file's own
     rig (sgsrt) without a word: a lab's variant run on the built-in rig."""
-    out = subprocess.run([sys.executable, "-m", "harness", "run", "case-a", "--variant",
-                          "beta-0.6", "--rig", "sgsrt-canopen", "--duration-s", "0.2",
-                          "--quiet", "--out", str(tmp_path)],
-                         capture_output=True, text=True, timeout=300)
+    # in process (tests/in_process.py): the claim is the command's handling of its options
+    out = harness_in_process("run", "case-a", "--variant", "beta-0.6", "--rig",
+                             "sgsrt-canopen", "--duration-s", "0.2", "--quiet", "--out",
+                             str(tmp_path))
     (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
     config = yaml.safe_load((run_dir / "config.yaml").read_text())
     assert config["run"]["rig"] == "sgsrt-canopen", out.stderr[-2000:]

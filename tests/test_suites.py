@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from in_process import harness_in_process
 
 from harness.core.runs import RUNS_DIR
 from harness.testing.checks import judge_checks, judge_compare
@@ -26,9 +27,16 @@ from rig_models.schema import ConfigError
 ENV = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
 
 
-def harness_test(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "harness", "test", *args], capture_output=True,
-                          text=True, env=ENV, cwd=cwd, timeout=300, check=False)
+def harness_test(*args: str, cwd: Path | None = None,
+                 process: bool = False) -> subprocess.CompletedProcess[str]:
+    """`harness test ARGS`: in this process (its exit code, stdout and stderr, as the command
+    line gives them) unless ``process``: a new interpreter, for what is about the process
+    (the entry point, signals, real time against a rig process)."""
+    if process or cwd is not None:
+        return subprocess.run([sys.executable, "-m", "harness", "test", *args],
+                              capture_output=True, text=True, env=ENV, cwd=cwd, timeout=300,
+                              check=False)
+    return harness_in_process("test", *args)
 
 
 def suite_dir_of(out: Path, name: str) -> Path:
@@ -331,7 +339,7 @@ def test_real_bus_refuses_when_the_probe_fails(tmp_path):
     with RigProcess(load_rig("sgsrt"), 100.0, tmp_path,
                     [parse_fault("silent_sensor@0:hub_sensor")], lifetime_s=60) as where:
         proc = harness_test(str(path), "--bus", where, "--out", str(out),
-                            "--junit", str(tmp_path / "j.xml"))
+                            "--junit", str(tmp_path / "j.xml"), process=True)
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert "pre-flight probe" in proc.stderr and "hub_sensor: silent" in proc.stderr
     folder = suite_dir_of(out, "mini")
@@ -365,7 +373,7 @@ def test_real_bus_runs_one_at_a_time_after_a_good_probe(tmp_path):
     out = tmp_path / "out"
     with RigProcess(load_rig("sgsrt"), 100.0, tmp_path, [], lifetime_s=120) as where:
         proc = harness_test(str(suite), "--bus", where, "--out", str(out),
-                            "--junit", str(tmp_path / "j.xml"))
+                            "--junit", str(tmp_path / "j.xml"), process=True)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "pre-flight probe OK" in proc.stderr and "on inline" in proc.stderr
     results = json.loads((suite_dir_of(out, "rig") / "results.json").read_text())
@@ -381,7 +389,7 @@ def test_real_bus_runs_one_at_a_time_after_a_good_probe(tmp_path):
 
 
 def test_builtin_suites_load_and_list():
-    proc = harness_test("--list")
+    proc = harness_test("--list", process=True)  # the entry point
     assert proc.returncode == 0 and "acceptance" in proc.stdout
     suite = load_suite("acceptance")
     items = [n for c in suite.cases for n in c.item_names]

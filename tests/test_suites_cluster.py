@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from in_process import harness_in_process
 
 distributed = pytest.importorskip("distributed")
 
@@ -51,16 +52,19 @@ def test_suite_runs_on_two_dask_workers(tmp_path, cluster):
 
 @pytest.mark.slow
 def test_sweep_on_the_cluster_matches_local(tmp_path, cluster):
-    def sweep(*extra: str) -> dict:
-        proc = subprocess.run([sys.executable, "-m", "harness", "sweep", "--n-lambda", "6",
-                               "--n-beta", "3", "--out", str(tmp_path), "--json", *extra],
-                              capture_output=True, text=True, timeout=300, env=ENV,
-                              check=False)
+    def sweep(*extra: str, process: bool = True) -> dict:
+        args = ["sweep", "--n-lambda", "6", "--n-beta", "3", "--out", str(tmp_path), "--json",
+                *extra]
+        if process:  # the entry point, as a lab runs it
+            proc = subprocess.run([sys.executable, "-m", "harness", *args], capture_output=True,
+                                  text=True, timeout=300, env=ENV, check=False)
+        else:  # tests/in_process.py: the same command, no second interpreter
+            proc = harness_in_process(*args)
         assert proc.returncode == 0, proc.stderr[-2000:]
         return json.loads(proc.stdout)
 
     on_cluster = sweep("--cluster", cluster)
-    local = sweep("--workers", "1")
+    local = sweep("--workers", "1", process=False)
     assert on_cluster["engine"].startswith(f"dask {cluster}")
     assert on_cluster["laws"] == local["laws"]
     csvs = sorted(Path(tmp_path).glob("*-sweep/sweep.csv"))

@@ -8,10 +8,7 @@ recording can be checked against the physics.
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import can
@@ -288,17 +285,18 @@ def test_study_table_and_ordering(runs):
                                    for f in fake])))["matches"] is False
 
 
-def test_study_command_json(tmp_path):
-    out = subprocess.run([sys.executable, "-m", "harness", "study", "hu2006-rig", "--json",
-                          "--duration", "3", "--out", str(tmp_path)], capture_output=True,
-                         text=True, timeout=300)
-    assert out.returncode == 0, out.stderr
-    study = json.loads(out.stdout)
+@pytest.mark.slow
+def test_study_command_json(paper_suites):
+    """`harness study hu2006-rig --json` as paper001's suite runs it (its JSON and its runs'
+    folder; the five runs at their full 120 s, shared for the session by conftest's
+    paper_suites, so the study does not run twice)."""
+    study = paper_suites.document("hu2006-rig")
+    [out] = paper_suites.out.glob("*/study-hu2006-rig/logs")  # the study's --out
     assert [r["run"] for r in study["results"]] == RUN_NAMES
     assert all(r["stopped_by"] == "completed" for r in study["results"])
     assert study["designs"]["thruster-oppf"]["oppf"]["1"]["stability_condition_holds"]
-    assert len(list(tmp_path.glob("*-thruster-*/run.rrd"))) == 5
-    assert len(list(tmp_path.glob("*-thruster-*/design.json"))) == 5
+    assert len(list(out.glob("*-thruster-*/run.rrd"))) == 5
+    assert len(list(out.glob("*-thruster-*/design.json"))) == 5
     assert "PD + PWPF" in format_report(study)
     m = study["measures"]  # the paper suite's flat measures
     assert m["pd_pwpf_peak_energy_ratio"] == 1.0 and m["pd_pwpf_oppf_completed"] is True

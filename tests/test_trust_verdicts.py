@@ -13,13 +13,19 @@ from pathlib import Path
 
 import pytest
 import yaml
+from in_process import harness_in_process
 
 ENV = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
 
 
-def harness(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "harness", *args], capture_output=True,
-                          text=True, env=ENV, cwd=cwd, timeout=300, check=False)
+def harness(*args: str, cwd: Path | None = None,
+            process: bool = False) -> subprocess.CompletedProcess[str]:
+    """`harness ARGS` in this process (tests/in_process.py) unless ``process``: a new
+    interpreter, to cover the entry point."""
+    if process or cwd is not None:
+        return subprocess.run([sys.executable, "-m", "harness", *args], capture_output=True,
+                              text=True, env=ENV, cwd=cwd, timeout=300, check=False)
+    return harness_in_process(*args)
 
 
 def results_of(out: Path, name: str) -> dict:
@@ -101,7 +107,8 @@ def test_a_refused_run_leaves_no_run_folder(tmp_path):
     assert proc.returncode == 2, proc.stderr
     assert "nosuch0" in proc.stderr and "Traceback" not in proc.stderr
     assert [p for p in tmp_path.iterdir() if p.is_dir()] == []
-    assert harness("logs", "--logs", str(tmp_path), "--failed").returncode == 1
+    # `harness logs` through its entry point
+    assert harness("logs", "--logs", str(tmp_path), "--failed", process=True).returncode == 1
 
 
 def _run_file(tmp: Path, name: str, expect: dict | None) -> Path:
@@ -176,13 +183,15 @@ def test_harness_test_runs_a_run_file_as_a_one_test_suite(tmp_path):
 
 # ------------------------------------------------------------------ calibrate's criteria
 @pytest.mark.slow
-def test_the_unshaped_calibration_run_fails_recommended_yaml(tmp_path):
+def test_the_unshaped_calibration_run_fails_recommended_yaml(sgsrt_wheel_calibration, capsys):
     """Issue 24's generated criterion that could not fail: judged by recommended.yaml, the
     unshaped slew of the same calibration must FAIL (and the shaped one PASS); judged by
-    baseline.yaml, the shaped slew must FAIL (the baseline no longer unshaped)."""
-    proc = harness("calibrate", "--max-verify", "1", "--out", str(tmp_path), "--json")
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    data = json.loads(proc.stdout)
+    baseline.yaml, the shaped slew must FAIL (the baseline no longer unshaped). The session's
+    calibration (tests/conftest.py, shared with test_calibrate's end-to-end test)."""
+    from harness.cli import main
+
+    assert sgsrt_wheel_calibration.code == 0, sgsrt_wheel_calibration.err[-2000:]
+    data = sgsrt_wheel_calibration.data
     runs = Path(data["folder"]) / "runs"
     [unshaped] = runs.glob("*-unshaped")
     rec_key = data["recommended"]
@@ -190,9 +199,11 @@ def test_the_unshaped_calibration_run_fails_recommended_yaml(tmp_path):
     measured = next(c for c in data["candidates"] if c["key"] == rec_key)["measured"]
 
     def judged(run_dir: Path, expect: str) -> tuple[int, dict]:
-        p = harness("judge", str(run_dir), "--expect", data[expect], "--json")
-        assert p.returncode in (0, 1), p.stderr[-2000:]
-        return p.returncode, json.loads(p.stdout)
+        capsys.readouterr()
+        code = main(["judge", str(run_dir), "--expect", data[expect], "--json"])
+        out = capsys.readouterr()
+        assert code in (0, 1), out.err[-2000:]
+        return code, json.loads(out.out)
 
     code, v = judged(unshaped, "run_file")
     assert code == 1 and v["verdict"] == "FAIL"
@@ -206,6 +217,14 @@ def test_the_unshaped_calibration_run_fails_recommended_yaml(tmp_path):
     code, v = judged(shaped, "baseline_run_file")
     assert code == 1 and v["criteria"][0]["name"] == "vibrates_beyond_shaped_limit"
     assert judged(unshaped, "baseline_run_file")[0] == 0
+
+
+def test_calibrate_from_the_command_line_refuses_bad_input():
+    """`harness calibrate` through its entry point (the calibration itself runs in process,
+    once a session): a bad option is one line and exit 2, nothing started."""
+    proc = harness("calibrate", "--max-verify", "0", process=True)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "--max-verify" in proc.stderr and "Traceback" not in proc.stderr
 
 
 def test_modal_residual_criterion_refuses_bad_modes():

@@ -239,18 +239,21 @@ def test_zvd_robust_in_nonlinear_simulation(
 
 
 @pytest.mark.slow
-def test_full_configuration_robustness(model: Wang2022Spacecraft) -> None:
-    """Six modes on the 5 ms grid: converges; ZVD far below ZV at +5 % and +10 %."""
-    profiles = {
-        name: solve_variable_amplitude(model, ManeuverSpec(shaper=name)) for name in ("zv", "zvd")
-    }
-    for name, prof in profiles.items():
-        assert prof.converged and prof.n_linear_constraints == (582 if name == "zv" else 1164)
+def test_full_configuration_robustness(paper_suites) -> None:
+    """Six modes on the 5 ms grid: converges; ZVD far below ZV at +5 % and +10 %. Read from
+    paper004's study (`harness study wang2022`: the same full solves and tracked cases; shared
+    for the session by conftest's paper_suites, so the two SQPs are not solved twice); its
+    coast is 20 s, the residuals being the largest over it."""
+    doc = paper_suites.document("wang2022-spacecraft")
+    assert doc["maneuver"]["dt_s"] == 0.005 and doc["maneuver"]["shaped_modes"] == [
+        1, 2, 3, 4, 5, 6]
+    for name in ("zv", "zvd"):
+        solve = doc["solver"][name]
+        assert solve["converged"]
+        assert solve["n_vibration_constraints"] == (582 if name == "zv" else 1164)
+    rows = {r["case"]: r for r in doc["robustness"]["tracked"]}
     for case in study.DEFAULT_CASES[1:3]:
-        res = {
-            name: study.run_case(model, prof, case, "tracked", 10.0)[0]
-            for name, prof in profiles.items()
-        }
+        res = rows[case.key]
         assert res["zvd"]["eta1_residual"] < res["zv"]["eta1_residual"] / 3.0
         assert res["zvd"]["attitude_error_tf_deg"] < 0.1
 

@@ -3,16 +3,32 @@
 from __future__ import annotations
 
 import json
+import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
 from harness.cli import main
+from harness.core.runs import load_run
 from harness.studies import xu2018
 
 
-def test_model_and_identify_parts(tmp_path):
+def test_model_and_identify_parts(tmp_path, free_decay_run, monkeypatch):
+    asked = []
+
+    def session_free_decay(run, out_dir, show_progress):  # noqa: ANN001, ANN202
+        # the identify part's free-decay run: the session's (conftest's free_decay_run, the
+        # same run file on the same rig), copied where the study asked for it, not run again
+        asked.append((run.name, Path(out_dir)))
+        assert run.data == load_run("free-decay").data, "not the run file as it is"
+        copy = Path(out_dir) / free_decay_run.run_dir.name
+        shutil.copytree(free_decay_run.run_dir, copy)
+        return replace(free_decay_run, run_dir=copy)
+
+    monkeypatch.setattr(xu2018, "execute_run", session_free_decay)
     out = xu2018.run_study(("model", "identify"), out_dir=tmp_path)
+    assert asked == [("free-decay", tmp_path)]
     m = out["measures"]
     # constrained frequencies within 0.9 % of the paper's, delta_1 within 0.2 %
     for k in (1, 2, 3):
