@@ -108,11 +108,8 @@ class TelemetryMap:
             signals.append(self.mux_signal)  # type: ignore[arg-type]
             exprs.append(repr(self.mux))
         params = ", ".join(f"p{k}" for k in range(len(quantities)))
-        source = (f"def encode({params}):\n"
-                  f"    return _codec({', '.join(exprs)})\n")
-        namespace: dict[str, Any] = {"_codec": self.codec.encoder(tuple(signals))}
-        exec(compile(source, f"<map {self.device} {self.codec.name}>", "exec"), namespace)  # noqa: S102
-        return cast(Callable[..., bytes], namespace["encode"])
+        return _compiled_encoder(f"<map {self.device} {self.codec.name}>", params, signals,
+                                 exprs, self.codec)
 
     def encode(self, quantities: dict[str, float]) -> bytes:
         if self.identity:
@@ -123,6 +120,16 @@ class TelemetryMap:
         if self.mux is not None:
             values[self.mux_signal] = self.mux  # type: ignore[index]
         return self.codec.encode(values)
+
+
+def _compiled_encoder(name: str, params: str, signals: list[str], exprs: list[str],
+                      codec: FrameCodec) -> Callable[..., bytes]:
+    """``def encode(PARAMS): return codec.encoder(signals)(*exprs)`` compiled once: the
+    maps' positional encoders (each expression is a quantity's conversion to its signal)."""
+    source = f"def encode({params}):\n    return _codec({', '.join(exprs)})\n"
+    namespace: dict[str, Any] = {"_codec": codec.encoder(tuple(signals))}
+    exec(compile(source, name, "exec"), namespace)  # noqa: S102
+    return cast(Callable[..., bytes], namespace["encode"])
 
 
 class CommandMap:
@@ -160,12 +167,9 @@ class CommandMap:
         if self.mux is not None:
             signals.append(self.mux_signal)  # type: ignore[arg-type]
             exprs.append(repr(self.mux))
-        params = "".join(f"p{k}, " for k in range(len(quantities)))
-        source = (f"def encode({params}counter):\n"
-                  f"    return _codec({', '.join(exprs)})\n")
-        namespace: dict[str, Any] = {"_codec": self.codec.encoder(tuple(signals))}
-        exec(compile(source, f"<map {self.device} {self.codec.name}>", "exec"), namespace)  # noqa: S102
-        return cast(Callable[..., bytes], namespace["encode"])
+        params = "".join(f"p{k}, " for k in range(len(quantities))) + "counter"
+        return _compiled_encoder(f"<map {self.device} {self.codec.name}>", params, signals,
+                                 exprs, self.codec)
 
     def encode(self, quantities: dict[str, float], counter: int) -> bytes:
         values = {s: (quantities.get(q, 0.0) - b) * inv for q, s, inv, b in self._enc}
