@@ -12,7 +12,7 @@ little-endian integer with shifts and masks. The tests check both against canope
 from __future__ import annotations
 
 import struct
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from canopen.objectdictionary import ObjectDictionary, ODVariable
@@ -113,6 +113,23 @@ class PdoCodec:
                                  f"{e.bit_length} bits")
             word |= (int(v) & mask) << offset
         return word.to_bytes(self.length, "little")
+
+    def packer(self) -> Callable[..., bytes]:
+        """``packer()(v0, v1, ...)`` is ``encode([v0, v1, ...])`` byte for byte, the same
+        errors included, without the list and the length check (the virtual nodes' TPDOs,
+        every SYNC: issue 20's tick)."""
+        s = self._struct
+        if s is None:
+            encode = self.encode
+            return lambda *values: encode(values)
+        pack, encode = s.pack, self.encode
+
+        def pack_checked(*values: int | float) -> bytes:
+            try:
+                return pack(*values)
+            except struct.error:
+                return encode(values)  # raises encode()'s error, naming the object
+        return pack_checked
 
     def decode(self, data: bytes | bytearray | memoryview) -> tuple[int | float, ...]:
         """Payload -> raw values; a payload of another length than the mapping's is refused

@@ -304,7 +304,10 @@ class VirtualRig:
 
             self._co_tpdo_device = {m.key[0]: d for d, maps in b.telemetry.items()
                                     if b.kinds[d] == "canopen" for m in maps}
-            self.co_devices = CanopenDevices(b.canopen, self._send_raw)
+            # no fault to inject: a node's frame goes straight onto the bus
+            self.co_devices = CanopenDevices(
+                b.canopen, self._send_raw if self.injector.faults or bus is None
+                else self._co_sender())
             self._co_actuators = tuple(d for d in apply if b.kinds[d] == "canopen")
             self._co_sensors = frozenset(d for d, k in b.kinds.items() if k == "canopen")
             if all(k in ("canopen", "none") for k in b.kinds.values()):
@@ -362,6 +365,15 @@ class VirtualRig:
             self.bus.send(can.Message(arbitration_id=can_id, data=payload,
                                       is_extended_id=False))
             self.counters.frames_out += 1
+
+    def _co_sender(self) -> Callable[[int, bytes], None]:
+        """``_send_raw`` without the fault path (a run that injects no fault)."""
+        send, message, counters = self.bus.send, can.Message, self.counters
+
+        def send_raw(can_id: int, data: bytes) -> None:
+            send(message(arbitration_id=can_id, data=data, is_extended_id=False))
+            counters.frames_out += 1
+        return send_raw
 
     def co_now(self) -> float:
         """The CANopen nodes' time: the rig's in lockstep, the wall clock in its own
@@ -494,11 +506,9 @@ class VirtualRig:
         return emit
 
     def _canopen_emitter(self, device: str, names: tuple[str, ...]) -> Callable[..., None]:
-        co = self.co_devices
-
-        def emit(*values: float) -> None:
-            co.write_telemetry(device, dict(zip(names, values, strict=True)))  # type: ignore[union-attr]
-        return emit
+        """The device's quantities into its node's objects (the node sends its TPDOs on
+        the SYNC): the writer compiled for these names."""
+        return self.co_devices.telemetry_writer(device, names)  # type: ignore[union-attr]
 
     def _send(self, device: str,
               encoders: tuple[tuple[Callable[..., bytes], TelemetryMap], ...],

@@ -16,7 +16,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from drivers.binding.frames import BindingError, finite_number
 from drivers.binding.quantities import COMMANDS, REQUIRED_COMMANDS, REQUIRED_TELEMETRY, TELEMETRY
@@ -204,6 +204,34 @@ class Conversion:
             return lambda raw: raw * a
         return lambda raw: raw * a + o
 
+    def raw_expression(self, x: str, ref: ObjRef, r: str) -> str | None:
+        """``to_raw(x, ref)`` as Python source over the expression ``x`` (``r``: a free name
+        for the rounded value), for writers compiled once (the virtual rig's telemetry into
+        its nodes' objects, every tick); None for a table (call ``to_raw``)."""
+        if self.values is not None:
+            return None
+        if self.bit is not None:
+            return f"((int({x}) & 1) << {self.bit!r})"
+        if ref.code in "fd":
+            return f"float(({x} - {self.offset!r}) / {self.scale!r})"
+        lo, hi = ((-(1 << ref.bits - 1), (1 << ref.bits - 1) - 1) if ref.signed
+                  else (0, (1 << ref.bits) - 1))
+        return (f"({lo!r} if ({r} := round(({x} - {self.offset!r}) / {self.scale!r})) < {lo!r}"
+                f" else {hi!r} if {r} > {hi!r} else {r})")
+
+    def si_expression(self, x: str) -> str | None:
+        """``si_function()(x)`` as Python source over the expression ``x`` (the harness's
+        PDO decoders, compiled once); None for a table (call the function)."""
+        if self.bit is not None:
+            return f"float(int({x}) >> {self.bit!r} & 1)"
+        if self.mask is not None:
+            return f"float((int({x}) & {self.mask!r}) == {self.equals!r})"
+        if self.values is not None:
+            return None
+        if self.offset == 0.0:
+            return f"{x} * {self.scale!r}"
+        return f"{x} * {self.scale!r} + {self.offset!r}"
+
     def to_raw(self, si: float, ref: ObjRef) -> Any:
         if self.values is not None:
             key = int(si)
@@ -231,7 +259,7 @@ class QuantityRef:
 class PdoTelemetryMap:
     """The quantities one device takes from one TPDO (a TPDO may serve several devices)."""
 
-    __slots__ = ("device", "codec", "key", "fields", "mux", "identity", "_f")
+    __slots__ = ("device", "codec", "key", "fields", "mux", "identity", "_f", "decode")
 
     def __init__(self, device: str, codec: PdoCodec, fields: tuple[QuantityRef, ...]) -> None:
         self.device = device
@@ -242,10 +270,25 @@ class PdoTelemetryMap:
         self.identity = False
         pos = {e: i for i, e in enumerate(codec.entries)}
         self._f = tuple((f.quantity, pos[f.ref], f.conv.si_function()) for f in fields)
+        #: payload -> {quantity: SI value}; FrameError on a wrong length. One compiled
+        #: function (every TPDO of every tick: issue 20's tick), equal to
+        #: ``{q: conv(raw[i]) for q, i, conv in _f}`` over ``codec.decode_raw(data)``
+        self.decode: Callable[[bytes | bytearray], dict[str, float] | None] = \
+            self._compile_decode()
 
-    def decode(self, data: bytes | bytearray) -> dict[str, float] | None:
-        raw = self.codec.decode_raw(data)
-        return {q: conv(raw[i]) for q, i, conv in self._f}
+    def _compile_decode(self) -> Callable[[bytes | bytearray], dict[str, float] | None]:
+        namespace: dict[str, Any] = {"_raw": self.codec.decode_raw}
+        items = []
+        for n, (f, (q, i, conv)) in enumerate(zip(self.fields, self._f, strict=True)):
+            expr = f.conv.si_expression(f"raw[{i}]")
+            if expr is None:
+                namespace[f"_c{n}"] = conv
+                expr = f"_c{n}(raw[{i}])"
+            items.append(f"{q!r}: {expr}")
+        source = f"def decode(data):\n    raw = _raw(data)\n    return {{{', '.join(items)}}}\n"
+        exec(compile(source, f"<{self.device} from {self.codec.name}>", "exec"), namespace)  # noqa: S102
+        return cast(Callable[[bytes | bytearray], dict[str, float] | None],
+                    namespace["decode"])
 
 
 class PdoCommandMap:

@@ -96,9 +96,13 @@ class RigInterface:
         self._by_key: dict[tuple[int, bool], tuple[tuple[TelemetryMap, DeviceDriver], ...]] = {
             k: tuple((m, every[m.device]) for m in maps)
             for k, maps in b.telemetry_by_key().items()}
-        # id -> (decode, driver): one identity-mapped frame (the sgsrt protocol)
-        self._fast = {k[0]: (v[0][0].codec.decode, v[0][1]) for k, v in self._by_key.items()
-                      if len(v) == 1 and not k[1] and v[0][0].identity}
+        # id -> (decode, driver): a standard-id frame of one device, not multiplexed (its
+        # decode never returns None): the sgsrt protocol's identity-mapped frames (the
+        # codec's own dict), a CANopen TPDO of one device (its compiled decoder), ...
+        self._fast = {k[0]: (v[0][0].codec.decode if v[0][0].identity else v[0][0].decode,
+                             v[0][1])
+                      for k, v in self._by_key.items()
+                      if len(v) == 1 and not k[1] and v[0][0].mux is None}
         self._driver_items = tuple(self.drivers.items())
         sync = b.sync
         if isinstance(sync, SyncMap):  # a DBC's SYNC: its counter through a positional encoder
@@ -126,6 +130,8 @@ class RigInterface:
         self.protocol_events: list[tuple[str, str, str]] = []
         self._hb_tick: dict[int, int] = {}
         self._hb_timeout_ticks: dict[int, int] = {}
+        # no heartbeat can be missing up to this tick (None: look at every node)
+        self._hb_quiet_until: int | None = None
         self._counter = 0
         self._hb_counter = 0
         self.state = RigState()
@@ -250,7 +256,7 @@ class RigInterface:
                     if feed(msg, tick):
                         got += 1
                     continue
-                # feed()'s identity-mapped frame, inline (every telemetry frame of the tick)
+                # feed()'s one-device frame, inline (every telemetry frame of the tick)
                 counters.received += 1
                 if log is not None:
                     log(msg)
@@ -289,7 +295,7 @@ class RigInterface:
             return False
         if not msg.is_extended_id:
             fast = self._fast.get(msg.arbitration_id)
-            if fast is not None:  # one identity-mapped frame (the sgsrt protocol)
+            if fast is not None:  # one device's frame, not multiplexed (see _fast)
                 decode, drv = fast
                 try:
                     values = decode(msg.data)
@@ -331,6 +337,7 @@ class RigInterface:
             return
         for nid, node in self.co.nodes.items():
             self._hb_tick.setdefault(nid, start_tick)
+            self._hb_quiet_until = None
             self._hb_timeout_ticks[nid] = max(2, grace_ticks,
                                               round(3 * node.heartbeat_ms * 1e-3 / dt_s))
 
@@ -349,6 +356,7 @@ class RigInterface:
         device = co.device_of_node(nid)
         if fn == 0x700:
             self._hb_tick[nid] = tick
+            self._hb_quiet_until = None
             state = data[0] & 0x7F if data else -1
             if state == 0:
                 self.protocol_events.append((device, "node rebooted", (
@@ -373,8 +381,14 @@ class RigInterface:
         operational, or a heartbeat missing past its consumer time."""
         if self.protocol_events:
             return self.protocol_events[0]
+        quiet = self._hb_quiet_until
+        if quiet is not None and tick <= quiet:  # every tick: the nodes' deadlines, once
+            return None
+        limits = self._hb_timeout_ticks
+        self._hb_quiet_until = min((last + limits[nid] for nid, last in self._hb_tick.items()
+                                    if nid in limits), default=None)
         for nid, last in self._hb_tick.items():
-            limit = self._hb_timeout_ticks.get(nid)
+            limit = limits.get(nid)
             if limit is not None and tick - last > limit:
                 node = self.co.nodes[nid]
                 return (self.co.device_of_node(nid), "heartbeat lost", (

@@ -19,10 +19,12 @@ timers (stored, unused), TIME, SRDO, store/restore parameters.
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import IntEnum
+from operator import itemgetter
 from pathlib import Path
 from typing import Any
 
@@ -119,6 +121,20 @@ class _Pdo:
     started: bool = True  # False: waiting for the SYNC whose counter is the start value
     pending: tuple[Any, ...] | None = None
     last_payload: bytes | None = None
+    # values -> payload: the mapped objects' raw values packed (compiled with the codec)
+    payload: Callable[[dict[Key, Any]], bytes] | None = None
+
+
+def _payload_function(codec: PdoCodec, keys: tuple[Key, ...]) -> Callable[[dict[Key, Any]], bytes]:
+    """``f(values)`` = ``codec.encode([values[k] for k in keys])``, byte for byte and with the
+    same errors, through one itemgetter and the codec's positional packer (every TPDO every
+    SYNC: issue 20's tick)."""
+    pack = codec.packer()
+    if len(keys) == 1:
+        key = keys[0]
+        return lambda values: pack(values[key])
+    get = itemgetter(*keys)
+    return lambda values: pack(*get(values))
 
 
 @dataclass
@@ -183,6 +199,13 @@ class VirtualNode:
         self._sdo: _SdoTransfer | None = None
         self._pdos: list[_Pdo] = []
         self._rpdo_by_cob: dict[int, _Pdo] = {}
+        # the SYNC's work lists (rebuilt by _reconfigure): the RPDOs that may hold values
+        # for the next SYNC, the TPDOs that send; and whether any RPDO holds values now
+        self._sync_rpdos: tuple[_Pdo, ...] = ()
+        self._tpdos: tuple[_Pdo, ...] = ()
+        self._any_pending = False
+        # poll() has nothing to do before this time (-inf: look again at the next poll)
+        self._poll_due = -math.inf
         self._sync_cob = 0x80
         self._hb_next: float | None = None
         self._consumers: dict[int, _Consumer] = {}
@@ -265,9 +288,11 @@ class VirtualNode:
     def _set_state(self, new: NmtState) -> None:
         old = self.state
         self.state = new
+        self._poll_due = -math.inf
         if new != NmtState.OPERATIONAL:
             for p in self._pdos:
                 p.pending = None
+            self._any_pending = False
         elif old != NmtState.OPERATIONAL:
             for p in self._pdos:
                 p.sync_count = 0
@@ -329,6 +354,8 @@ class VirtualNode:
     def poll(self, now_s: float) -> None:
         """Time-driven work: boot-up when initialising, heartbeat producer and consumers."""
         self._now = now_s
+        if now_s < self._poll_due:
+            return
         if self.state == NmtState.INITIALISING:
             self._boot()
         # 1 ns of slack: a schedule summed in floats (0.025 * 3 = 0.07500000000000001)
@@ -345,6 +372,19 @@ class VirtualNode:
                     and now_s - c.last_seen_s > c.timeout_s):
                 c.timed_out = True
                 self._heartbeat_lost(c.producer_id)
+        self._poll_due = self._next_poll()
+
+    def _next_poll(self) -> float:
+        """The earliest time poll() may act: the next heartbeat (with poll's 1 ns of slack)
+        or a consumer's timeout; -inf while initialising (boot at the next poll)."""
+        if self.state == NmtState.INITIALISING:
+            return -math.inf
+        due = math.inf if self._hb_next is None else self._hb_next - 1e-9
+        for c in self._consumers.values():
+            # (1 ns early: poll's own test, now - last_seen > timeout, decides)
+            if c.last_seen_s is not None and not c.timed_out:
+                due = min(due, c.last_seen_s + c.timeout_s - 1e-9)
+        return due
 
     def addressed(self, can_id: int) -> bool:
         """Whether a frame with this COB-ID is for this node alone (its SDO server or one
@@ -358,19 +398,19 @@ class VirtualNode:
             if len(data) >= 2 and data[1] in (0, self.id):
                 self._nmt_command(data[0])
             return
+        if can_id == self._sync_cob and not 0x701 <= can_id <= 0x77F:  # every tick: first
+            if self.state == NmtState.OPERATIONAL:
+                if len(data) > 1:
+                    self.emcy(EMCY_SYNC_LENGTH)
+                    return
+                self._on_sync(now_s, data[0] if len(data) == 1 else None)
+            return
         if self.state == NmtState.INITIALISING:
             return
         if 0x701 <= can_id <= 0x77F:
             if can_id - 0x700 == self.id:  # our own heartbeat echoed, or a guarding RTR
                 return
             self._heartbeat_seen(can_id - 0x700, now_s)
-            return
-        if can_id == self._sync_cob:
-            if self.state == NmtState.OPERATIONAL:
-                if len(data) > 1:
-                    self.emcy(EMCY_SYNC_LENGTH)
-                    return
-                self._on_sync(now_s, data[0] if len(data) == 1 else None)
             return
         if can_id == 0x600 + self.id:
             if self.state != NmtState.STOPPED:
@@ -449,6 +489,7 @@ class VirtualNode:
         for c in self._consumers.values():
             if c.producer_id == producer_id:
                 c.last_seen_s = now_s
+                self._poll_due = -math.inf
                 if c.timed_out:
                     c.timed_out = False
                     if not any(x.timed_out for x in self._consumers.values()):
@@ -501,6 +542,13 @@ class VirtualNode:
         self._pdos = pdos
         self._rpdo_by_cob = {p.cob_id: p for p in pdos
                              if not p.is_tpdo and p.valid and p.codec is not None}
+        for p in pdos:
+            p.payload = (_payload_function(p.codec, p.keys)
+                         if p.is_tpdo and p.codec is not None else None)
+        self._sync_rpdos = tuple(p for p in pdos if not p.is_tpdo)
+        self._tpdos = tuple(p for p in pdos if p.is_tpdo and p.valid and p.codec is not None)
+        self._any_pending = any(p.pending is not None for p in self._sync_rpdos)
+        self._poll_due = -math.inf
 
     def _pdo_for(self, index: int) -> _Pdo | None:
         for p in self._pdos:
@@ -569,24 +617,25 @@ class VirtualNode:
         (CiA 301: that SYNC is the first received); without a counter, or with start value
         0, it counts from the first SYNC in operational."""
         self.sync_count += 1
-        for p in self._pdos:
-            if p.pending is not None:
-                values, p.pending = p.pending, None
-                for key, v in zip(p.keys, values, strict=True):
-                    self._master_write(key, v)
+        if self._any_pending:
+            self._any_pending = False
+            for p in self._sync_rpdos:  # in PDO order, as the RPDOs' objects are written
+                if p.pending is not None:
+                    values, p.pending = p.pending, None
+                    for key, v in zip(p.keys, values, strict=True):
+                        self._master_write(key, v)
         for fn in self._sync_listeners:
             fn(now_s)
         if self.before_tpdo is not None:
             self.before_tpdo(self, now_s)
         values = self.values
-        for p in self._pdos:
-            if not p.is_tpdo or not p.valid or p.codec is None:
-                continue
+        send = self.send
+        for p in self._tpdos:
             if p.trans_type == 0:
-                payload = p.codec.encode([values[k] for k in p.keys])
+                payload = p.payload(values)  # type: ignore[misc]
                 if payload != p.last_payload:
                     p.last_payload = payload
-                    self.send(p.cob_id, payload)
+                    send(p.cob_id, payload)
                 continue
             if not p.started:
                 start = values.get((p.com_index, 6), 0)
@@ -596,7 +645,7 @@ class VirtualNode:
             p.sync_count += 1
             if p.sync_count >= p.trans_type:
                 p.sync_count = 0
-                self.send(p.cob_id, p.codec.encode([values[k] for k in p.keys]))
+                send(p.cob_id, p.payload(values))  # type: ignore[misc]
 
     def _on_rpdo(self, p: _Pdo, data: bytes | bytearray) -> None:
         assert p.codec is not None
@@ -609,6 +658,7 @@ class VirtualNode:
             return
         if p.trans_type <= 240:
             p.pending = decoded
+            self._any_pending = True
         else:
             for key, v in zip(p.keys, decoded, strict=True):
                 self._master_write(key, v)

@@ -100,6 +100,7 @@ class Cia402Drive:
         # not ready to switch on -> switch on disabled happens by itself after the self-test
         self.state = DriveState.SWITCH_ON_DISABLED
         self._last_cw = self.node.get(0x6040)
+        self._settled: DriveState | None = None  # a state the last controlword left as it was
         self.node.set(0x6061, 0, self.node.get(0x6060))
         self._publish()
 
@@ -141,6 +142,10 @@ class Cia402Drive:
 
     def _on_controlword(self, _key: tuple[int, int], cw: int) -> None:
         s = self.state
+        if cw == self._last_cw and s is self._settled:
+            # the same controlword again (every RPDO) in a state it already left unchanged:
+            # it changes nothing again, and the status word is already published
+            return
         rising_fault_reset = bool(cw & 0x80) and not self._last_cw & 0x80
         self._last_cw = cw
         if s == DriveState.FAULT:
@@ -166,6 +171,7 @@ class Cia402Drive:
                      DriveState.QUICK_STOP_ACTIVE):
                 self.state = DriveState.OPERATION_ENABLED
         self._publish()
+        self._settled = s if self.state is s else None
 
     def _on_sync(self, _now_s: float) -> None:
         if self.state == DriveState.FAULT_REACTION_ACTIVE:
