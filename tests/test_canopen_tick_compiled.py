@@ -120,13 +120,14 @@ class _Sent:
 
 def _pumped(node: VirtualNode, sent: _Sent, step_s: float, until_s: float,
             master_hb_until_s: float) -> list[tuple[float, int, bytes]]:
-    """A lockstep pump: poll every step; the master's heartbeat every 50 ms until
-    ``master_hb_until_s``, then silence (the node's consumer must time out)."""
+    """A lockstep pump: poll every step; the master's heartbeat every 50 ms from 0.1 s (the
+    consumer is polled before it has seen one) until ``master_hb_until_s``, then silence
+    (the node's consumer must time out)."""
     t = 0.0
     k = 0
     while t < until_s:
         sent.now = t
-        if t < master_hb_until_s and k % 25 == 0:
+        if 0.1 <= t < master_hb_until_s and k % 25 == 0:
             node.handle(0x701, b"\x05", t)
         node.poll(t)
         k += 1
@@ -134,21 +135,25 @@ def _pumped(node: VirtualNode, sent: _Sent, step_s: float, until_s: float,
     return sent.frames
 
 
-def test_poll_early_return_keeps_heartbeat_and_consumer_timing():
+@pytest.mark.parametrize("producer_ms", [30, 0])
+def test_poll_early_return_keeps_heartbeat_and_consumer_timing(producer_ms):
     from drivers.binding.canopen import EMCY_BASE
 
     sent = _Sent()
     node = VirtualNode(2, CO.nodes[2].eds, sent)
     node.poll(0.0)
-    node.set(0x1017, 0, 30)  # producer 30 ms
+    node.set(0x1017, 0, producer_ms)  # 0: no heartbeat of its own, only the consumer
     node.set(0x1016, 1, (1 << 16) | 120)  # consumer of node 1, 120 ms
     node._reconfigure()
-    node._hb_next = 0.03
+    node._hb_next = producer_ms / 1000.0 if producer_ms else None
     node.handle(0, bytes((1, 2)), 0.0)  # start
     frames = _pumped(node, sent, 0.002, 1.0, master_hb_until_s=0.5)
-    hb = [t for t, cid, _ in frames if cid == 0x702]
-    assert len(hb) >= 30
-    assert all(abs((b - a) - 0.03) < 0.0021 for a, b in zip(hb, hb[1:], strict=False)), hb
+    hb = [t for t, cid, d in frames if cid == 0x702 and d != b"\x00"]  # not the boot-up
+    if producer_ms:
+        assert len(hb) >= 30
+        assert all(abs((b - a) - 0.03) < 0.0021 for a, b in zip(hb, hb[1:], strict=False))
+    else:
+        assert hb == []
     emcy = [t for t, cid, d in frames if cid == EMCY_BASE + 2 and d[:2] == b"\x30\x81"]
     # the master's last heartbeat at 0.45 s (every 25th step of 2 ms): timeout 120 ms later
     assert emcy and 0.45 + 0.12 - 1e-9 <= emcy[0] <= 0.45 + 0.12 + 0.0021, emcy
