@@ -312,17 +312,26 @@ class PdoCommandMap:
     def encoder(self, quantities: tuple[str, ...]) -> Callable[..., bytes]:
         """A positional encoder: ``encoder(quantities)(v0, v1, ..., counter)`` is
         ``encode(dict(zip(quantities, (v0, v1, ...))), counter)`` (as ``CommandMap``'s)."""
-        pos = {q: k for k, q in enumerate(quantities)}
-        fields = tuple((pos.get(q), i, ref, conv) for q, i, ref, conv in self._f)
-        n, encode_raw = self._n, self.codec.encode_raw
-
-        def encode(*args: Any) -> bytes:
-            raw: list[Any] = [0] * n
-            for k, i, ref, conv in fields:
-                v = conv.to_raw(args[k] if k is not None else 0.0, ref)
-                raw[i] = raw[i] | v if conv.bit is not None else v
-            return encode_raw(raw)
-        return encode
+        # compiled once into one function (every tick: issue 20): each mapped object's raw
+        # value as an expression, a bit-packed object OR-ed together, as encode() does
+        arg = {q: f"p{k}" for k, q in enumerate(quantities)}  # a repeated name: the last
+        namespace: dict[str, Any] = {"_encode_raw": self.codec.encode_raw}
+        slots: list[list[str]] = [[] for _ in range(self._n)]
+        for n, (q, i, ref, conv) in enumerate(self._f):
+            x = arg.get(q, "0.0")
+            expr = conv.raw_expression(x, ref, f"r{n}")
+            if expr is None:
+                namespace[f"_c{n}"], namespace[f"_ref{n}"] = conv, ref
+                expr = f"_c{n}.to_raw({x}, _ref{n})"
+            if conv.bit is not None:
+                slots[i].append(expr)
+            else:
+                slots[i] = [expr]  # a later plain field replaces what was there
+        raws = ", ".join(" | ".join(e) if e else "0" for e in slots)
+        params = "".join(f"p{k}, " for k in range(len(quantities))) + "*_"
+        source = f"def encode({params}):\n    return _encode_raw([{raws}])\n"
+        exec(compile(source, f"<{self.device} into {self.codec.name}>", "exec"), namespace)  # noqa: S102
+        return cast(Callable[..., bytes], namespace["encode"])
 
     def encode(self, quantities: dict[str, float], counter: int = 0) -> bytes:
         raw: list[Any] = [0] * self._n
