@@ -130,7 +130,8 @@ def diff(a_path: Path, b_path: Path) -> int:
     bad = 0
     for key in sorted(set(a) | set(b)):
         if key not in a or key not in b:
-            print(f"{key}: only in one"); bad += 1
+            print(f"{key}: only in one")
+            bad += 1
             continue
         for part in ("frames", "summary", "events", "channels"):
             x, y = a[key][part], b[key][part]
@@ -138,7 +139,8 @@ def diff(a_path: Path, b_path: Path) -> int:
                 continue
             bad += 1
             if part == "frames":
-                n = next((i for i, (p, q) in enumerate(zip(x, y)) if p != q), min(len(x), len(y)))
+                n = next((i for i, (p, q) in enumerate(zip(x, y, strict=False)) if p != q),
+                         min(len(x), len(y)))
                 print(f"{key}: frames differ: {len(x)} vs {len(y)}, first at {n}: "
                       f"{x[n] if n < len(x) else None} vs {y[n] if n < len(y) else None}")
             elif part == "summary":
