@@ -195,6 +195,12 @@ class FaultMonitor:
         self._lost_limit = int(monitor["lost_frames"])
         self._max_malformed = monitor["max_malformed_frames"]
         self._accel_div = self.div.get("accelerometer", 1)
+        # a reading within this is plausible (the accelerometer's check, inline in check())
+        self._accel_plausible = accel_range_m_s2 + 0.01
+        # a wheel speed within this is neither implausible nor an overspeed
+        self._wheel_overspeed = min(1.5 * wheel_max_speed_rad_s + 1.0,
+                                    1.02 * wheel_max_speed_rad_s)
+        self._bus_counters = getattr(interface, "counters", None)
         self._late_limit = max(monitor["late_ticks"], self.realtime_grace)
         lim = self.limits
         # the limits in SI, a hair inside: a value this side is within its limit for sure;
@@ -363,32 +369,98 @@ class FaultMonitor:
             self._warnings(tick, state, sent)
         # driven by what changed: a device's checks run only in a tick its telemetry came
         # (or, for the valves, a tick they were commanded open), the limits' messages only
-        # past a limit; the order of the checks (the first event wins) is unchanged
+        # past a limit; the order of the checks (the first event wins) is unchanged. Each
+        # check's all-clear path is inline here (one call a tick, issue 23); anything past
+        # it goes to the check's own method, which decides and words the event.
         if self._protocol_fault is not None:
             event = self._protocol(tick, state, sent)
             if event is not None:
                 return event
-        event = self._bus(tick, state, sent) or self._silent_and_lost(tick, state, sent)
-        if event is not None:
-            return event
+        c = self._bus_counters
+        if (c.bus_off or c.error_frames > self._max_error_frames
+                or c.unknown > self._max_unknown_frames):
+            return self._bus(tick, state, sent)
+        max_malformed = self._max_malformed
+        for counters in self._frame_counters:  # the usual tick: none past its limit
+            if counters.malformed > max_malformed or counters.sequence_errors:
+                event = self._bus(tick, state, sent)
+                if event is not None:
+                    return event
+                break
+        if tick >= self.grace:
+            if tick < self._silent_from and self._lost_due_period:
+                # _silent_and_lost's usual tick: no device can be silent yet, only the
+                # windows of the devices due now (a due device that came, with no miss in
+                # its window, only counts its frame)
+                if not self.realtime_grace:
+                    for entry in self._lost_due_at[tick % self._lost_due_period]:
+                        last = entry[1].last_tick
+                        if last == tick and not entry[4]:
+                            entry[5] += 1
+                            continue
+                        if tick - last > entry[6]:
+                            continue  # not heard from yet, in the start-up time
+                        event = self._count_due(tick, entry, last)
+                        if event is not None:
+                            return event
+            else:
+                event = self._silent_and_lost(tick, state, sent)
+                if event is not None:
+                    return event
         accel, hub, wheel, valves, piezo = self._device_drivers
         if accel is not None and accel.last_tick == tick:
-            event = self._accelerometer(tick, state, sent)
-            if event is not None:
-                return event
+            v = accel.values
+            counter = v.get("sample_counter")
+            last = self._accel_last
+            if (v.get("saturated") or v.get("fault") or counter is None or last is None
+                    or not abs(v.get("accel", 0.0)) <= self._accel_plausible):
+                event = self._accelerometer(tick, state, sent)
+                if event is not None:
+                    return event
+            else:
+                # _accelerometer's usual sample: counter moved on, not late
+                counter = int(counter)
+                if counter == last[0]:
+                    event = self._accelerometer(tick, state, sent, counter)
+                    if event is not None:
+                        return event
+                else:
+                    self._accel_same = 0
+                    offset = (tick // self._accel_div - counter) % 65536
+                    late = (offset - self._accel_offset) % 65536  # type: ignore[operator]
+                    if self._late_limit < late < 32768:
+                        event = self._accelerometer(tick, state, sent, counter)
+                        if event is not None:
+                            return event
+                    else:
+                        self._accel_last = (counter, tick)
         if hub is not None and hub.last_tick == tick and tick != self._hub_tick:
-            event = self._hub(tick, state, sent)
-            if event is not None:
-                return event
+            v = hub.values
+            angle, rate = v.get("angle", 0.0), v.get("rate", 0.0)
+            last_hub = self._hub_last
+            if (last_hub is None or not abs(rate) <= 5.0
+                    or not abs(angle - last_hub[0]) <= 0.05
+                    or (angle == last_hub[0] and rate == last_hub[1])):
+                event = self._hub(tick, state, sent)
+                if event is not None:
+                    return event
+            else:  # _hub's usual sample: plausible, moved
+                self._hub_tick = tick
+                self._hub_same = 0
+                self._hub_last = (angle, rate)
         if wheel is not None and wheel.last_tick == tick and tick != self._wheel_tick:
-            event = self._wheel(tick, state, sent)
-            if event is not None:
-                return event
+            v = wheel.values
+            if v.get("fault") or not abs(v.get("speed", 0.0)) <= self._wheel_overspeed:
+                event = self._wheel(tick, state, sent)
+                if event is not None:
+                    return event
+            else:
+                self._wheel_tick = tick
         if sent.valve_direction != 0 or (valves is not None and valves.last_tick == tick):
             event = self._valves(tick, state, sent)
             if event is not None:
                 return event
-        if piezo is not None and piezo.last_tick == tick:
+        if piezo is not None and piezo.last_tick == tick and piezo.values.get("overcurrent"):
             event = self._piezo(tick, state, sent)
             if event is not None:
                 return event
@@ -499,8 +571,10 @@ class FaultMonitor:
                                    "frames missing")
         return None
 
-    def _accelerometer(self, tick: int, state: RigState, sent: RigCommand
-                       ) -> FaultEvent | None:
+    def _accelerometer(self, tick: int, state: RigState, sent: RigCommand,
+                       counter: int | None = None) -> FaultEvent | None:
+        """The accelerometer's sample of ``tick`` (``counter``: its sample counter, when the
+        caller has read it already; it is read again either way)."""
         drv = self.iface.accel
         if drv.last_tick != tick:
             return None
