@@ -27,8 +27,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-RUNS: list[tuple[str, str, list[str]]] = [
-    # (name, rig, faults)
+RUNS: list[tuple[str, str, list[str]] | tuple[str, str, list[str], dict[str, Any]]] = [
+    # (name, rig, faults[, overrides])
     ("slew-rw", "sgsrt", []),
     ("slew-rw", "sgsrt", ["drop_frames@3:hub_sensor"]),
     ("slew-rw", "sgsrt", ["silent_sensor@3:disturbance_rotor"]),
@@ -45,6 +45,12 @@ RUNS: list[tuple[str, str, list[str]]] = [
     ("slew-rw", "sgsrt-canopen", ["node_emcy@3:accelerometer"]),
     ("slew-rw", "sgsrt-canopen", ["silent_sensor@3:disturbance_rotor"]),
     ("thruster-csvs12-oppf", "sgsrt", []),
+    # the monitor's warnings: the wheel near its speed and torque limits; every level low
+    ("tests/fixtures/runs/wheel-near-limit.yaml", "sgsrt", [],
+     {"limits": {"max_wheel_speed_rad_s": 60.0}}),
+    ("slew-rw", "sgsrt", [], {"duration_s": 12.0, "monitor": {
+        "warn_limits_fraction": 0.05, "warn_accel_range_fraction": 0.005,
+        "warn_wheel_speed_fraction": 0.05, "warn_torque_saturated_s": 0.0}}),
 ]
 TIMING_KEYS = ("wall_time_s", "real_time_factor", "lateness_ms", "work_ms", "timing",
                "loop_work", "started_utc", "run_dir")
@@ -94,17 +100,20 @@ def digest(out: Path, quick: bool) -> dict[str, Any]:
 
     Recorder.log_event, Recorder.queue_event = log_event, queue_event
     result: dict[str, Any] = {}
-    for name, rig, faults in RUNS:
+    for name, rig, faults, *more in RUNS:
         events.clear()
         canopen = "canopen" in rig
         if canopen:
             time.time = REAL_TIME
         else:
             _fake_clock()
-        key = f"{name}:{rig}:{','.join(faults) or 'clean'}"
+        key = f"{name}:{rig}:{','.join(faults) or 'clean'}" + (
+            f":{json.dumps(more[0])}" if more else "")
         over: dict[str, Any] = {"rig": rig}
         if quick or faults:
             over["duration_s"] = 6.0 if faults else 10.0
+        if more:
+            over.update(more[0])
         res = execute_run(load_run(name, over), out_dir=out, show_progress=False,
                           faults=[parse_fault(f) for f in faults])
         frames = [[None if canopen else m.timestamp, m.arbitration_id, m.is_extended_id, m.is_rx,

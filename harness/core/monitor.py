@@ -273,6 +273,12 @@ class FaultMonitor:
         h = self._hyst
         self._hyst_seq = (h["wheel_speed"], h["hub_angle"], h["hub_rate"], h["tip_accel"],
                           h["accel_range"])
+        # the levels' thresholds (speed, angle, rate, acceleration: the lower of tip_accel's
+        # and accel_range's); _quiet_levels is them while no warning is active, else None
+        self._levels_on = (h["wheel_speed"].on, h["hub_angle"].on, h["hub_rate"].on,
+                           min(h["tip_accel"].on, h["accel_range"].on))
+        self._quiet_levels: tuple[float, float, float, float] | None = self._levels_on
+        self._torque_at_limit = wheel_max_torque_n_m * (1.0 - 1e-9)
 
     def _warn(self, tick: int, kind: str, message: str) -> None:
         self.warning_counts[kind] += 1
@@ -281,37 +287,49 @@ class FaultMonitor:
 
     def _warnings(self, tick: int, state: RigState, sent: RigCommand) -> None:
         self._last_tick = tick
-        h_speed, h_angle, h_rate, h_tip, h_range = self._hyst_seq
         accel = abs(state.tip_accel_m_s2)
         speed = abs(state.wheel_speed_rad_s)
         angle = abs(state.hub_angle_rad) * 57.29577951308232
         rate = abs(state.hub_rate_rad_s) * 57.29577951308232
         # the usual tick: no warning active and every value below its level (one test
-        # each, in the order the warnings are reported)
-        if h_speed.active or speed > h_speed.on:
-            self._level(tick, "wheel_speed", h_speed, speed)
-        if h_angle.active or angle > h_angle.on:
-            self._level(tick, "hub_angle", h_angle, angle)
-        if h_rate.active or rate > h_rate.on:
-            self._level(tick, "hub_rate", h_rate, rate)
-        if h_tip.active or accel > h_tip.on:
-            self._level(tick, "tip_accel", h_tip, accel)
-        if h_range.active or accel > h_range.on:
-            self._level(tick, "accel_range", h_range, accel)
+        # each, in the order the warnings are reported); with none active, the levels'
+        # thresholds first, all at once
+        quiet = self._quiet_levels
+        if not (quiet is not None and speed <= quiet[0] and angle <= quiet[1]
+                and rate <= quiet[2] and accel <= quiet[3]):
+            h_speed, h_angle, h_rate, h_tip, h_range = self._hyst_seq
+            if h_speed.active or speed > h_speed.on:
+                self._level(tick, "wheel_speed", h_speed, speed)
+            if h_angle.active or angle > h_angle.on:
+                self._level(tick, "hub_angle", h_angle, angle)
+            if h_rate.active or rate > h_rate.on:
+                self._level(tick, "hub_rate", h_rate, rate)
+            if h_tip.active or accel > h_tip.on:
+                self._level(tick, "tip_accel", h_tip, accel)
+            if h_range.active or accel > h_range.on:
+                self._level(tick, "accel_range", h_range, accel)
+            self._quiet_levels = (None if any(h.active for h in self._hyst_seq) else
+                                  self._levels_on)
         torque = abs(sent.wheel_torque_n_m)
-        if torque >= self._torque_limit * (1.0 - 1e-9):
-            self._torque_held += 1
-        else:
+        if torque < self._torque_at_limit:  # the usual tick (and a NaN's, as before)
             self._torque_held = 0
-        if self._torque_active:
-            if torque < self._torque_off:
+            if self._torque_active and torque < self._torque_off:
                 self._torque_active = False
-        elif self._torque_held > self._torque_hold_ticks:
-            self._torque_active = True
-            self._warn(tick, "torque_saturated",
-                       f"commanded wheel torque held at its limit {self._torque_limit:g} N m for "
-                       f"{self._torque_held * self.dt_s:.3g} s (since t = "
-                       f"{(tick - self._torque_held + 1) * self.dt_s:.3f} s)")
+        elif torque >= self._torque_at_limit:
+            self._torque_held += 1
+            if self._torque_active:
+                if torque < self._torque_off:
+                    self._torque_active = False
+            elif self._torque_held > self._torque_hold_ticks:
+                self._torque_active = True
+                self._warn(tick, "torque_saturated",
+                           f"commanded wheel torque held at its limit {self._torque_limit:g} "
+                           f"N m for {self._torque_held * self.dt_s:.3g} s (since t = "
+                           f"{(tick - self._torque_held + 1) * self.dt_s:.3f} s)")
+        else:  # NaN: not at the limit
+            self._torque_held = 0
+            if self._torque_active and torque < self._torque_off:
+                self._torque_active = False
         missed = False
         if self._due_period:
             for name, drv in self._due_at[tick % self._due_period]:
