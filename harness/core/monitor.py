@@ -311,11 +311,7 @@ class FaultMonitor:
             self._quiet_levels = (None if any(h.active for h in self._hyst_seq) else
                                   self._levels_on)
         torque = abs(sent.wheel_torque_n_m)
-        if torque < self._torque_at_limit:  # the usual tick (and a NaN's, as before)
-            self._torque_held = 0
-            if self._torque_active and torque < self._torque_off:
-                self._torque_active = False
-        elif torque >= self._torque_at_limit:
+        if torque >= self._torque_at_limit:
             self._torque_held += 1
             if self._torque_active:
                 if torque < self._torque_off:
@@ -326,7 +322,7 @@ class FaultMonitor:
                            f"commanded wheel torque held at its limit {self._torque_limit:g} "
                            f"N m for {self._torque_held * self.dt_s:.3g} s (since t = "
                            f"{(tick - self._torque_held + 1) * self.dt_s:.3f} s)")
-        else:  # NaN: not at the limit
+        else:  # below the limit (or NaN): nothing held, nothing to start
             self._torque_held = 0
             if self._torque_active and torque < self._torque_off:
                 self._torque_active = False
@@ -439,7 +435,7 @@ class FaultMonitor:
                 # _accelerometer's usual sample: counter moved on, not late
                 counter = int(counter)
                 if counter == last[0]:
-                    event = self._accelerometer(tick, state, sent, counter)
+                    event = self._accelerometer(tick, state, sent)
                     if event is not None:
                         return event
                 else:
@@ -447,7 +443,7 @@ class FaultMonitor:
                     offset = (tick // self._accel_div - counter) % 65536
                     late = (offset - self._accel_offset) % 65536  # type: ignore[operator]
                     if self._late_limit < late < 32768:
-                        event = self._accelerometer(tick, state, sent, counter)
+                        event = self._accelerometer(tick, state, sent)
                         if event is not None:
                             return event
                     else:
@@ -589,10 +585,8 @@ class FaultMonitor:
                                    "frames missing")
         return None
 
-    def _accelerometer(self, tick: int, state: RigState, sent: RigCommand,
-                       counter: int | None = None) -> FaultEvent | None:
-        """The accelerometer's sample of ``tick`` (``counter``: its sample counter, when the
-        caller has read it already; it is read again either way)."""
+    def _accelerometer(self, tick: int, state: RigState, sent: RigCommand
+                       ) -> FaultEvent | None:
         drv = self.iface.accel
         if drv.last_tick != tick:
             return None
