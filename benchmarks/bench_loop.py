@@ -7,6 +7,10 @@
    (``harness.bus.CopyingVirtualBus``) and the same recorder; the harness's tick is a whole
    lockstep `slew-rw` run's loop time per tick. Their ratio is what the harness costs beyond
    the floor (`--floor` runs only this).
+0b. What is left beyond the floor (`--parts` runs only this): the harness's loop CPU a tick
+   with the fault monitor off, with the CAN log's writes skipped (frames queued, written
+   after the loop), with neither, and as it is, interleaved with the floor run by run; each
+   as a ratio to the floor of its round. Measures only: a run with a part off is not a run.
 1. Lockstep real-time factor of `slew-rw` through the full CAN path at 500 Hz (codecs,
    python-can virtual bus, drivers, virtual rig, BLF log, Rerun recording).
 1b. The same lockstep run on python-can's stock VirtualBus, interleaved with ours.
@@ -17,7 +21,7 @@
    solve_ivp on the same model, the same piecewise-constant input and comparable accuracy.
 
     .venv/bin/python benchmarks/bench_loop.py [--repeats 3] [--json] [--warnings] [--floor]
-        [--rig sgsrt]
+        [--parts] [--rig sgsrt]
 """
 
 from __future__ import annotations
@@ -185,6 +189,63 @@ def bench_floor(repeats: int, out: Path, run_name: str = "slew-rw") -> dict[str,
             "real_time_factor_max": float(np.max(rtf))}
 
 
+PARTS = ("as is", "no monitor", "no CAN log writes", "neither")
+
+
+def bench_parts(repeats: int, out: Path, run_name: str = "slew-rw") -> dict[str, Any]:
+    """The harness's loop CPU a tick with its fault monitor and its CAN log's writes
+    switched off (see the module docstring, 0b), each round interleaved with the floor."""
+    import harness.core.session as session
+
+    own_loop = session.run_loop
+    part = {"now": PARTS[0]}
+    loop_cpu: list[float] = []
+
+    def timed_loop(interface, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202
+        log = interface.can_log
+        if part["now"] in ("no monitor", "neither"):
+            kwargs["monitor"] = None
+        if part["now"] in ("no CAN log writes", "neither") and log is not None:
+            log.drain = lambda: 0  # queued only; close() writes them after the loop
+        c0 = time.process_time()
+        try:
+            return own_loop(interface, *args, **kwargs)
+        finally:
+            loop_cpu.append(time.process_time() - c0)
+            if log is not None:
+                log.__dict__.pop("drain", None)
+
+    cpu: dict[str, list[float]] = {p: [] for p in PARTS}
+    floor_cpu: list[float] = []
+    session.run_loop = timed_loop
+    try:
+        for _ in range(repeats):
+            for name in PARTS:
+                part["now"] = name
+                res = execute_run(load_run(run_name), out_dir=out, show_progress=False)
+                ticks = res.summary["ticks"]
+                cpu[name].append(1e6 * loop_cpu[-1] / ticks)
+                del res
+            floor_cpu.append(floor_tick_us(run_name, ticks, out)[1])
+    finally:
+        session.run_loop = own_loop
+    f = np.array(floor_cpu)
+    return {"floor_cpu_us": float(np.median(f)),
+            **{name: {"cpu_us": float(np.median(v)),
+                      "over_floor": float(np.median(np.array(v) / f)),
+                      "over_floor_min": float(np.min(np.array(v) / f)),
+                      "over_floor_max": float(np.max(np.array(v) / f))}
+               for name, v in cpu.items()}}
+
+
+def _parts_rows(r: dict[str, Any], repeats: int) -> str:
+    return "\n".join(
+        f"| slew-rw lockstep loop CPU, {name} (interleaved with the floor, median of "
+        f"{repeats}) | {r[name]['cpu_us']:.1f} us a tick, {r[name]['over_floor']:.2f}x the "
+        f"floor's {r['floor_cpu_us']:.1f} (min {r[name]['over_floor_min']:.2f}, max "
+        f"{r[name]['over_floor_max']:.2f}) |" for name in PARTS)
+
+
 RIGS = ("sgsrt", "sgsrt-canopen", "sgsrt-dbc2")
 
 
@@ -314,11 +375,18 @@ def main() -> int:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--warnings", action="store_true", help="only 1c, the monitor's warnings")
     ap.add_argument("--floor", action="store_true", help="only 0, the floor tick")
+    ap.add_argument("--parts", action="store_true",
+                    help="only 0b: the loop with the monitor / the CAN log's writes off")
     ap.add_argument("--rigs", action="store_true",
                     help="only the device bindings: slew-rw on sgsrt, sgsrt-canopen, sgsrt-dbc2")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
+        if args.parts:
+            print("benchmark: the harness's parts beyond the floor ...", file=sys.stderr)
+            parts = bench_parts(args.repeats, out)
+            print(json.dumps(parts, indent=2) if args.json else _parts_rows(parts, args.repeats))
+            return 0
         # --rigs and --floor run only their own part (the rest of the table is not measured)
         if not args.floor and not args.warnings:
             print("benchmark: slew-rw over each rig's device binding ...", file=sys.stderr)

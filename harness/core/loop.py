@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import gc
 import math
+import struct
 import sys
 import time
 from collections.abc import Callable
@@ -46,6 +47,9 @@ CHANNELS = [
     "/timing/work_ms",
     "/timing/frames_rx",
 ]
+# one recorded row packed straight into the recorder's float64 row (one call, not numpy's
+# conversion of a tuple: issue 23)
+_ROW = struct.Struct(f"={len(CHANNELS)}d")
 
 
 @dataclass
@@ -137,9 +141,18 @@ def run_loop(
     expected_at = [interface.expected_frames(period + k) for k in range(period)] \
         if period <= 10_000 else None
     lockstep = not realtime
+    # lockstep with the rig in process: it has answered inside pump()
+    lockstep_read = pump is not None and not realtime
     lateness = 0.0
     lateness_add = stats.lateness_s.add
     work_add = stats.work_s.add
+    # the tick's calls bound once
+    send_sync, receive = interface.send_sync, interface.receive
+    snapshot, command = interface.snapshot, interface.command
+    new_row, commit, drain = recorder.row, recorder.commit, recorder.drain
+    pack_row = _ROW.pack_into
+    check = monitor.check if monitor is not None else None
+    degrees = math.degrees
     on_time_ticks = 0
     wall0 = perf()
     clock.start()
@@ -157,7 +170,7 @@ def run_loop(
             t_start = perf()
             if tick % heartbeat_every == 0:
                 interface.send_heartbeat(armed=True)
-            interface.send_sync(tick)
+            send_sync(tick)
             if pump is not None:
                 pump()
             if realtime:  # never wait for telemetry past most of this tick's period
@@ -165,45 +178,49 @@ def run_loop(
                               max(0.0, clock.time_left(tick) - RESERVE_FRACTION * dt_s))
             expected = (expected_at[tick % period] if expected_at is not None and tick >= period
                         else interface.expected_frames(tick))
-            got = interface.receive(tick, timeout, lockstep=pump is not None and not realtime,
-                                    expected=expected)
+            got = receive(tick, timeout, lockstep_read, expected)
             missing = expected - got
             if missing > 0:
                 stats.missing_frames += missing
             t_s = tick * dt_s
-            state = interface.snapshot(tick, t_s)
+            state = snapshot(tick, t_s)
             cmd = step(state)
-            sent = interface.command(cmd)
+            sent = command(cmd)
             work = perf() - t_start
-            overrun = realtime and clock.time_left(tick) < 0
-            if overrun:
-                stats.overruns += 1
-                stats.overrun_episodes += not prev_overrun
-            elif missing > 0 and lateness < HELD_FRACTION * dt_s:
+            if realtime:
+                overrun = clock.time_left(tick) < 0
+                if overrun:
+                    stats.overruns += 1
+                    stats.overrun_episodes += not prev_overrun
+                prev_overrun = overrun
+            else:
+                overrun = False
+            if missing > 0 and not overrun and lateness < HELD_FRACTION * dt_s:
                 stats.missing_frames_on_time += missing
                 if len(stats.missing_on_time_ticks) < MAX_MISS_TICKS:
                     stats.missing_on_time_ticks.append((tick, missing, lateness))
-            prev_overrun = overrun
             if lockstep:
                 on_time_ticks += 1
             else:
                 lateness_add(lateness)
             work_add(work)
             ref = reference(t_s)[0] if reference is not None else math.nan
-            row = recorder.row(t_s)
-            row[:] = (
-                math.degrees(state.hub_angle_rad), math.degrees(ref),
-                math.degrees(ref - state.hub_angle_rad), math.degrees(state.hub_rate_rad_s),
+            angle = state.hub_angle_rad
+            piezo_v, piezo_sensor_v = sent.piezo_v, state.piezo_sensor_v
+            pack_row(
+                new_row(t_s), 0,
+                degrees(angle), degrees(ref), degrees(ref - angle),
+                degrees(state.hub_rate_rad_s),
                 sent.wheel_torque_n_m, state.wheel_torque_n_m, state.wheel_speed_rad_s,
                 state.tip_accel_m_s2, sent.valve_direction, state.valve_state,
-                state.valve_firings, state.valve_on_time_s, sent.piezo_v[0], sent.piezo_v[1],
-                state.piezo_sensor_v[0], state.piezo_sensor_v[1], state.rotor_angle_rad,
+                state.valve_firings, state.valve_on_time_s, piezo_v[0], piezo_v[1],
+                piezo_sensor_v[0], piezo_sensor_v[1], state.rotor_angle_rad,
                 state.rotor_speed_rad_s, lateness * 1e3, work * 1e3, got,
             )
-            recorder.commit()
+            commit()
             stats.ticks = tick + 1
-            if monitor is not None:
-                event = monitor.check(tick, state, sent)
+            if check is not None:
+                event = check(tick, state, sent)
                 if event is not None:
                     stats.stopped_by = "fault"
                     stats.faults.append(event)
@@ -213,7 +230,7 @@ def run_loop(
             # block logging and the CAN log's writer run outside the tick's critical path
             if realtime:
                 if clock.time_left(tick) > 0.5 * dt_s:
-                    recorder.drain(1)
+                    drain(1)
                     if can_log is not None:
                         can_log.drain()
                     if collect_young and tick >= next_collect:
@@ -225,7 +242,7 @@ def run_loop(
                 elif can_log is not None and can_log.pending > CAN_LOG_MAX_PENDING:
                     can_log.drain()  # a loop that never has time left still bounds memory
             else:
-                recorder.drain()
+                drain()
                 if can_log is not None and tick % 50 == 0:
                     can_log.drain()
             if progress is not None and tick % progress_every == 0:

@@ -195,6 +195,12 @@ class FaultMonitor:
         self._lost_limit = int(monitor["lost_frames"])
         self._max_malformed = monitor["max_malformed_frames"]
         self._accel_div = self.div.get("accelerometer", 1)
+        # a reading within this is plausible (the accelerometer's check, inline in check())
+        self._accel_plausible = accel_range_m_s2 + 0.01
+        # a wheel speed within this is neither implausible nor an overspeed
+        self._wheel_overspeed = min(1.5 * wheel_max_speed_rad_s + 1.0,
+                                    1.02 * wheel_max_speed_rad_s)
+        self._bus_counters = getattr(interface, "counters", None)
         self._late_limit = max(monitor["late_ticks"], self.realtime_grace)
         lim = self.limits
         # the limits in SI, a hair inside: a value this side is within its limit for sure;
@@ -267,6 +273,12 @@ class FaultMonitor:
         h = self._hyst
         self._hyst_seq = (h["wheel_speed"], h["hub_angle"], h["hub_rate"], h["tip_accel"],
                           h["accel_range"])
+        # the levels' thresholds (speed, angle, rate, acceleration: the lower of tip_accel's
+        # and accel_range's); _quiet_levels is them while no warning is active, else None
+        self._levels_on = (h["wheel_speed"].on, h["hub_angle"].on, h["hub_rate"].on,
+                           min(h["tip_accel"].on, h["accel_range"].on))
+        self._quiet_levels: tuple[float, float, float, float] | None = self._levels_on
+        self._torque_at_limit = wheel_max_torque_n_m * (1.0 - 1e-9)
 
     def _warn(self, tick: int, kind: str, message: str) -> None:
         self.warning_counts[kind] += 1
@@ -275,37 +287,45 @@ class FaultMonitor:
 
     def _warnings(self, tick: int, state: RigState, sent: RigCommand) -> None:
         self._last_tick = tick
-        h_speed, h_angle, h_rate, h_tip, h_range = self._hyst_seq
         accel = abs(state.tip_accel_m_s2)
         speed = abs(state.wheel_speed_rad_s)
         angle = abs(state.hub_angle_rad) * 57.29577951308232
         rate = abs(state.hub_rate_rad_s) * 57.29577951308232
         # the usual tick: no warning active and every value below its level (one test
-        # each, in the order the warnings are reported)
-        if h_speed.active or speed > h_speed.on:
-            self._level(tick, "wheel_speed", h_speed, speed)
-        if h_angle.active or angle > h_angle.on:
-            self._level(tick, "hub_angle", h_angle, angle)
-        if h_rate.active or rate > h_rate.on:
-            self._level(tick, "hub_rate", h_rate, rate)
-        if h_tip.active or accel > h_tip.on:
-            self._level(tick, "tip_accel", h_tip, accel)
-        if h_range.active or accel > h_range.on:
-            self._level(tick, "accel_range", h_range, accel)
+        # each, in the order the warnings are reported); with none active, the levels'
+        # thresholds first, all at once
+        quiet = self._quiet_levels
+        if not (quiet is not None and speed <= quiet[0] and angle <= quiet[1]
+                and rate <= quiet[2] and accel <= quiet[3]):
+            h_speed, h_angle, h_rate, h_tip, h_range = self._hyst_seq
+            if h_speed.active or speed > h_speed.on:
+                self._level(tick, "wheel_speed", h_speed, speed)
+            if h_angle.active or angle > h_angle.on:
+                self._level(tick, "hub_angle", h_angle, angle)
+            if h_rate.active or rate > h_rate.on:
+                self._level(tick, "hub_rate", h_rate, rate)
+            if h_tip.active or accel > h_tip.on:
+                self._level(tick, "tip_accel", h_tip, accel)
+            if h_range.active or accel > h_range.on:
+                self._level(tick, "accel_range", h_range, accel)
+            self._quiet_levels = (None if any(h.active for h in self._hyst_seq) else
+                                  self._levels_on)
         torque = abs(sent.wheel_torque_n_m)
-        if torque >= self._torque_limit * (1.0 - 1e-9):
+        if torque >= self._torque_at_limit:
             self._torque_held += 1
-        else:
+            if self._torque_active:
+                if torque < self._torque_off:
+                    self._torque_active = False
+            elif self._torque_held > self._torque_hold_ticks:
+                self._torque_active = True
+                self._warn(tick, "torque_saturated",
+                           f"commanded wheel torque held at its limit {self._torque_limit:g} "
+                           f"N m for {self._torque_held * self.dt_s:.3g} s (since t = "
+                           f"{(tick - self._torque_held + 1) * self.dt_s:.3f} s)")
+        else:  # below the limit (or NaN): nothing held, nothing to start
             self._torque_held = 0
-        if self._torque_active:
-            if torque < self._torque_off:
+            if self._torque_active and torque < self._torque_off:
                 self._torque_active = False
-        elif self._torque_held > self._torque_hold_ticks:
-            self._torque_active = True
-            self._warn(tick, "torque_saturated",
-                       f"commanded wheel torque held at its limit {self._torque_limit:g} N m for "
-                       f"{self._torque_held * self.dt_s:.3g} s (since t = "
-                       f"{(tick - self._torque_held + 1) * self.dt_s:.3f} s)")
         missed = False
         if self._due_period:
             for name, drv in self._due_at[tick % self._due_period]:
@@ -363,32 +383,98 @@ class FaultMonitor:
             self._warnings(tick, state, sent)
         # driven by what changed: a device's checks run only in a tick its telemetry came
         # (or, for the valves, a tick they were commanded open), the limits' messages only
-        # past a limit; the order of the checks (the first event wins) is unchanged
+        # past a limit; the order of the checks (the first event wins) is unchanged. Each
+        # check's all-clear path is inline here (one call a tick, issue 23); anything past
+        # it goes to the check's own method, which decides and words the event.
         if self._protocol_fault is not None:
             event = self._protocol(tick, state, sent)
             if event is not None:
                 return event
-        event = self._bus(tick, state, sent) or self._silent_and_lost(tick, state, sent)
-        if event is not None:
-            return event
+        c = self._bus_counters
+        if (c.bus_off or c.error_frames > self._max_error_frames
+                or c.unknown > self._max_unknown_frames):
+            return self._bus(tick, state, sent)
+        max_malformed = self._max_malformed
+        for counters in self._frame_counters:  # the usual tick: none past its limit
+            if counters.malformed > max_malformed or counters.sequence_errors:
+                event = self._bus(tick, state, sent)
+                if event is not None:
+                    return event
+                break
+        if tick >= self.grace:
+            if tick < self._silent_from and self._lost_due_period:
+                # _silent_and_lost's usual tick: no device can be silent yet, only the
+                # windows of the devices due now (a due device that came, with no miss in
+                # its window, only counts its frame)
+                if not self.realtime_grace:
+                    for entry in self._lost_due_at[tick % self._lost_due_period]:
+                        last = entry[1].last_tick
+                        if last == tick and not entry[4]:
+                            entry[5] += 1
+                            continue
+                        if tick - last > entry[6]:
+                            continue  # not heard from yet, in the start-up time
+                        event = self._count_due(tick, entry, last)
+                        if event is not None:
+                            return event
+            else:
+                event = self._silent_and_lost(tick, state, sent)
+                if event is not None:
+                    return event
         accel, hub, wheel, valves, piezo = self._device_drivers
         if accel is not None and accel.last_tick == tick:
-            event = self._accelerometer(tick, state, sent)
-            if event is not None:
-                return event
+            v = accel.values
+            counter = v.get("sample_counter")
+            last = self._accel_last
+            if (v.get("saturated") or v.get("fault") or counter is None or last is None
+                    or not abs(v.get("accel", 0.0)) <= self._accel_plausible):
+                event = self._accelerometer(tick, state, sent)
+                if event is not None:
+                    return event
+            else:
+                # _accelerometer's usual sample: counter moved on, not late
+                counter = int(counter)
+                if counter == last[0]:
+                    event = self._accelerometer(tick, state, sent)
+                    if event is not None:
+                        return event
+                else:
+                    self._accel_same = 0
+                    offset = (tick // self._accel_div - counter) % 65536
+                    late = (offset - self._accel_offset) % 65536  # type: ignore[operator]
+                    if self._late_limit < late < 32768:
+                        event = self._accelerometer(tick, state, sent)
+                        if event is not None:
+                            return event
+                    else:
+                        self._accel_last = (counter, tick)
         if hub is not None and hub.last_tick == tick and tick != self._hub_tick:
-            event = self._hub(tick, state, sent)
-            if event is not None:
-                return event
+            v = hub.values
+            angle, rate = v.get("angle", 0.0), v.get("rate", 0.0)
+            last_hub = self._hub_last
+            if (last_hub is None or not abs(rate) <= 5.0
+                    or not abs(angle - last_hub[0]) <= 0.05
+                    or (angle == last_hub[0] and rate == last_hub[1])):
+                event = self._hub(tick, state, sent)
+                if event is not None:
+                    return event
+            else:  # _hub's usual sample: plausible, moved
+                self._hub_tick = tick
+                self._hub_same = 0
+                self._hub_last = (angle, rate)
         if wheel is not None and wheel.last_tick == tick and tick != self._wheel_tick:
-            event = self._wheel(tick, state, sent)
-            if event is not None:
-                return event
+            v = wheel.values
+            if v.get("fault") or not abs(v.get("speed", 0.0)) <= self._wheel_overspeed:
+                event = self._wheel(tick, state, sent)
+                if event is not None:
+                    return event
+            else:
+                self._wheel_tick = tick
         if sent.valve_direction != 0 or (valves is not None and valves.last_tick == tick):
             event = self._valves(tick, state, sent)
             if event is not None:
                 return event
-        if piezo is not None and piezo.last_tick == tick:
+        if piezo is not None and piezo.last_tick == tick and piezo.values.get("overcurrent"):
             event = self._piezo(tick, state, sent)
             if event is not None:
                 return event

@@ -113,6 +113,8 @@ class CanLog:
         start = writer.start_timestamp
         offset = 0
         last_ts = 0.0
+        last_ch: object = channels  # no message's channel: looked up at the first frame
+        channel = 0
         for msg in pending:
             if msg.is_error_frame or msg.is_fd:
                 ch = msg.channel
@@ -131,14 +133,15 @@ class CanLog:
                 start = writer.start_timestamp = int(ts * 1000) / 1000
             ns = int((ts - start) * 1e9)
             ch = msg.channel
-            channel = channels.get(ch)
-            if channel is None:
-                channel = channels[ch] = self._channel_number(ch)
-            flags = remote_flag if msg.is_remote_frame else 0
-            if not msg.is_rx:
-                flags |= dir_flag
+            if ch is not last_ch:  # the frames of a run are on one channel
+                channel = channels.get(ch)  # type: ignore[assignment]
+                if channel is None:
+                    channel = channels[ch] = self._channel_number(ch)
+                last_ch = ch
             arb_id = msg.arbitration_id
-            pack_into(packed, offset + _TAIL_AT, ns if ns > 0 else 0, channel, flags, msg.dlc,
+            pack_into(packed, offset + _TAIL_AT, ns if ns > 0 else 0, channel,
+                      (remote_flag if msg.is_remote_frame else 0)
+                      | (0 if msg.is_rx else dir_flag), msg.dlc,
                       arb_id | ext_bit if msg.is_extended_id else arb_id, msg.data)
             offset += _OBJ_SIZE
             last_ts = ts
