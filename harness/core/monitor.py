@@ -90,6 +90,10 @@ MONITOR_SCHEMA = {
 WARNING_KINDS = ("wheel_speed", "torque_saturated", "hub_angle", "hub_rate", "tip_accel",
                  "accel_range", "telemetry_missing")
 LOST_WINDOW = 20
+# a hub sample no healthy sensor sends: a rate beyond this, an angle step beyond this in a
+# tick (the hub check and its inline all-clear path in check() both read these)
+HUB_RATE_PLAUSIBLE_RAD_S = 5.0
+HUB_ANGLE_STEP_PLAUSIBLE_RAD = 0.05
 """A device's frames lost: ``lost_frames`` of its last this many due frames missing."""
 
 LIMITS_SCHEMA = {
@@ -452,8 +456,8 @@ class FaultMonitor:
             v = hub.values
             angle, rate = v.get("angle", 0.0), v.get("rate", 0.0)
             last_hub = self._hub_last
-            if (last_hub is None or not abs(rate) <= 5.0
-                    or not abs(angle - last_hub[0]) <= 0.05
+            if (last_hub is None or not abs(rate) <= HUB_RATE_PLAUSIBLE_RAD_S
+                    or not abs(angle - last_hub[0]) <= HUB_ANGLE_STEP_PLAUSIBLE_RAD
                     or (angle == last_hub[0] and rate == last_hub[1])):
                 event = self._hub(tick, state, sent)
                 if event is not None:
@@ -627,8 +631,9 @@ class FaultMonitor:
             return None
         self._hub_tick = tick
         angle, rate = drv.values.get("angle", 0.0), drv.values.get("rate", 0.0)
-        if abs(rate) > 5.0 or (self._hub_last is not None
-                               and abs(angle - self._hub_last[0]) > 0.05):
+        if abs(rate) > HUB_RATE_PLAUSIBLE_RAD_S or (
+                self._hub_last is not None
+                and abs(angle - self._hub_last[0]) > HUB_ANGLE_STEP_PLAUSIBLE_RAD):
             return self._event(tick, "hub_sensor", "implausible",
                                f"angle {angle:+.4f} rad, rate {rate:+.4f} rad/s")
         if self._hub_last == (angle, rate):
