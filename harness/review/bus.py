@@ -32,12 +32,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import can
 import numpy as np
 import rerun as rr
 
 from drivers.binding import SGSRT_FRAMES
 from drivers.dbc import FrameCodec, Protocol, load_protocol
+from harness.record.blf_frames import read_frames
 from harness.review.names import log_series_names
 
 # device -> (telemetry frame, command frame or None): the sgsrt protocol's, as its binding
@@ -149,13 +149,12 @@ class _Series:
 def _sync_origin(blf: Path, sync_id: int, tick_mask: int, dt_s: float) -> float | None:
     """min over the SYNCs of (timestamp - tick x period): when tick 0 was due."""
     best: float | None = None
-    with can.BLFReader(str(blf)) as reader:
-        for msg in reader:
-            if msg.arbitration_id == sync_id and not msg.is_error_frame and len(msg.data) >= 4:
-                tick = int.from_bytes(msg.data, "little") & tick_mask
-                o = float(msg.timestamp) - tick * dt_s
-                if best is None or o < best:
-                    best = o
+    for ts, fid, _ext, _remote, is_error, _rx, _dlc, data, _ch in read_frames(blf):
+        if fid == sync_id and not is_error and len(data) >= 4:
+            tick = int.from_bytes(data, "little") & tick_mask
+            o = ts - tick * dt_s
+            if best is None or o < best:
+                best = o
     return best
 
 
@@ -215,45 +214,41 @@ def write_bus(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime: bool,
                                        f"before the next SYNC (tick {tick}, t = "
                                        f"{t_tick:.3f} s)"))
 
-    with can.BLFReader(str(blf)) as reader:
-        for msg in reader:
-            stats.frames += 1
-            if msg.is_error_frame:
-                stats.error_frames += 1
-                continue
-            fid = msg.arbitration_id
-            out = frames.get(fid)
-            if out is None:
-                stats.unknown += 1
-                continue
-            data = msg.data
-            if len(data) != length[fid]:
-                stats.malformed += 1
-                continue
-            ts = float(msg.timestamp)
-            if fid == sync_id:
-                close_tick()
-                tick = int.from_bytes(data, "little") & tick_mask
-                prev_sync_ts = sync_ts if first_sync_ts is not None else None
-                sync_ts = ts
-                seen = set()
-                if first_sync_ts is None:
-                    first_sync_ts = ts
-            if origin is not None:
-                t = max(0.0, ts - origin)
-            elif first_sync_ts is None:
-                t = 0.0
-            else:
-                t = tick * dt_s + min(max(ts - sync_ts, 0.0), clamp)
-            rx = rx_after.get(fid)
-            if rx is not None and tick >= 0:
-                if ts >= sync_ts or prev_sync_ts is None:
-                    seen.add(tlm_device[fid])
-                    rx.add(t, (ts - sync_ts) * 1e3)
-                else:  # sent before this tick's SYNC, read after it: late for its own tick
-                    rx.add(t, (ts - prev_sync_ts) * 1e3)
-            out.add(t, bytes(data))
-            stats.decoded += 1
+    for ts, fid, _ext, _remote, is_error, _rx, _dlc, data, _ch in read_frames(blf):
+        stats.frames += 1
+        if is_error:
+            stats.error_frames += 1
+            continue
+        out = frames.get(fid)
+        if out is None:
+            stats.unknown += 1
+            continue
+        if len(data) != length[fid]:
+            stats.malformed += 1
+            continue
+        if fid == sync_id:
+            close_tick()
+            tick = int.from_bytes(data, "little") & tick_mask
+            prev_sync_ts = sync_ts if first_sync_ts is not None else None
+            sync_ts = ts
+            seen = set()
+            if first_sync_ts is None:
+                first_sync_ts = ts
+        if origin is not None:
+            t = max(0.0, ts - origin)
+        elif first_sync_ts is None:
+            t = 0.0
+        else:
+            t = tick * dt_s + min(max(ts - sync_ts, 0.0), clamp)
+        rx = rx_after.get(fid)
+        if rx is not None and tick >= 0:
+            if ts >= sync_ts or prev_sync_ts is None:
+                seen.add(tlm_device[fid])
+                rx.add(t, (ts - sync_ts) * 1e3)
+            else:  # sent before this tick's SYNC, read after it: late for its own tick
+                rx.add(t, (ts - prev_sync_ts) * 1e3)
+        out.add(t, data)
+        stats.decoded += 1
     close_tick()
     for f in frames.values():
         f.flush()

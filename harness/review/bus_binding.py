@@ -22,13 +22,13 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import can
 import numpy as np
 import rerun as rr
 
 from drivers.binding import RigBinding
 from drivers.binding.quantities import COMMANDS, TELEMETRY
 from drivers.dbc import FrameError
+from harness.record.blf_frames import read_frames
 from harness.review.bus import LOCKSTEP_CLAMP, MAX_WARNINGS, BusStats, _Sink, signal_entity
 from harness.review.names import log_series_names
 
@@ -120,97 +120,93 @@ def write_bus_binding(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime:
                     f"can log: no telemetry from {', '.join(missing)} before the next SYNC "
                     f"(tick {tick}, t = {tick * dt_s:.3f} s)")))
 
-    with can.BLFReader(str(blf)) as reader:
-        for msg in reader:
-            stats.frames += 1
-            if msg.is_error_frame:
-                stats.error_frames += 1
-                continue
-            key = (msg.arbitration_id, msg.is_extended_id)
-            data = bytes(msg.data)
-            ts = float(msg.timestamp)
-            if key == sync.key:
-                close_tick()
-                raw = sync.decode(data)
-                # unwrap the SYNC's counter (CANopen: 1..240) into the run's tick
-                tick = raw if raw_last is None else tick + ((raw - raw_last) % modulus or 1)
-                raw_last = raw
-                sync_ts = ts
-                seen = set()
-                if first_ts is None:
-                    first_ts = ts
-                    if realtime:
-                        origin = ts
-                tick_col.add(tick * dt_s, float(tick))
+    for ts, cid, ext, _remote, is_error, _rx, _dlc, data, _ch in read_frames(blf):
+        stats.frames += 1
+        if is_error:
+            stats.error_frames += 1
+            continue
+        key = (cid, ext)
+        if key == sync.key:
+            close_tick()
+            raw = sync.decode(data)
+            # unwrap the SYNC's counter (CANopen: 1..240) into the run's tick
+            tick = raw if raw_last is None else tick + ((raw - raw_last) % modulus or 1)
+            raw_last = raw
+            sync_ts = ts
+            seen = set()
+            if first_ts is None:
+                first_ts = ts
+                if realtime:
+                    origin = ts
+            tick_col.add(tick * dt_s, float(tick))
+            stats.decoded += 1
+            continue
+        if origin is not None:
+            t = max(0.0, ts - origin)
+        elif first_ts is None or tick < 0:
+            t = 0.0
+        else:
+            t = tick * dt_s + min(max(ts - sync_ts, 0.0), clamp)
+        if hb is not None and key == hb.key:
+            stats.decoded += 1
+            continue
+        maps: Any = tlm.get(key)
+        if maps is not None:
+            try:
+                for m in maps:
+                    out = m.decode(data)
+                    if out is not None:
+                        values("tlm", m.device, m.codec.name, t, out)
+                        if tick >= 0 and m.device in rx_cols:
+                            seen.add(m.device)
+                            rx_cols[m.device].add(t, (ts - sync_ts) * 1e3)
+                stats.decoded += 1
+            except FrameError:
+                stats.malformed += 1
+            continue
+        cmaps: Any = cmd.get(key)
+        if cmaps is not None:
+            try:
+                for c in cmaps:
+                    out = c.decode(data)
+                    if out is not None:
+                        values("cmd", c.device, c.codec.name, t, out)
+                stats.decoded += 1
+            except FrameError:
+                stats.malformed += 1
+            continue
+        if co is not None and not ext:
+            nid, fn = cid & 0x7F, cid & 0x780
+            if cid == 0 and len(data) >= 2:
+                what = NMT_COMMANDS.get(data[0], f"command 0x{data[0]:02X}")
+                events.append((t, f"NMT {what} to "
+                               f"{'every node' if data[1] == 0 else f'node {data[1]}'}",
+                               "INFO"))
                 stats.decoded += 1
                 continue
-            if origin is not None:
-                t = max(0.0, ts - origin)
-            elif first_ts is None or tick < 0:
-                t = 0.0
-            else:
-                t = tick * dt_s + min(max(ts - sync_ts, 0.0), clamp)
-            if hb is not None and key == hb.key:
+            if nid in co.nodes and fn == 0x700 and data:
+                column(f"/bus/canopen/node_{nid}/nmt_state",
+                       f"node {nid} ({co.device_of_node(nid)}) NMT state").add(
+                    t, float(data[0] & 0x7F))
+                if data[0] == 0:
+                    events.append((t, f"node {nid} ({co.device_of_node(nid)}): boot-up",
+                                   "WARN" if tick > 0 else "INFO"))
+                elif tick > 0 and data[0] & 0x7F != 0x05 and len(events) < 200:
+                    events.append((t, f"node {nid}: NMT state {heartbeat_state(data)}",
+                                   "WARN"))
                 stats.decoded += 1
                 continue
-            maps: Any = tlm.get(key)
-            if maps is not None:
-                try:
-                    for m in maps:
-                        out = m.decode(data)
-                        if out is not None:
-                            values("tlm", m.device, m.codec.name, t, out)
-                            if tick >= 0 and m.device in rx_cols:
-                                seen.add(m.device)
-                                rx_cols[m.device].add(t, (ts - sync_ts) * 1e3)
-                    stats.decoded += 1
-                except FrameError:
-                    stats.malformed += 1
+            if nid in co.nodes and fn == 0x080 and len(data) >= 3:
+                code = int.from_bytes(data[:2], "little")
+                events.append((t, f"node {nid} ({co.device_of_node(nid)}) EMCY: "
+                               f"{emcy_meaning(code, data[2])}",
+                               "INFO" if code == 0 else "ERROR"))
+                stats.decoded += 1
                 continue
-            cmaps: Any = cmd.get(key)
-            if cmaps is not None:
-                try:
-                    for c in cmaps:
-                        out = c.decode(data)
-                        if out is not None:
-                            values("cmd", c.device, c.codec.name, t, out)
-                    stats.decoded += 1
-                except FrameError:
-                    stats.malformed += 1
+            if nid in co.nodes and fn in (0x580, 0x600):
+                stats.decoded += 1  # set-up's SDO (counted; its meaning is the set-up's)
                 continue
-            cid = msg.arbitration_id
-            if co is not None and not msg.is_extended_id:
-                nid, fn = cid & 0x7F, cid & 0x780
-                if cid == 0 and len(data) >= 2:
-                    what = NMT_COMMANDS.get(data[0], f"command 0x{data[0]:02X}")
-                    events.append((t, f"NMT {what} to "
-                                   f"{'every node' if data[1] == 0 else f'node {data[1]}'}",
-                                   "INFO"))
-                    stats.decoded += 1
-                    continue
-                if nid in co.nodes and fn == 0x700 and data:
-                    column(f"/bus/canopen/node_{nid}/nmt_state",
-                           f"node {nid} ({co.device_of_node(nid)}) NMT state").add(
-                        t, float(data[0] & 0x7F))
-                    if data[0] == 0:
-                        events.append((t, f"node {nid} ({co.device_of_node(nid)}): boot-up",
-                                       "WARN" if tick > 0 else "INFO"))
-                    elif tick > 0 and data[0] & 0x7F != 0x05 and len(events) < 200:
-                        events.append((t, f"node {nid}: NMT state {heartbeat_state(data)}",
-                                       "WARN"))
-                    stats.decoded += 1
-                    continue
-                if nid in co.nodes and fn == 0x080 and len(data) >= 3:
-                    code = int.from_bytes(data[:2], "little")
-                    events.append((t, f"node {nid} ({co.device_of_node(nid)}) EMCY: "
-                                   f"{emcy_meaning(code, data[2])}",
-                                   "INFO" if code == 0 else "ERROR"))
-                    stats.decoded += 1
-                    continue
-                if nid in co.nodes and fn in (0x580, 0x600):
-                    stats.decoded += 1  # set-up's SDO (counted; its meaning is the set-up's)
-                    continue
-            stats.unknown += 1
+        stats.unknown += 1
     close_tick()
     for c in columns.values():
         c.flush()

@@ -317,6 +317,7 @@ def left_safe_problems(blf: Path, rig_data: Mapping[str, Any] | None = None) -> 
 
     from drivers.binding import BindingError, build_binding
     from drivers.dbc import FrameError
+    from harness.record.blf_frames import read_frames
 
     if not blf.is_file():
         raise MissingData(f"{blf} does not exist")
@@ -329,16 +330,21 @@ def left_safe_problems(blf: Path, rig_data: Mapping[str, Any] | None = None) -> 
     last: dict[tuple[int, bool], bytes] = {}
     last_nmt: int | None = None
     commanded_after_nmt = False
+    # the harness's can.blf through the fast reader (python-can's for another format)
+    frames = (read_frames(blf) if blf.suffix.lower() == ".blf" else
+              ((float(m.timestamp), m.arbitration_id, m.is_extended_id, m.is_remote_frame,
+                m.is_error_frame, m.is_rx, m.dlc, bytes(m.data), m.channel)
+               for m in can.LogReader(str(blf))))
     try:
-        for msg in can.LogReader(str(blf)):
-            if msg.is_error_frame:
+        for _ts, cid, ext, _remote, is_error, _rx, _dlc, data, _ch in frames:
+            if is_error:
                 continue
-            key = (msg.arbitration_id, msg.is_extended_id)
+            key = (cid, ext)
             if key in cmd_keys or (hb is not None and key == hb.key):
-                last[key] = bytes(msg.data)
+                last[key] = data
                 commanded_after_nmt = True
-            elif binding.canopen is not None and key == (0, False) and len(msg.data) >= 1:
-                last_nmt, commanded_after_nmt = msg.data[0], False
+            elif binding.canopen is not None and key == (0, False) and len(data) >= 1:
+                last_nmt, commanded_after_nmt = data[0], False
     except Exception as exc:  # python-can raises many kinds for a damaged file
         raise MissingData(f"{blf}: cannot read ({type(exc).__name__}: {exc})") from exc
     problems = []
