@@ -82,3 +82,27 @@ def test_a_log_cut_short_reads_as_far_as_python_cans(tmp_path):
     with open(cut, "r+b") as f:
         f.truncate(whole.stat().st_size * 2 // 3)
     assert 0 < _same(cut) < len(_reference(whole))
+
+
+def test_blocks_are_the_frames_as_arrays(tmp_path):
+    import numpy as np
+
+    from harness.record.blf_frames import read_blocks
+
+    res = execute_run(load_run("slew-rw", {"rig": "sgsrt-canopen", "duration_s": 1.0}),
+                      out_dir=tmp_path, show_progress=False,
+                      faults=[parse_fault("error_frames@0.2+0.2")])
+    mixed = tmp_path / "mixed.blf"
+    test_python_cans_own_log_with_every_kind_of_frame(tmp_path)
+    for path in (res.run_dir / "can.blf", mixed):
+        frames = list(read_frames(path))
+        blocks = list(read_blocks(path))
+        assert len(blocks) > 1
+        cat = [np.concatenate([getattr(b, f) for b in blocks]) for f in blocks[0]._fields]
+        ts, cid, ext, err, length, word = cat
+        assert ts.tolist() == [f[0] for f in frames]
+        assert cid.tolist() == [f[1] for f in frames]
+        assert ext.tolist() == [f[2] for f in frames]
+        assert err.tolist() == [f[4] for f in frames]
+        assert length.tolist() == [len(f[7]) for f in frames]
+        assert word.tolist() == [int.from_bytes(f[7][:8], "little") for f in frames]

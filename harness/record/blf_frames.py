@@ -68,9 +68,9 @@ class _Fallback(_blf.BLFReader):
         self._pos = 0
 
 
-def read_frames(path: str | Path) -> Iterator[tuple]:  # type: ignore[type-arg]
-    """The frames of the BLF file at ``path`` in file order, each a tuple of ``Frame``'s
-    fields in its order (see the module docstring)."""
+def _containers(path: str | Path) -> Iterator[tuple[np.ndarray | None, list[tuple]]]:  # type: ignore[type-arg]
+    """Per container: (its CAN messages as one numpy array, []) on the fast path, or
+    (None, its frames as tuples from python-can's parser)."""
     with open(path, "rb") as f:
         head = f.read(_blf.FILE_HEADER_STRUCT.size)
         header = _blf.FILE_HEADER_STRUCT.unpack(head)
@@ -111,21 +111,70 @@ def read_frames(path: str | Path) -> Iterator[tuple]:  # type: ignore[type-arg]
                                     | (objs["obj_type"] == _blf.CAN_MESSAGE2)))
                     and bool(np.all(objs["flags"] == objs["flags"][0]))
                     and int(objs["timestamp"].max()) < _EXACT_NS):
-                yield from _vectorised(objs, start)
                 slow._tail = data[n * _OBJ_BYTES:]
+                yield _with_times(objs, start), []
                 continue
             # python-can's own parse of this container (and its tail), as BLFReader does
             slow._tail = b""
-            for m in slow._parse_container(data):
-                yield _from_message(m)
+            yield None, [_from_message(m) for m in slow._parse_container(data)]
 
 
-def _vectorised(objs: np.ndarray, start: float) -> Iterator[tuple]:  # type: ignore[type-arg]
-    """The frames of a container of CAN_MESSAGE objects with one time unit (one numpy pass)."""
-    # BLFReader: float(Decimal(ts) * factor) + start; with the integer exact in a float64,
-    # IEEE division by 1e9 (or 1e5) is that correctly rounded decimal product
+def _with_times(objs: np.ndarray, start: float) -> np.ndarray:
+    """The objects and their timestamps in seconds, as BLFReader computes them: float(
+    Decimal(ts) * factor) + start; with the integer exact in a float64, IEEE division by
+    1e9 (or 1e5) is that correctly rounded decimal product."""
     divisor = 1e5 if int(objs["flags"][0]) == _blf.TIME_TEN_MICS else 1e9
-    ts = (objs["timestamp"].astype(np.float64) / divisor + start).tolist()
+    return objs, objs["timestamp"].astype(np.float64) / divisor + start  # type: ignore[return-value]
+
+
+def read_frames(path: str | Path) -> Iterator[tuple]:  # type: ignore[type-arg]
+    """The frames of the BLF file at ``path`` in file order, each a tuple of ``Frame``'s
+    fields in its order (see the module docstring)."""
+    for fast, frames in _containers(path):
+        if fast is not None:
+            yield from _vectorised(*fast)
+        else:
+            yield from frames
+
+
+class FrameBlock(NamedTuple):
+    """A run of frames as arrays (``read_blocks``): the review's vectorised decoders."""
+
+    timestamp: np.ndarray  # float64, s
+    arbitration_id: np.ndarray  # int64
+    is_extended_id: np.ndarray  # bool
+    is_error_frame: np.ndarray  # bool
+    length: np.ndarray  # int64: len(data)
+    word: np.ndarray  # uint64: the first 8 data bytes, little-endian, past len(data) zero
+
+
+def read_blocks(path: str | Path) -> Iterator[FrameBlock]:
+    """The frames of ``path`` as ``read_frames`` gives them, a container at a time as
+    arrays (memory: one container)."""
+    for fast, frames in _containers(path):
+        if fast is not None:
+            objs, ts = fast
+            can_id = objs["can_id"].astype(np.int64)
+            length = np.minimum(objs["dlc"], 8).astype(np.int64)
+            word = np.frombuffer(objs.tobytes(), dtype="<u8")[5::_OBJ_BYTES // 8].copy()
+            keep = np.where(length >= 8, np.uint64(0xFFFFFFFFFFFFFFFF),
+                            (np.uint64(1) << (8 * length).astype(np.uint64)) - np.uint64(1))
+            yield FrameBlock(ts, can_id & 0x1FFFFFFF, (can_id & _blf.CAN_MSG_EXT) != 0,
+                             np.zeros(len(objs), dtype=bool), length, word & keep)
+        elif frames:
+            yield FrameBlock(
+                np.array([f[0] for f in frames], dtype=np.float64),
+                np.array([f[1] for f in frames], dtype=np.int64),
+                np.array([f[2] for f in frames], dtype=bool),
+                np.array([f[4] for f in frames], dtype=bool),
+                np.array([len(f[7]) for f in frames], dtype=np.int64),
+                np.array([int.from_bytes(f[7][:8], "little") for f in frames],
+                         dtype=np.uint64))
+
+
+def _vectorised(objs: np.ndarray, times: np.ndarray) -> Iterator[tuple]:  # type: ignore[type-arg]
+    """The frames of a container of CAN_MESSAGE objects with one time unit (one numpy pass)."""
+    ts = times.tolist()
     can_id = objs["can_id"]
     ids = (can_id & 0x1FFFFFFF).tolist()
     ext = ((can_id & _blf.CAN_MSG_EXT) != 0).tolist()
