@@ -94,10 +94,12 @@ def test_blocks_are_the_frames_as_arrays(tmp_path):
                       faults=[parse_fault("error_frames@0.2+0.2")])
     mixed = tmp_path / "mixed.blf"
     test_python_cans_own_log_with_every_kind_of_frame(tmp_path)
-    for path in (res.run_dir / "can.blf", mixed):
+    for path, min_frames in [(p, m) for p in (res.run_dir / "can.blf", mixed)
+                             for m in (1, 1000, 8192)]:
         frames = list(read_frames(path))
-        blocks = list(read_blocks(path))
-        assert len(blocks) > 1
+        blocks = list(read_blocks(path, min_frames))
+        assert len(blocks) > 1 or min_frames >= 1000
+        assert all(len(b.timestamp) >= min_frames for b in blocks[:-1])
         cat = [np.concatenate([getattr(b, f) for b in blocks]) for f in blocks[0]._fields]
         ts, cid, ext, err, length, word = cat
         assert ts.tolist() == [f[0] for f in frames]

@@ -148,9 +148,29 @@ class FrameBlock(NamedTuple):
     word: np.ndarray  # uint64: the first 8 data bytes, little-endian, past len(data) zero
 
 
-def read_blocks(path: str | Path) -> Iterator[FrameBlock]:
-    """The frames of ``path`` as ``read_frames`` gives them, a container at a time as
-    arrays (memory: one container)."""
+def read_blocks(path: str | Path, min_frames: int = 8192) -> Iterator[FrameBlock]:
+    """The frames of ``path`` as ``read_frames`` gives them, as arrays of at least
+    ``min_frames`` frames (but the last), a few containers at a time (memory: bounded by
+    ``min_frames`` and one container, whatever the log's length)."""
+    parts: list[FrameBlock] = []
+    held = 0
+    for part in _container_blocks(path):
+        parts.append(part)
+        held += len(part.timestamp)
+        if held >= min_frames:
+            yield _joined(parts)
+            parts, held = [], 0
+    if parts:
+        yield _joined(parts)
+
+
+def _joined(parts: list[FrameBlock]) -> FrameBlock:
+    if len(parts) == 1:
+        return parts[0]
+    return FrameBlock(*(np.concatenate(field) for field in zip(*parts, strict=True)))
+
+
+def _container_blocks(path: str | Path) -> Iterator[FrameBlock]:
     for fast, frames in _containers(path):
         if fast is not None:
             objs, ts = fast

@@ -19,14 +19,18 @@ frame sits at its tick's time plus its wall-clock offset after that SYNC, clampe
 of the period: it stays in its own tick, and ``rx_after_sync_ms`` keeps the true wall
 offset. Frames before the first SYNC sit at the first tick's time.
 
-The CAN log is streamed (python-can's BLF reader reads it in blocks); each frame id's
-payloads are kept as integers in blocks of ``block_rows``, decoded with numpy by the DBC's
-fields (``drivers.dbc``) and sent with ``send_columns``, so memory does not grow with the
-run's length. It runs after the run, before run.rrd is closed, never in the tick.
+The CAN log is streamed a few containers at a time (``harness.record.blf_frames``, arrays
+of frames) and each block placed with numpy (a frame's tick from the running count of
+SYNCs, the rules above; tests/test_bus_view_vectorised.py holds them against a frame-by-
+frame decoder); each frame id's payloads are kept as integers in blocks of about
+``block_rows``, decoded with numpy by the DBC's fields (``drivers.dbc``) and sent with
+``send_columns``, so memory does not grow with the run's length. It runs after the run,
+before run.rrd is closed, never in the tick.
 """
 
 from __future__ import annotations
 
+import math
 from array import array
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -37,7 +41,7 @@ import rerun as rr
 
 from drivers.binding import SGSRT_FRAMES
 from drivers.dbc import FrameCodec, Protocol, load_protocol
-from harness.record.blf_frames import read_frames
+from harness.record.blf_frames import read_blocks
 from harness.review.names import log_series_names
 
 # device -> (telemetry frame, command frame or None): the sgsrt protocol's, as its binding
@@ -98,9 +102,10 @@ class _Frames:
         self.t = array("d")
         self.word = array("Q")
 
-    def add(self, t: float, data: bytes) -> None:
-        self.t.append(t)
-        self.word.append(int.from_bytes(data, "little"))
+    def add_many(self, t: np.ndarray, word: np.ndarray) -> None:
+        """Frames at times ``t`` with payloads ``word`` (each a little-endian integer)."""
+        self.t.frombytes(np.ascontiguousarray(t, dtype=np.float64).tobytes())
+        self.word.frombytes(np.ascontiguousarray(word, dtype=np.uint64).tobytes())
         if len(self.t) >= self.block:
             self.flush()
 
@@ -131,9 +136,9 @@ class _Series:
         self.t = array("d")
         self.v = array("d")
 
-    def add(self, t: float, v: float) -> None:
-        self.t.append(t)
-        self.v.append(v)
+    def add_many(self, t: np.ndarray, v: np.ndarray) -> None:
+        self.t.frombytes(np.ascontiguousarray(t, dtype=np.float64).tobytes())
+        self.v.frombytes(np.ascontiguousarray(v, dtype=np.float64).tobytes())
         if len(self.t) >= self.block:
             self.flush()
 
@@ -149,10 +154,12 @@ class _Series:
 def _sync_origin(blf: Path, sync_id: int, tick_mask: int, dt_s: float) -> float | None:
     """min over the SYNCs of (timestamp - tick x period): when tick 0 was due."""
     best: float | None = None
-    for ts, fid, _ext, _remote, is_error, _rx, _dlc, data, _ch in read_frames(blf):
-        if fid == sync_id and not is_error and len(data) >= 4:
-            tick = int.from_bytes(data, "little") & tick_mask
-            o = ts - tick * dt_s
+    for block in read_blocks(blf):
+        sel = ((block.arbitration_id == sync_id) & ~block.is_error_frame
+               & (block.length >= 4))
+        if sel.any():
+            ticks = (block.word[sel] & np.uint64(tick_mask)).astype(np.int64)
+            o = float(np.min(block.timestamp[sel] - ticks * dt_s))
             if best is None or o < best:
                 best = o
     return best
@@ -193,63 +200,98 @@ def write_bus(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime: bool,
     # real time: the schedule's start, from the SYNC least late against it (a first pass
     # over the SYNCs only; tick 0's own SYNC is often the latest of all)
     origin = _sync_origin(blf, sync_id, tick_mask, dt_s) if realtime else None
-    first_sync_ts: float | None = None
-    tick = -1
-    sync_ts = 0.0
-    prev_sync_ts: float | None = None
-    seen: set[str] = set()
+    # vectorised over each container of the log (harness.record.blf_frames.read_blocks),
+    # frame for frame what a loop over the frames gives: a frame's tick is its last SYNC's
+    known = np.array(sorted(frames), dtype=np.int64)
+    frame_length = np.array([length[f] for f in known.tolist()], dtype=np.int64)
+    due_items = list(due.items())
+    due_n = np.array([n for _, n in due_items], dtype=np.int64)
+    due_col = {fid: next(k for k, (d, _) in enumerate(due_items) if d == dev)
+               for fid, dev in tlm_device.items() if dev in due}
     clamp = LOCKSTEP_CLAMP * dt_s
+    nan = math.nan
+    # the open tick, carried from block to block: its number, its SYNC's timestamp, the
+    # SYNC's before it (NaN: none), the first SYNC's (NaN: none yet), the due devices seen
+    tick, sync_ts, prev_ts, first_ts = -1, 0.0, nan, nan
+    seen_open = np.zeros(len(due_items), dtype=bool)
 
-    def close_tick() -> None:
-        if tick < 0:
+    def close_ticks(ticks: np.ndarray, seen: np.ndarray) -> None:
+        """Closed ticks (and the due devices seen in each): the late-or-missing count at
+        each tick and the first warnings."""
+        keep = ticks >= 0
+        ticks, seen = ticks[keep], seen[keep]
+        if not len(ticks):
             return
-        missing = [d for d, n in due.items() if tick % n == 0 and d not in seen]
-        t_tick = tick * dt_s
-        missing_series.add(t_tick, float(len(missing)))
-        stats.ticks += 1
-        if missing:
-            stats.late_or_missing += len(missing)
-            if len(stats.warnings) < MAX_WARNINGS:
-                stats.warnings.append((t_tick, f"can log: no telemetry from {', '.join(missing)} "
-                                       f"before the next SYNC (tick {tick}, t = "
-                                       f"{t_tick:.3f} s)"))
+        missing = ((ticks[:, None] % due_n[None, :]) == 0) & ~seen
+        counts = missing.sum(axis=1)
+        t_ticks = ticks * dt_s
+        missing_series.add_many(t_ticks, counts.astype(np.float64))
+        stats.ticks += len(ticks)
+        stats.late_or_missing += int(counts.sum())
+        for k in np.flatnonzero(counts).tolist():
+            if len(stats.warnings) >= MAX_WARNINGS:
+                break
+            names = ", ".join(due_items[j][0] for j in np.flatnonzero(missing[k]).tolist())
+            t_tick = float(t_ticks[k])
+            stats.warnings.append((t_tick, f"can log: no telemetry from {names} before the "
+                                   f"next SYNC (tick {int(ticks[k])}, t = {t_tick:.3f} s)"))
 
-    for ts, fid, _ext, _remote, is_error, _rx, _dlc, data, _ch in read_frames(blf):
-        stats.frames += 1
-        if is_error:
-            stats.error_frames += 1
+    for block in read_blocks(blf):
+        stats.frames += len(block.timestamp)
+        err = block.is_error_frame
+        stats.error_frames += int(err.sum())
+        fid_all = block.arbitration_id
+        at = np.minimum(np.searchsorted(known, fid_all), len(known) - 1)
+        is_known = (known[at] == fid_all) & ~err
+        stats.unknown += int((~err & ~is_known).sum())
+        ok = is_known & (block.length == frame_length[at])
+        stats.malformed += int((is_known & ~ok).sum())
+        n_ok = int(ok.sum())
+        if not n_ok:
             continue
-        out = frames.get(fid)
-        if out is None:
-            stats.unknown += 1
-            continue
-        if len(data) != length[fid]:
-            stats.malformed += 1
-            continue
-        if fid == sync_id:
-            close_tick()
-            tick = int.from_bytes(data, "little") & tick_mask
-            prev_sync_ts = sync_ts if first_sync_ts is not None else None
-            sync_ts = ts
-            seen = set()
-            if first_sync_ts is None:
-                first_sync_ts = ts
+        stats.decoded += n_ok
+        ts, fid, word = block.timestamp[ok], fid_all[ok], block.word[ok]
+        is_sync = fid == sync_id
+        k = np.cumsum(is_sync)  # the frame's SYNC: 0 the open tick's, j the block's j-th
+        s_tick = (word[is_sync] & np.uint64(tick_mask)).astype(np.int64)
+        s_ts = ts[is_sync]
+        n_sync = len(s_ts)
+        # a SYNC's "SYNC before it": the one before in the block, or for the block's first
+        # the open tick's (none if no SYNC came yet)
+        s_prev = np.concatenate(([sync_ts if not math.isnan(first_ts) else nan],
+                                 s_ts[:-1])) if n_sync else s_ts
+        tick_of = np.concatenate(([tick], s_tick))
+        ts_of = np.concatenate(([sync_ts], s_ts))
+        prev_of = np.concatenate(([prev_ts], s_prev))
+        f_tick, f_sync, f_prev = tick_of[k], ts_of[k], prev_of[k]
         if origin is not None:
-            t = max(0.0, ts - origin)
-        elif first_sync_ts is None:
-            t = 0.0
+            t = np.maximum(0.0, ts - origin)
         else:
-            t = tick * dt_s + min(max(ts - sync_ts, 0.0), clamp)
-        rx = rx_after.get(fid)
-        if rx is not None and tick >= 0:
-            if ts >= sync_ts or prev_sync_ts is None:
-                seen.add(tlm_device[fid])
-                rx.add(t, (ts - sync_ts) * 1e3)
-            else:  # sent before this tick's SYNC, read after it: late for its own tick
-                rx.add(t, (ts - prev_sync_ts) * 1e3)
-        out.add(t, data)
-        stats.decoded += 1
-    close_tick()
+            t = f_tick * dt_s + np.minimum(np.maximum(ts - f_sync, 0.0), clamp)
+            if math.isnan(first_ts):  # frames before the first SYNC: at the first tick
+                t[k == 0] = 0.0
+        if math.isnan(first_ts) and n_sync:
+            first_ts = float(s_ts[0])
+        # receive offsets and the devices seen in each of the block's ticks
+        seen = np.zeros((n_sync + 1, len(due_items)), dtype=bool)
+        seen[0] = seen_open
+        for f, rx in rx_after.items():
+            sel = (fid == f) & (f_tick >= 0)
+            if not sel.any():
+                continue
+            on_time = (ts[sel] >= f_sync[sel]) | np.isnan(f_prev[sel])
+            rx.add_many(t[sel], np.where(on_time, ts[sel] - f_sync[sel],
+                                         ts[sel] - f_prev[sel]) * 1e3)
+            col = due_col.get(f)
+            if col is not None:
+                seen[k[sel][on_time], col] = True
+        close_ticks(tick_of[:n_sync], seen[:n_sync])
+        tick, sync_ts, prev_ts = int(tick_of[-1]), float(ts_of[-1]), float(prev_of[-1])
+        seen_open = seen[n_sync]
+        for f in np.unique(fid).tolist():
+            sel = fid == f
+            frames[f].add_many(t[sel], word[sel])
+    close_ticks(np.array([tick]), seen_open[None, :])
     for f in frames.values():
         f.flush()
     for r in rx_after.values():
