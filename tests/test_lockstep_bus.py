@@ -125,11 +125,11 @@ def test_a_rig_mixing_canopen_and_dbc_devices_runs_over_a_bus_and_is_left_safe(t
                             "--duration-s", "120"], stderr=subprocess.PIPE, text=True)
     try:
         assert "in lockstep" in rig.stderr.readline()
-        out = subprocess.run([sys.executable, "-m", "harness", "run", "slew-rw", "--rig",
-                              str(rig_file), "--bus", f"socketcand:127.0.0.1:{port}",
-                              "--clock", "lockstep", "--duration-s", "4", "--quiet", "--out",
-                              str(tmp_path / "logs")], capture_output=True, text=True,
-                             timeout=300)
+        # `harness run` in this process (tests/in_process.py), the rig in its own
+        out = harness_in_process("run", "slew-rw", "--rig", str(rig_file), "--bus",
+                                 f"socketcand:127.0.0.1:{port}", "--clock", "lockstep",
+                                 "--duration-s", "4", "--quiet", "--out",
+                                 str(tmp_path / "logs"))
     finally:
         rig.terminate()
         rig.communicate(timeout=20)
