@@ -7,6 +7,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import json
+import shutil
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -15,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from harness.core.runs import load_run
-from harness.core.session import execute_run
+from harness.core.session import RunResult, execute_run
 
 
 @pytest.fixture(scope="session")
@@ -25,14 +26,54 @@ def slew_result(tmp_path_factory):
     return execute_run(load_run("slew-rw"), out_dir=Path(out), show_progress=False)
 
 
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """Note the fixtures the selected tests use (after ``-m`` / ``-k``), so that a session
+    fixture can borrow a run another session fixture makes anyway (``free_decay_run``)."""
+    session.config.stash[USED_FIXTURES] = frozenset(
+        name for item in session.items for name in getattr(item, "fixturenames", ()))
+
+
+USED_FIXTURES = pytest.StashKey[frozenset]()
+# a run directory's own files, as execute_run leaves them (not what judging or identifying
+# it adds: verdict.*, identify.*)
+RUN_FILES = ("run.rrd", "can.blf", "config.yaml", "summary.json", "layout.json")
+
+
+def _suites_free_decay(paper_suites: PaperSuites, out: Path) -> RunResult | None:
+    """paper003's free-decay run (the built-in run file as it is, on the sgsrt rig: the same
+    frames and recording as ``execute_run(load_run("free-decay"))``; only the bus's name
+    and the wall times in summary.json differ), copied without what judging and identifying
+    it added, or None if the suites left none."""
+    found = sorted(paper_suites.out.glob("*/*-free-decay"))
+    if len(found) != 1 or not all((found[0] / f).is_file() for f in RUN_FILES):
+        return None
+    run_dir = out / found[0].name
+    run_dir.mkdir()
+    for f in RUN_FILES:
+        shutil.copy2(found[0] / f, run_dir / f)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    if summary.get("stopped_by") != "completed":
+        return None
+    return RunResult(run_dir=run_dir, summary=summary, stats=None, recorder=None,
+                     virtual_rig=None)
+
+
 @pytest.fixture(scope="session")
-def free_decay_run(tmp_path_factory):
+def free_decay_run(request, tmp_path_factory) -> RunResult:
     """One full free-decay run (70 s simulated, accelerometer noise on), shared by the
-    identification tests and the shaped-rig study's identification test."""
-    out = tmp_path_factory.mktemp("free_decay")
-    res = execute_run(load_run("free-decay"), out_dir=Path(out), show_progress=False)
+    identification tests and the shaped-rig study's identification test: paper003's when
+    the session runs the paper suites anyway (``paper_suites``, which runs that same run
+    file), else run here. Its run directory, summary and ``columns()``; no loop statistics
+    or virtual rig (``load_run("free-decay").rig`` is its rig)."""
+    out = Path(tmp_path_factory.mktemp("free_decay"))
+    if "paper_suites" in request.config.stash.get(USED_FIXTURES, frozenset()):
+        res = _suites_free_decay(request.getfixturevalue("paper_suites"), out)
+        if res is not None:
+            return res
+    res = execute_run(load_run("free-decay"), out_dir=out, show_progress=False)
     assert res.run_dir.exists()
-    return res
+    return RunResult(run_dir=res.run_dir, summary=res.summary, stats=None, recorder=None,
+                     virtual_rig=None)
 
 
 @dataclass

@@ -1,10 +1,14 @@
-"""The command line, as a user runs it (subprocesses)."""
+"""The command line, as a user runs it (subprocesses; a refusal whose claim is the command's
+exit code and message runs in process, tests/in_process.py: `harness run`'s entry point is
+covered by the JSON test above it)."""
 
 from __future__ import annotations
 
 import json
 import subprocess
 import sys
+
+from in_process import harness_in_process
 
 
 def harness(*args, cwd=None):
@@ -39,6 +43,6 @@ def test_run_json_stdout_is_clean(tmp_path):
 def test_bad_run_file_exit_code_and_message(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("name: bad\nduration_s: -1\ncontroller: {type: hold}\n")
-    out = harness("run", str(bad), "--out", str(tmp_path))
+    out = harness_in_process("run", str(bad), "--out", str(tmp_path))
     assert out.returncode == 2
     assert "bad.yaml: duration_s: expected a finite number > 0" in out.stderr

@@ -11,6 +11,7 @@ import sys
 import time
 
 import can
+from in_process import harness_in_process
 
 from harness.core.runs import load_run
 from harness.core.session import execute_run
@@ -85,9 +86,9 @@ def test_a_rig_process_in_lockstep_lets_its_nodes_time_out_when_the_syncs_stop()
 
 
 def test_harness_test_refuses_clock_without_a_bus(tmp_path):
-    out = subprocess.run([sys.executable, "-m", "harness", "test", "acceptance", "--clock",
-                          "lockstep", "--out", str(tmp_path)], capture_output=True, text=True,
-                         timeout=60)
+    # the command's answer, in process (tests/in_process.py: no second interpreter)
+    out = harness_in_process("test", "acceptance", "--clock", "lockstep", "--out",
+                             str(tmp_path))
     assert out.returncode == 2
     assert "--clock lockstep" in out.stderr and "--bus" in out.stderr
 
@@ -124,11 +125,11 @@ def test_a_rig_mixing_canopen_and_dbc_devices_runs_over_a_bus_and_is_left_safe(t
                             "--duration-s", "120"], stderr=subprocess.PIPE, text=True)
     try:
         assert "in lockstep" in rig.stderr.readline()
-        out = subprocess.run([sys.executable, "-m", "harness", "run", "slew-rw", "--rig",
-                              str(rig_file), "--bus", f"socketcand:127.0.0.1:{port}",
-                              "--clock", "lockstep", "--duration-s", "4", "--quiet", "--out",
-                              str(tmp_path / "logs")], capture_output=True, text=True,
-                             timeout=300)
+        # `harness run` in this process (tests/in_process.py), the rig in its own
+        out = harness_in_process("run", "slew-rw", "--rig", str(rig_file), "--bus",
+                                 f"socketcand:127.0.0.1:{port}", "--clock", "lockstep",
+                                 "--duration-s", "4", "--quiet", "--out",
+                                 str(tmp_path / "logs"))
     finally:
         rig.terminate()
         rig.communicate(timeout=20)

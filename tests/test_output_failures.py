@@ -17,6 +17,7 @@ from pathlib import Path
 
 import can
 import pytest
+from in_process import harness_in_process
 
 import harness.core.loop as loop_module
 import harness.record.output as output
@@ -151,8 +152,8 @@ def test_judge_writes_through_no_link(short_run, tmp_path):
                          ("run.rrd", outside_run)):
         (run_dir / name).unlink(missing_ok=True)
         (run_dir / name).symlink_to(target)
-    proc = subprocess.run([sys.executable, "-m", "harness", "judge", str(run_dir)],
-                          capture_output=True, text=True, timeout=120, cwd=ROOT)
+    # in process (tests/in_process.py): an exception would reach this test
+    proc = harness_in_process("judge", str(run_dir))
     assert "Traceback" not in proc.stderr
     assert outside_json.read_text() == "keep" and outside_rrd.read_text() == "keep"
     assert outside_run.read_bytes() == before  # the verdict is not appended through a link
@@ -290,10 +291,9 @@ def test_view_with_no_viewer_listening_is_refused_before_the_run(tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    proc = subprocess.run([sys.executable, "-m", "harness", "run", "slew-rw", "--duration-s",
-                           "1", "--view", f"rerun+http://127.0.0.1:{port}/proxy", "--out",
-                           str(tmp_path), "--quiet"],
-                          capture_output=True, text=True, timeout=60, cwd=ROOT)
+    proc = harness_in_process("run", "slew-rw", "--duration-s", "1", "--view",
+                              f"rerun+http://127.0.0.1:{port}/proxy", "--out", str(tmp_path),
+                              "--quiet")  # the command's answer, in process
     assert proc.returncode == 2 and "no viewer answers" in proc.stderr, proc.stderr
     assert not any(tmp_path.iterdir())
 
@@ -408,8 +408,6 @@ SHAPES = ['{"faults": "x", "stopped_by": "completed"}', "[1, 2]", '"text"',
 
 def test_hand_edited_summaries_never_crash_judge_or_logs(short_run, tmp_path):
     import shutil
-
-    from in_process import harness_in_process
 
     from harness.cli import main
 

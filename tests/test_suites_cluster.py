@@ -26,17 +26,17 @@ def cluster():
 
 
 @pytest.mark.slow
-def test_suite_runs_on_two_dask_workers(tmp_path, cluster):
+def test_suite_runs_on_two_dask_workers(tmp_path, cluster, monkeypatch):
     suite = tmp_path / "cl.yaml"
     suite.write_text(yaml.safe_dump({"name": "cl", "tests": [
         {"run": "slew-rw", "duration_s": 2, "own_expect": False,
          "matrix": {"controller.torque_fraction": [0.5, 0.6, 0.7, 0.8]},
          "expect": {"safe": {"left_safe": True}}}]}))
     out = tmp_path / "out"
-    # the address from the environment variable, as a lab would set it
-    proc = subprocess.run([sys.executable, "-m", "harness", "test", str(suite), "--out",
-                           str(out)], capture_output=True, text=True, timeout=300,
-                          env=dict(ENV, SGSRT_CLUSTER=cluster), check=False)
+    # the address from the environment variable, as a lab would set it; the command in
+    # process (tests/in_process.py; `harness test`'s entry point: tests/test_suites.py)
+    monkeypatch.setenv("SGSRT_CLUSTER", cluster)
+    proc = harness_in_process("test", str(suite), "--out", str(out))
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert f"on dask {cluster}" in proc.stderr
     folder = next(out.glob("*-cl"))
