@@ -53,7 +53,8 @@ class Frame(NamedTuple):
     channel: int
 
 
-def _from_message(m: object) -> tuple:  # type: ignore[type-arg]
+def frame_tuple(m: object) -> tuple:  # type: ignore[type-arg]
+    """A ``can.Message`` as ``read_frames`` gives a frame (``Frame``'s fields, in order)."""
     return (float(m.timestamp), m.arbitration_id, m.is_extended_id,  # type: ignore[attr-defined]
                  m.is_remote_frame, m.is_error_frame, m.is_rx, m.dlc,  # type: ignore[attr-defined]
                  bytes(m.data), m.channel)  # type: ignore[attr-defined]
@@ -68,7 +69,8 @@ class _Fallback(_blf.BLFReader):
         self._pos = 0
 
 
-def _containers(path: str | Path) -> Iterator[tuple[np.ndarray | None, list[tuple]]]:  # type: ignore[type-arg]
+def _containers(path: str | Path
+                ) -> Iterator[tuple[tuple[np.ndarray, np.ndarray] | None, list[tuple]]]:  # type: ignore[type-arg]
     """Per container: (its CAN messages as one numpy array, []) on the fast path, or
     (None, its frames as tuples from python-can's parser)."""
     with open(path, "rb") as f:
@@ -116,15 +118,15 @@ def _containers(path: str | Path) -> Iterator[tuple[np.ndarray | None, list[tupl
                 continue
             # python-can's own parse of this container (and its tail), as BLFReader does
             slow._tail = b""
-            yield None, [_from_message(m) for m in slow._parse_container(data)]
+            yield None, [frame_tuple(m) for m in slow._parse_container(data)]
 
 
-def _with_times(objs: np.ndarray, start: float) -> np.ndarray:
+def _with_times(objs: np.ndarray, start: float) -> tuple[np.ndarray, np.ndarray]:
     """The objects and their timestamps in seconds, as BLFReader computes them: float(
     Decimal(ts) * factor) + start; with the integer exact in a float64, IEEE division by
     1e9 (or 1e5) is that correctly rounded decimal product."""
     divisor = 1e5 if int(objs["flags"][0]) == _blf.TIME_TEN_MICS else 1e9
-    return objs, objs["timestamp"].astype(np.float64) / divisor + start  # type: ignore[return-value]
+    return objs, objs["timestamp"].astype(np.float64) / divisor + start
 
 
 def read_frames(path: str | Path) -> Iterator[tuple]:  # type: ignore[type-arg]

@@ -317,7 +317,7 @@ def left_safe_problems(blf: Path, rig_data: Mapping[str, Any] | None = None) -> 
 
     from drivers.binding import BindingError, build_binding
     from drivers.dbc import FrameError
-    from harness.record.blf_frames import read_frames
+    from harness.record.blf_frames import frame_tuple, read_frames
 
     if not blf.is_file():
         raise MissingData(f"{blf} does not exist")
@@ -332,9 +332,7 @@ def left_safe_problems(blf: Path, rig_data: Mapping[str, Any] | None = None) -> 
     commanded_after_nmt = False
     # the harness's can.blf through the fast reader (python-can's for another format)
     frames = (read_frames(blf) if blf.suffix.lower() == ".blf" else
-              ((float(m.timestamp), m.arbitration_id, m.is_extended_id, m.is_remote_frame,
-                m.is_error_frame, m.is_rx, m.dlc, bytes(m.data), m.channel)
-               for m in can.LogReader(str(blf))))
+              map(frame_tuple, can.LogReader(str(blf))))
     try:
         for _ts, cid, ext, _remote, is_error, _rx, _dlc, data, _ch in frames:
             if is_error:
