@@ -202,8 +202,9 @@ class FaultMonitor:
         # a reading within this is plausible (the accelerometer's check, inline in check())
         self._accel_plausible = accel_range_m_s2 + 0.01
         # a wheel speed within this is neither implausible nor an overspeed
-        self._wheel_overspeed = min(1.5 * wheel_max_speed_rad_s + 1.0,
-                                    1.02 * wheel_max_speed_rad_s)
+        self._wheel_implausible = 1.5 * wheel_max_speed_rad_s + 1.0
+        self._wheel_overspeed_at = 1.02 * wheel_max_speed_rad_s
+        self._wheel_overspeed = min(self._wheel_implausible, self._wheel_overspeed_at)
         self._bus_counters = getattr(interface, "counters", None)
         self._late_limit = max(monitor["late_ticks"], self.realtime_grace)
         lim = self.limits
@@ -601,7 +602,7 @@ class FaultMonitor:
                                f"{self.accel_range:.2f} m/s^2 range")
         if v.get("fault"):
             return self._event(tick, "accelerometer", "fault flag", "device reports a fault")
-        if abs(v.get("accel", 0.0)) > self.accel_range + 0.01:
+        if abs(v.get("accel", 0.0)) > self._accel_plausible:
             return self._event(tick, "accelerometer", "implausible",
                                f"{v['accel']:+.3f} m/s^2 beyond its range")
         if "sample_counter" not in v:
@@ -655,10 +656,10 @@ class FaultMonitor:
         if v.get("fault"):
             return self._event(tick, "reaction_wheel", "fault flag", "wheel reports a fault")
         speed = v.get("speed", 0.0)
-        if abs(speed) > 1.5 * self.wheel_max + 1.0:
+        if abs(speed) > self._wheel_implausible:
             return self._event(tick, "reaction_wheel", "implausible",
                                f"speed {speed:+.1f} rad/s")
-        if abs(speed) > 1.02 * self.wheel_max:
+        if abs(speed) > self._wheel_overspeed_at:
             return self._event(tick, "reaction_wheel", "overspeed",
                                f"speed {speed:+.1f} rad/s beyond {self.wheel_max:g} rad/s")
         return None
