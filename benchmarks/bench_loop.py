@@ -41,7 +41,11 @@ import scipy.signal as sig
 from scipy.integrate import solve_ivp
 
 from harness.core.runs import load_run
-from harness.core.session import execute_run
+from harness.core.session import (
+    LOCKSTEP_BLOCK_ROWS,
+    LOCKSTEP_FLUSH_EVERY_BLOCKS,
+    execute_run,
+)
 from rig_models.rig_file import load_rig
 
 
@@ -100,8 +104,10 @@ def floor_tick_us(run_name: str, n_ticks: int, out: Path) -> tuple[float, float]
     sync, heartbeat = protocol["SYNC"], protocol["HEARTBEAT"]
     by_id = protocol.by_id
     heartbeat_every = max(1, round(run.data["rate_hz"] / run.data["heartbeat_hz"]))
+    # recorded as the harness records in lockstep (the same blocks, the same waits)
     recorder = Recorder(out / "floor.rrd", CHANNELS, n_ticks, "floor",
-                        flush_every_blocks=10)
+                        block_rows=LOCKSTEP_BLOCK_ROWS,
+                        flush_every_blocks=LOCKSTEP_FLUSH_EVERY_BLOCKS)
     Message = can.Message
     send_h, send_r = harness_bus.send, rig_bus.send
     recv_h, recv_r = harness_bus.recv, rig_bus.recv

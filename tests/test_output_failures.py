@@ -173,14 +173,16 @@ def test_guard_stops_the_run_safe_and_never_completed(tmp_path, monkeypatch, clo
         return 10**9 if calls["n"] < 4 else 1000
 
     monkeypatch.setattr(output, "free_bytes", free)
+    # the guard looks once a block: 500 rows in real time, 2500 in lockstep (session.py)
+    duration_s = 10.0 if clock == "realtime" else 20.0
     with pytest.raises(OutputError) as info:
-        execute_run(load_run("slew-rw", {"duration_s": 10.0}), out_dir=tmp_path,
+        execute_run(load_run("slew-rw", {"duration_s": duration_s}), out_dir=tmp_path,
                     show_progress=False, clock=clock)
     (run_dir,) = tmp_path.iterdir()
     assert str(run_dir) in str(info.value)
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["stopped_by"] == "error" and "output folder" in summary["error"]
-    assert 0 < summary["ticks"] < 5000
+    assert 0 < summary["ticks"] < duration_s * 500
     last = _last_commands(run_dir / "can.blf")
     assert last["WHEEL_CMD"]["torque_cmd"] == 0
     assert _rows(run_dir / "run.rrd") > 0
