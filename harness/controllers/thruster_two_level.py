@@ -71,7 +71,6 @@ from typing import Any
 
 import numpy as np
 from scipy.optimize import minimize
-from scipy.stats import qmc
 
 from harness.controllers.shaped_wheel_slew import (
     Mode,
@@ -269,6 +268,9 @@ def _damped_search(kind: str, angle: float, inertia: float, torque: float,
     except ValueError:  # no undamped design: the Sobol starts remain
         pass
     base2 = max(0, math.ceil(math.log2(max(n_starts, 1))))
+    # imported here: scipy.stats is a quarter of a harness process's start (issue 23)
+    from scipy.stats import qmc
+
     for r in qmc.Sobol(7, scramble=True, seed=seed).random_base2(base2)[:n_starts]:
         g = prob.solve(prob.on_angle(prob.lower + r * 2 * prob.tau))
         n_tried += 1

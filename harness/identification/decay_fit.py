@@ -44,7 +44,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import signal as sps
 from scipy.linalg import eigh, hankel, lstsq
 from scipy.optimize import least_squares
 
@@ -218,6 +217,8 @@ def design_decimation(
         return DecimationPlan(1, fs_hz, np.ones(1), f_max_hz, fs_hz / 2.0)
     f_stop = fs_hz / (2.0 * q)
     width = (f_stop - f_max_hz) / (fs_hz / 2.0)
+    # on use: scipy.signal pulls in scipy.stats, 0.25 s of every harness start
+    from scipy import signal as sps
     numtaps, beta = sps.kaiserord(atten_db, width)
     numtaps = int(numtaps) | 1  # odd length: integer group delay, type I linear phase
     taps = sps.firwin(numtaps, 0.5 * (f_max_hz + f_stop), window=("kaiser", beta), fs=fs_hz)

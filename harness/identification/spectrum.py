@@ -24,7 +24,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal as sps
 
 WINDOWS = ("rect", "hann", "exponential")
 INTERPOLATIONS = ("parabolic", "quinn")
@@ -69,6 +68,8 @@ def _window(name: str, n: int, fs_hz: float, exp_end_fraction: float) -> tuple[n
     if name == "rect":
         return np.ones(n), 0.0
     if name == "hann":
+        # on use: scipy.signal pulls in scipy.stats, 0.25 s of every harness start
+        from scipy import signal as sps
         return sps.get_window("hann", n, fftbins=False), 0.0
     if name == "exponential":
         if not 0.0 < exp_end_fraction < 1.0:
@@ -239,6 +240,8 @@ def find_spectral_peaks(
     f_lo = 3.0 * spec.resolution_hz if f_min_hz is None else f_min_hz
     f_hi = spec.fs_hz / 2.0 if f_max_hz is None else f_max_hz
     log_a = 20.0 * np.log10(np.maximum(spec.amplitude, np.finfo(float).tiny))
+    # on use: scipy.signal pulls in scipy.stats, 0.25 s of every harness start
+    from scipy import signal as sps
     idx, _ = sps.find_peaks(log_a, prominence=min_prominence_db)
     cands = [
         int(k)

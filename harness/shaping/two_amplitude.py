@@ -47,7 +47,6 @@ from typing import Literal
 
 import numpy as np
 from scipy.optimize import minimize
-from scipy.stats import qmc
 
 ShaperKind = Literal["LHHL", "HLLH"]
 LOW_FRACTION = 0.5  # the low torque level as a fraction of the high one
@@ -504,6 +503,9 @@ def design_two_amplitude(
 
     # multi-start: Sobol points in the ordered box h_max >= x1 >= x2 >= x3 >= x4 >= 0
     base2 = max(0, math.ceil(math.log2(n_starts)))
+    # imported here: scipy.stats is a quarter of a harness process's start (issue 23)
+    from scipy.stats import qmc
+
     raw = qmc.Sobol(4, scramble=True, seed=seed).random_base2(base2)[:n_starts]
     starts = np.sort(raw, axis=1)[:, ::-1] * h_max
     found: list[tuple[float, np.ndarray]] = []
