@@ -138,11 +138,9 @@ def _scalars(chunk: Any, wanted: set[str] | None) -> tuple[np.ndarray, np.ndarra
     if "Scalars:scalars" not in batch.schema.names:
         return None
     t = batch.column("time").cast("int64").to_numpy(zero_copy_only=False) * 1e-9
-    col = batch.column("Scalars:scalars")
-    flat = col.flatten().to_numpy(zero_copy_only=False).astype(float)
-    if len(flat) != len(t):  # not one scalar per row: take each row's first
-        flat = np.array([x[0] if x else np.nan for x in col.to_pylist()], dtype=float)
-    return t, flat
+    from harness.record.reader import scalar_values  # lazy, as _chunks
+
+    return t, scalar_values(batch.column("Scalars:scalars"))
 
 
 def _chunks(rrd: Path, wanted: set[str] | None) -> Any:
