@@ -109,7 +109,8 @@ def floor_tick_us(run_name: str, n_ticks: int, out: Path) -> tuple[float, float]
                         block_rows=LOCKSTEP_BLOCK_ROWS,
                         flush_every_blocks=LOCKSTEP_FLUSH_EVERY_BLOCKS)
     Message = can.Message
-    send_h, send_r = harness_bus.send, rig_bus.send
+    # the rig side hands its fresh frames over as the virtual rig does (send_owned)
+    send_h, send_r = harness_bus.send, rig_bus.send_owned
     recv_h, recv_r = harness_bus.recv, rig_bus.recv
     values: dict[int, dict[str, float]] = {}
     perf, cpu = time.perf_counter, time.process_time

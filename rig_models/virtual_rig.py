@@ -368,7 +368,7 @@ class VirtualRig:
 
     def _co_sender(self) -> Callable[[int, bytes], None]:
         """``_send_raw`` without the fault path (a run that injects no fault)."""
-        send, message, counters = self.bus.send, can.Message, self.counters
+        send, message, counters = self._send_owned(), can.Message, self.counters
 
         def send_raw(can_id: int, data: bytes) -> None:
             send(message(arbitration_id=can_id, data=data, is_extended_id=False))
@@ -488,9 +488,15 @@ class VirtualRig:
                 emit[device] = self._general_emitter(device, encoders)
         self._emit = emit
 
+    def _send_owned(self) -> Callable[[can.Message], None]:
+        """How the plain senders put a frame on the bus: a fresh Message each, never used
+        again, so a bus that can hand it over without a copy (the harness's in-process
+        virtual bus: ``send_owned``) does; any other bus's ``send``."""
+        return getattr(self.bus, "send_owned", None) or self.bus.send
+
     def _frame_emitter(self, encode: Callable[..., bytes], key: tuple[int, bool]
                        ) -> Callable[..., None]:
-        send, message, counters = self.bus.send, can.Message, self.counters
+        send, message, counters = self._send_owned(), can.Message, self.counters
         aid, ext = key
 
         def emit(*values: float) -> None:
