@@ -43,9 +43,10 @@ class _Column:
         self.v = array("d")
 
     def add(self, t: float, v: float) -> None:
-        self.t.append(t)
+        ts = self.t
+        ts.append(t)
         self.v.append(v)
-        if len(self.t) >= self.block:
+        if len(ts) >= self.block:
             self.flush()
 
     def flush(self) -> None:
@@ -83,12 +84,20 @@ def write_bus_binding(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime:
             names[entity] = name
         return c
 
+    # a map's decoded quantities -> their columns, resolved at the map's first frame (the
+    # entity's name and unit looked up once, not once a value: issue 23)
+    resolved: dict[tuple[str, str, str, tuple[str, ...]], list[tuple[str, _Column]]] = {}
+
     def values(kind: str, device: str, frame: str, t: float, decoded: dict[str, float]) -> None:
-        u = units.get((kind, device), {})
-        for q, v in decoded.items():
-            if q in u:
-                column(signal_entity(f"/bus/{device}/{kind}", q, u[q]),
-                       f"{frame} {q}").add(t, float(v))
+        key = (kind, device, frame, tuple(decoded))
+        cols = resolved.get(key)
+        if cols is None:
+            u = units.get((kind, device), {})
+            cols = resolved[key] = [
+                (q, column(signal_entity(f"/bus/{device}/{kind}", q, u[q]), f"{frame} {q}"))
+                for q in decoded if q in u]
+        for q, c in cols:
+            c.add(t, float(decoded[q]))
 
     due = {d: int(dividers.get(d, 1)) for d in binding.bound if binding.telemetry[d]}
     stats = BusStats()
