@@ -340,7 +340,7 @@ class Wang2022Spacecraft:
         b0 = tau0 - (w1 * h2 - w2 * h1) - cr0
         b1 = tau1 - (w2 * h0 - w0 * h2) - cr1
         b2 = tau2 - (w0 * h1 - w1 * h0) - cr2
-        # J - C C^T, solved by Cramer's rule (as _solve3)
+        # (J - C C^T) w' = b by Cramer's rule (no LAPACK call for a 3 x 3)
         a, bb, c = j00 - s00, j01 - s01, j02 - s02
         d, e, f = j10 - s01, j11 - s11, j12 - s12
         g, hh, i = j20 - s02, j21 - s12, j22 - s22
