@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -70,6 +71,12 @@ class FlexibleSpacecraft(Protocol):
     def coupling_rows(self, gamma: ArrayLike) -> FloatArray: ...
 
     def inertia_and_coupling(self, t: float) -> tuple[FloatArray, FloatArray]: ...
+
+    def inertia_and_coupling_floats(
+        self, t: float
+    ) -> tuple[Sequence[float], Sequence[tuple[float, float, float]]]:
+        """J(t) row-major (9 floats) and the rows of C(t)^T (one (x, y, z) per mode)."""
+        ...
 
 
 __all__ = [
@@ -563,10 +570,25 @@ def prescribed_motion_residual(
     return np.hypot(eta[-1], (deta[-1] + z * w * eta[-1]) / wd)
 
 
-def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
-    return np.array(
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    )
+class _Grid:
+    """The slew's interval grid on floats: (i, s) of a time, or None outside the slew."""
+
+    __slots__ = ("_dt", "_last", "_t_f")
+
+    def __init__(self, spec: ManeuverSpec) -> None:
+        self._t_f = float(spec.duration_s)
+        self._dt = float(spec.dt_s)
+        self._last = spec.n_intervals - 1
+
+    def interval(self, t: float) -> tuple[int, float] | None:
+        if t < 0.0 or t >= self._t_f:
+            return None
+        i = min(int(t / self._dt), self._last)
+        return i, t - i * self._dt
+
+
+def _rows(a: FloatArray) -> list[tuple[float, ...]]:
+    return [tuple(row) for row in np.asarray(a, dtype=float).tolist()]
 
 
 class FeedforwardTorque:
@@ -576,6 +598,11 @@ class FeedforwardTorque:
     and eta_d the design-model modal response; zero after the slew. It ignores the state it is
     given (``__call__(t, x)`` matches the simulator's torque law). ``breakpoints`` are the grid
     times where tau jumps (pass them to the simulator).
+
+    Evaluated on plain floats (the simulator calls it ~10^5 times a run): the per-interval
+    terms of :func:`_modal_response` that do not depend on the time into the interval are
+    computed once, here, with the same numpy arithmetic; the design model's parameters are
+    read once.
     """
 
     def __init__(self, design_model: FlexibleSpacecraft, profile: VariableAmplitudeProfile):
@@ -585,6 +612,34 @@ class FeedforwardTorque:
         self._rates, _ = _rates(profile.chi, profile.spec.a0, profile.spec.dt_s)
         self._acc = profile.acceleration
         self._zeta = np.full(design_model.modal_omega.size, profile.spec.design_damping)
+        # _modal_response's arithmetic, split into what is fixed per mode / per interval
+        omega, zeta = design_model.modal_omega, self._zeta
+        sigma = zeta * omega
+        wd = omega * np.sqrt(1.0 - zeta * zeta)
+        n = profile.spec.n_intervals
+        eta0, deta0, force = self._eta[:n], self._deta[:n], self._force
+        y0 = eta0 - force / omega**2
+        per_interval = np.stack(
+            [
+                y0,
+                (deta0 + sigma * y0) / wd,
+                deta0,
+                (omega**2 * y0 + sigma * deta0) / wd,
+                force / omega**2,
+                force,
+            ],
+            axis=-1,
+        )  # (n, modes, 6)
+        self._mode_terms = [[tuple(m) for m in row] for row in per_interval.tolist()]
+        self._mode_consts = list(
+            zip(
+                (-sigma).tolist(), wd.tolist(), (2.0 * sigma).tolist(), (omega**2).tolist(),
+                strict=True,
+            )
+        )
+        self._acc_rows = _rows(self._acc)
+        self._grid = _Grid(profile.spec)
+        self._rate_rows = _rows(self._rates)
 
     @property
     def breakpoints(self) -> FloatArray:
@@ -597,18 +652,56 @@ class FeedforwardTorque:
         return np.hypot(self._eta[-1], self._deta[-1] / w)
 
     def __call__(self, t: float, x: FloatArray | None = None) -> FloatArray:
-        spec = self.profile.spec
-        if t < 0.0 or t >= spec.duration_s:
-            return np.zeros(3)
-        i = min(int(t / spec.dt_s), spec.n_intervals - 1)
-        s = t - i * spec.dt_s
-        eta, deta, ddeta = _modal_response(
-            self._eta[i], self._deta[i], self._force[i], self.model.modal_omega, self._zeta, s
-        )
-        acc = self._acc[i]
-        w = self._rates[i] + acc * s
-        j, c = self.model.inertia_and_coupling(t)
-        return j @ acc + c @ ddeta + _cross(w, j @ w + c @ deta)
+        return np.array(self.floats(float(t)))
+
+    def floats(self, t: float, x: Sequence[float] | None = None) -> tuple[float, float, float]:
+        """The torque at t as three floats (N m); x is ignored."""
+        where = self._grid.interval(t)
+        if where is None:
+            return (0.0, 0.0, 0.0)
+        i, s = where
+        a0, a1, a2 = self._acc_rows[i]
+        r0, r1, r2 = self._rate_rows[i]
+        w0, w1, w2 = r0 + a0 * s, r1 + a1 * s, r2 + a2 * s
+        j, ct = self.model.inertia_and_coupling_floats(t)
+        # C eta_d'' and C eta_d', eta_d from _modal_response (closed form, per mode)
+        cd0 = cd1 = cd2 = ce0 = ce1 = ce2 = 0.0
+        for (cx, cy, cz), (y0, b, deta0, e, fo, force), (msig, wd, two_sigma, w2m) in zip(
+            ct, self._mode_terms[i], self._mode_consts, strict=True
+        ):
+            decay = math.exp(msig * s)
+            c, sn = math.cos(wd * s), math.sin(wd * s)
+            eta = decay * (y0 * c + b * sn) + fo
+            dy = decay * (deta0 * c - e * sn)
+            ddeta = force - two_sigma * dy - w2m * eta
+            cd0 += cx * ddeta
+            cd1 += cy * ddeta
+            cd2 += cz * ddeta
+            ce0 += cx * dy
+            ce1 += cy * dy
+            ce2 += cz * dy
+        return _inverse_dynamics(j, (a0, a1, a2), (w0, w1, w2), (cd0, cd1, cd2), (ce0, ce1, ce2))
+
+
+def _inverse_dynamics(
+    j: Sequence[float],
+    acc: tuple[float, float, float],
+    w: tuple[float, float, float],
+    c_ddeta: tuple[float, float, float],
+    c_deta: tuple[float, float, float],
+) -> tuple[float, float, float]:
+    """Eq 1's torque J a + C eta'' + w x (J w + C eta'), J row-major, on floats."""
+    j00, j01, j02, j10, j11, j12, j20, j21, j22 = j
+    a0, a1, a2 = acc
+    w0, w1, w2 = w
+    h0 = j00 * w0 + j01 * w1 + j02 * w2 + c_deta[0]
+    h1 = j10 * w0 + j11 * w1 + j12 * w2 + c_deta[1]
+    h2 = j20 * w0 + j21 * w1 + j22 * w2 + c_deta[2]
+    return (
+        j00 * a0 + j01 * a1 + j02 * a2 + c_ddeta[0] + (w1 * h2 - w2 * h1),
+        j10 * a0 + j11 * a1 + j12 * a2 + c_ddeta[1] + (w2 * h0 - w0 * h2),
+        j20 * a0 + j21 * a1 + j22 * a2 + c_ddeta[2] + (w0 * h1 - w1 * h0),
+    )
 
 
 class PathTrackingTorque:
@@ -618,28 +711,52 @@ class PathTrackingTorque:
     eta'' from its modal equation under w' = a: the body follows the planned path exactly,
     the wing responds as in eq 23 with the plant's true frequencies and damping. Zero after
     the slew, so the residual vibration then moves the free body.
+
+    Evaluated on plain floats; the plant's modal parameters are read once, here.
     """
 
     def __init__(self, plant: FlexibleSpacecraft, profile: VariableAmplitudeProfile):
         self.plant = plant
         self.profile = profile
         self._acc = profile.acceleration
+        lam = plant.modal_omega
+        # -2 zeta lam eta' - lam^2 eta, grouped as the array form groups it
+        self._modal = list(
+            zip((-2.0 * plant.modal_damping * lam).tolist(), (lam * lam).tolist(), strict=True)
+        )
+        self._acc_rows = _rows(self._acc)
+        self._grid = _Grid(profile.spec)
 
     @property
     def breakpoints(self) -> FloatArray:
         return self.profile.interval_times_s
 
     def __call__(self, t: float, x: FloatArray) -> FloatArray:
-        spec = self.profile.spec
-        if t < 0.0 or t >= spec.duration_s:
-            return np.zeros(3)
-        i = min(int(t / spec.dt_s), spec.n_intervals - 1)
-        acc = self._acc[i]
-        j, c = self.plant.inertia_and_coupling(t)
-        lam = self.plant.modal_omega
-        w, eta, deta = x[4:7], x[7:13], x[13:19]
-        ddeta = -2.0 * self.plant.modal_damping * lam * deta - lam * lam * eta - acc @ c
-        return j @ acc + c @ ddeta + _cross(w, j @ w + c @ deta)
+        return np.array(self.floats(float(t), np.asarray(x, dtype=float).tolist()))
+
+    def floats(self, t: float, x: Sequence[float]) -> tuple[float, float, float]:
+        """The torque at t on the state x (19 floats) as three floats (N m)."""
+        where = self._grid.interval(t)
+        if where is None:
+            return (0.0, 0.0, 0.0)
+        i, _ = where
+        a0, a1, a2 = self._acc_rows[i]
+        j, ct = self.plant.inertia_and_coupling_floats(t)
+        cd0 = cd1 = cd2 = ce0 = ce1 = ce2 = 0.0
+        for (cx, cy, cz), eta, deta, (kd, ks) in zip(
+            ct, x[7:13], x[13:19], self._modal, strict=True
+        ):
+            # eta'' from the modal equation under w' = a: -2 zeta lam eta' - lam^2 eta - C^T a
+            ddeta = kd * deta - ks * eta - (a0 * cx + a1 * cy + a2 * cz)
+            cd0 += cx * ddeta
+            cd1 += cy * ddeta
+            cd2 += cz * ddeta
+            ce0 += cx * deta
+            ce1 += cy * deta
+            ce2 += cz * deta
+        return _inverse_dynamics(
+            j, (a0, a1, a2), (x[4], x[5], x[6]), (cd0, cd1, cd2), (ce0, ce1, ce2)
+        )
 
 
 def summarize(profile: VariableAmplitudeProfile) -> dict[str, float | int | str | bool]:
