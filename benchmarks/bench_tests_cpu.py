@@ -40,7 +40,10 @@ def measure(tree: Path, group: str, marker: str | None) -> tuple[float, float, f
     args = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *group.split(",")]
     if marker:
         args += ["-m", marker]
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    # the tree's code in every process the tests start, whatever the venv's editable
+    # install points at (python -m harness, a suite's workers, a study's process)
+    path = os.pathsep.join(p for p in (str(tree), os.environ.get("PYTHONPATH", "")) if p)
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", PYTHONPATH=path)
     before = _cpu(resource.getrusage(resource.RUSAGE_CHILDREN))
     start = time.monotonic()
     proc = subprocess.Popen(args, cwd=tree, env=env, stdout=subprocess.PIPE,
