@@ -266,6 +266,27 @@ def test_damped_design_meets_its_limits_and_the_paper_design_does_not_on_damped_
     assert neg.amplitudes == tuple(-x for x in damped.amplitudes)
 
 
+def test_paper_design_is_computed_once_per_input_and_is_the_solvers():
+    # issue 23: the paper profile and the damped one's homotopy start need the same design
+    from harness.controllers.thruster_two_level import _paper_design, _paper_design_cached
+    from harness.shaping.two_amplitude import ModeConstraint, design_two_amplitude
+
+    angle = math.radians(5)
+    _paper_design_cached.cache_clear()
+    first = _paper_design("lhhl", angle, J, 0.1, THRUSTER_MODES, 1.0)
+    again = _paper_design("LHHL", abs(angle), J, 0.1, list(THRUSTER_MODES), 1.0)
+    info = _paper_design_cached.cache_info()
+    assert again is first and (info.hits, info.misses) == (1, 1)
+    plain = design_two_amplitude("LHHL", inertia_kg_m2=J, torque_n_m=0.1, angle_rad=angle,
+                                 modes=[ModeConstraint(m.omega_rad_s, 1.0)
+                                        for m in THRUSTER_MODES],
+                                 n_starts=64, grid_points=200)
+    assert first == (plain.times_s, plain.amplitudes)
+    # another limit is another design
+    _paper_design("lhhl", angle, J, 0.1, THRUSTER_MODES, 2.0)
+    assert _paper_design_cached.cache_info().misses == 2
+
+
 @pytest.mark.parametrize("profile", ["lhhl", "hllh"])
 def test_damped_design_finds_no_sequence_with_mode_3_at_1_percent_too(profile):
     # why the thruster run files design for modes 1 and 2 only (docs/shaped_rig.md): the

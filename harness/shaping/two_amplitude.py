@@ -318,7 +318,15 @@ class _Problem:
         """R_k for x of shape (4, ...) -> (n_modes, ...)."""
         x = np.asarray(x)
         w = self.omegas.reshape((-1,) + (1,) * (x.ndim - 1))
-        return 2 * sum(self.weights[i] * np.cos(w * x[i]) for i in range(4))
+        wts = self.weights
+        # the four terms summed left to right from 0 (as sum() over them did until issue 23)
+        return 2 * (
+            (
+                ((0 + wts[0] * np.cos(w * x[0])) + wts[1] * np.cos(w * x[1]))
+                + wts[2] * np.cos(w * x[2])
+            )
+            + wts[3] * np.cos(w * x[3])
+        )
 
     def residual_jac(self, x: np.ndarray) -> np.ndarray:
         return -2 * self.omegas[:, None] * self.weights[None, :] * np.sin(np.outer(self.omegas, x))
@@ -342,6 +350,17 @@ class _Problem:
 _ORDER = np.array([[1.0, -1, 0, 0], [0, 1, -1, 0], [0, 0, 1, -1], [0, 0, 0, 1]])
 
 
+def _limit_margins(prob: _Problem, x: np.ndarray, gscale: np.ndarray) -> np.ndarray:
+    """(tol_k - R_k, tol_k + R_k) / gscale_k: >= 0 where the limits are met (R_k once)."""
+    r = prob.residuals(x)
+    return np.concatenate([(prob.tols - r) / gscale, (prob.tols + r) / gscale])
+
+
+def _limit_margins_jac(prob: _Problem, x: np.ndarray, gscale: np.ndarray) -> np.ndarray:
+    jac = prob.residual_jac(x)
+    return np.vstack([-jac / gscale[:, None], jac / gscale[:, None]])
+
+
 def _local_solve(prob: _Problem, x0: np.ndarray, h_max: float) -> np.ndarray | None:
     """SLSQP (minimise x1) from x0, then a Newton projection onto any slightly violated
     residual limit or angle equation. None if it fails."""
@@ -357,12 +376,8 @@ def _local_solve(prob: _Problem, x0: np.ndarray, h_max: float) -> np.ndarray | N
         {"type": "ineq", "fun": lambda x: _ORDER @ x - lo, "jac": lambda x: _ORDER},
         {
             "type": "ineq",
-            "fun": lambda x: np.concatenate(
-                [(prob.tols - prob.residuals(x)) / gscale, (prob.tols + prob.residuals(x)) / gscale]
-            ),
-            "jac": lambda x: np.vstack(
-                [-prob.residual_jac(x) / gscale[:, None], prob.residual_jac(x) / gscale[:, None]]
-            ),
+            "fun": lambda x: _limit_margins(prob, x, gscale),
+            "jac": lambda x: _limit_margins_jac(prob, x, gscale),
         },
     ]
     try:
