@@ -301,3 +301,96 @@ def test_grid_scan_matches_the_plain_scan(kind, axis, modes):
         for a, b in zip(c_fast, c_plain, strict=True):
             # same arithmetic on the same points: equal (allclose only for another CPU's cos)
             np.testing.assert_allclose(a, b, rtol=1e-13, atol=0)
+
+
+def _residuals_plain(prob, x):
+    # _Problem.residuals before issue 23: a generator of the four terms, summed
+    x = np.asarray(x)
+    w = prob.omegas.reshape((-1,) + (1,) * (x.ndim - 1))
+    weights = np.array([prob.p1, -prob.p1, prob.p2, -prob.p2])
+    return 2 * sum(weights[i] * np.cos(w * x[i]) for i in range(4))
+
+
+def _local_solve_plain(prob, x0, h_max):
+    # _local_solve before issue 23: two inequality functions, R_k evaluated twice
+    from scipy.optimize import minimize
+
+    from harness.shaping.two_amplitude import _ORDER
+
+    lo = np.array([prob.min_pulse_s, 0.0, prob.min_pulse_s, 0.0])
+    gscale = 4 * prob.omegas * (prob.p1 + prob.p2)
+    ascale = 2 * math.sqrt(prob.theta_a)
+    res_ = lambda x: _residuals_plain(prob, x)  # noqa: E731
+    constraints = [
+        {
+            "type": "eq",
+            "fun": lambda x: np.array([prob.angle_gap(x) / ascale]),
+            "jac": lambda x: prob.angle_grad(x)[None, :] / ascale,
+        },
+        {"type": "ineq", "fun": lambda x: _ORDER @ x - lo, "jac": lambda x: _ORDER},
+        {
+            "type": "ineq",
+            "fun": lambda x: np.concatenate(
+                [(prob.tols - res_(x)) / gscale, (prob.tols + res_(x)) / gscale]
+            ),
+            "jac": lambda x: np.vstack(
+                [-prob.residual_jac(x) / gscale[:, None], prob.residual_jac(x) / gscale[:, None]]
+            ),
+        },
+    ]
+    try:
+        with np.errstate(all="ignore"):
+            res = minimize(
+                lambda x: x[0],
+                x0,
+                jac=lambda x: np.array([1.0, 0.0, 0.0, 0.0]),
+                method="SLSQP",
+                bounds=[(0.0, h_max)] * 4,
+                constraints=constraints,
+                options={"maxiter": 400, "ftol": 1e-13},
+            )
+    except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+        return None
+    x = np.asarray(res.x, dtype=float)
+    if not np.all(np.isfinite(x)):
+        return None
+    for _ in range(10):
+        r = res_(x)
+        excess = r - np.clip(r, -prob.tols, prob.tols)
+        gap = prob.angle_gap(x)
+        if not np.any(excess) and abs(gap) <= 1e-12 * prob.theta_a:
+            break
+        rows = excess != 0
+        jac = np.vstack([prob.angle_grad(x)[None, :], prob.residual_jac(x)[rows]])
+        target = np.concatenate(
+            [[gap], excess[rows] + np.sign(excess[rows]) * 1e-3 * prob.tols[rows]]
+        )
+        x = x - np.linalg.lstsq(jac, target, rcond=None)[0]
+    return x
+
+
+def test_residuals_match_the_plain_sum_at_points_and_on_grids():
+    prob, tau = _scan_problem("LHHL", I_ROLL, math.radians(3.0), (*MODES, ModeConstraint(0.7, 1)))
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(0, 3 * tau, size=(4, 50, 7))
+    for x in pts.reshape(4, -1).T[:200]:  # one point: the local solver's path
+        np.testing.assert_array_equal(prob.residuals(x), _residuals_plain(prob, x))
+    np.testing.assert_array_equal(prob.residuals(pts), _residuals_plain(prob, pts))
+
+
+@pytest.mark.parametrize(("kind", "axis"), [("LHHL", "roll"), ("HLLH", "yaw")])
+def test_design_matches_the_plain_solver_and_scan(kind, axis, monkeypatch):
+    # the whole design with the fast pieces and with the plain ones: the same result
+    import harness.shaping.two_amplitude as ta
+
+    inertia, angle = AXIS[axis]
+    kw = dict(inertia_kg_m2=inertia, torque_n_m=T_N_M, angle_rad=angle, modes=MODES,
+              n_starts=24, grid_points=80, grid_step_t8_s=0.04)
+    fast = design_two_amplitude(kind, **kw)
+    monkeypatch.setattr(ta, "_grid_scan", _grid_scan_plain)
+    monkeypatch.setattr(ta, "_local_solve", _local_solve_plain)
+    monkeypatch.setattr(ta._Problem, "residuals", _residuals_plain)
+    plain = design_two_amplitude(kind, **kw)
+    assert fast.search == plain.search
+    np.testing.assert_allclose(fast.times_s, plain.times_s, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(fast.residual_percent, plain.residual_percent, rtol=1e-9)

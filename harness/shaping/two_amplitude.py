@@ -317,9 +317,12 @@ class _Problem:
     def residuals(self, x: np.ndarray) -> np.ndarray:
         """R_k for x of shape (4, ...) -> (n_modes, ...)."""
         x = np.asarray(x)
-        w = self.omegas.reshape((-1,) + (1,) * (x.ndim - 1))
         wts = self.weights
         # the four terms summed left to right from 0 (as sum() over them did until issue 23)
+        if x.ndim == 1:  # one point (the local solver's): the 4 x n_modes cosines in one call
+            t = wts * np.cos(np.multiply.outer(self.omegas, x))
+            return 2 * ((((0 + t[:, 0]) + t[:, 1]) + t[:, 2]) + t[:, 3])
+        w = self.omegas.reshape((-1,) + (1,) * (x.ndim - 1))
         return 2 * (
             (
                 ((0 + wts[0] * np.cos(w * x[0])) + wts[1] * np.cos(w * x[1]))
@@ -350,15 +353,17 @@ class _Problem:
 _ORDER = np.array([[1.0, -1, 0, 0], [0, 1, -1, 0], [0, 0, 1, -1], [0, 0, 0, 1]])
 
 
-def _limit_margins(prob: _Problem, x: np.ndarray, gscale: np.ndarray) -> np.ndarray:
-    """(tol_k - R_k, tol_k + R_k) / gscale_k: >= 0 where the limits are met (R_k once)."""
+def _margins(prob: _Problem, x: np.ndarray, lo: np.ndarray, gscale: np.ndarray) -> np.ndarray:
+    """The inequalities, >= 0 when met: the order of the impulses (_ORDER @ x >= lo), then
+    (tol_k - R_k, tol_k + R_k) / gscale_k (R_k once). One function for SLSQP, which stacks
+    its inequality functions' outputs in the same rows."""
     r = prob.residuals(x)
-    return np.concatenate([(prob.tols - r) / gscale, (prob.tols + r) / gscale])
+    return np.concatenate([_ORDER @ x - lo, (prob.tols - r) / gscale, (prob.tols + r) / gscale])
 
 
-def _limit_margins_jac(prob: _Problem, x: np.ndarray, gscale: np.ndarray) -> np.ndarray:
+def _margins_jac(prob: _Problem, x: np.ndarray, gscale: np.ndarray) -> np.ndarray:
     jac = prob.residual_jac(x)
-    return np.vstack([-jac / gscale[:, None], jac / gscale[:, None]])
+    return np.vstack([_ORDER, -jac / gscale[:, None], jac / gscale[:, None]])
 
 
 def _local_solve(prob: _Problem, x0: np.ndarray, h_max: float) -> np.ndarray | None:
@@ -373,11 +378,10 @@ def _local_solve(prob: _Problem, x0: np.ndarray, h_max: float) -> np.ndarray | N
             "fun": lambda x: np.array([prob.angle_gap(x) / ascale]),
             "jac": lambda x: prob.angle_grad(x)[None, :] / ascale,
         },
-        {"type": "ineq", "fun": lambda x: _ORDER @ x - lo, "jac": lambda x: _ORDER},
         {
             "type": "ineq",
-            "fun": lambda x: _limit_margins(prob, x, gscale),
-            "jac": lambda x: _limit_margins_jac(prob, x, gscale),
+            "fun": lambda x: _margins(prob, x, lo, gscale),
+            "jac": lambda x: _margins_jac(prob, x, gscale),
         },
     ]
     try:
