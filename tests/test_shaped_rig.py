@@ -77,6 +77,20 @@ def test_shaped_wheel_command_stays_within_torque_and_reaches_the_angle(shaper):
     assert c.step(RigState(tick=0)).wheel_torque_n_m == 0.0
 
 
+def test_schedule_reference_is_the_rigid_reference_row_of_the_tick():
+    # issue 23: reference() reads rows kept as Python floats; the plain path is the array's
+    from harness.controllers.shaped_wheel_slew import rigid_reference
+
+    c = ShapedWheelSlew(math.radians(20), J, 0.06, 1.0, DT, design_shaper("zvd", MODES), "zvd")
+    s = c.schedule
+    ref = rigid_reference(s.values * 1.0, J, DT)
+    for t in (0.0, 0.999, 1.0, 1.0031, 5.5, c.end_s, c.end_s + 0.0009, c.end_s + 50.0):
+        k = min(max(int(round(t / DT)) - s.start_tick, 0), len(ref) - 1)
+        got = s.reference(t)
+        assert got == tuple(float(v) for v in ref[k])
+        assert all(type(v) is float for v in got)
+
+
 def test_shaper_on_the_tick_grid_still_cancels_the_design_modes():
     for kind, limit in (("zv", 1.0), ("zvd", 1.0), ("ei", 6.0)):
         c = ShapedWheelSlew(math.radians(20), J, 0.06, 1.0, DT, design_shaper(kind, MODES))
