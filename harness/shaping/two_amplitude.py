@@ -439,11 +439,13 @@ def _grid_scan(
     A feasible region thinner than the grid spacing is missed, so the scan's x1 is, to its
     resolution, an independent upper estimate of the optimum reached from below.
 
-    Only the tightest mode is evaluated on the whole grid; the other modes only at the two
-    ends of each crossing that passed the b >= 0 test, with the same arithmetic as
-    ``_Problem.residuals`` (x1 is one value per level, x2 one per row and x4 one per column,
-    so their cosines are taken once per level and broadcast): the same points and candidates
-    as evaluating every mode everywhere (issue 23; tests/test_two_amplitude.py compares).
+    Only the tightest mode is evaluated on the whole grid, and only its sign test is taken
+    on every pair of neighbours: the crossing's fraction and b only where the sign changes,
+    the other modes only at the two ends of the crossings that passed b >= 0, with the same
+    arithmetic as ``_Problem.residuals`` (x1 is one value per level, x2 one per row and x4 one
+    per column, so their cosines are taken once per level and broadcast): the same points and
+    candidates as evaluating everything everywhere (issue 23; tests/test_two_amplitude.py
+    compares).
     """
     k_star = int(np.argmin(prob.tols))
     others = [k for k in range(len(prob.tols)) if k != k_star]
@@ -470,25 +472,29 @@ def _grid_scan(
         rs = np.where(valid, _mode_residual(prob, k_star, x1a, x2, x3, x4), np.nan)
         cands: list[np.ndarray] = []
         for (sl0, sl1), (di, dj) in zip(cuts, steps, strict=True):
-            with np.errstate(invalid="ignore", divide="ignore"):
-                frac = rs[sl0] / (rs[sl0] - rs[sl1])
-                ok = (rs[sl0] * rs[sl1] <= 0) & np.isfinite(frac)
-            if not ok.any():
+            # neighbours with a sign change (NaN, outside the angle's reach, compares false);
+            # the crossing's fraction and the checks only there
+            with np.errstate(invalid="ignore"):
+                i0, j0 = np.nonzero(rs[sl0] * rs[sl1] <= 0)
+            if not i0.size:
                 continue
-            ok &= b[sl0] + frac * (b[sl1] - b[sl0]) >= 0
-            i0, j0 = np.nonzero(ok)
+            i1, j1 = i0 + di, j0 + dj
+            r0, r1 = rs[i0, j0], rs[i1, j1]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                frac = r0 / (r0 - r1)
+            keep = np.isfinite(frac)
+            b0 = b[i0, j0]
+            keep &= b0 + frac * (b[i1, j1] - b0) >= 0
+            i0, j0, i1, j1, frac = i0[keep], j0[keep], i1[keep], j1[keep], frac[keep]
             if others and i0.size:
-                f = frac[i0, j0]
-                i1, j1 = i0 + di, j0 + dj
                 keep = np.ones(i0.size, dtype=bool)
                 with np.errstate(invalid="ignore"):
                     for k in others:
-                        r0 = _mode_residual(prob, k, x1a, x2g[i0], x3[i0, j0], x4g[j0])
-                        r1 = _mode_residual(prob, k, x1a, x2g[i1], x3[i1, j1], x4g[j1])
-                        keep &= np.abs(r0 + f * (r1 - r0)) <= prob.tols[k]
-                i0, j0 = i0[keep], j0[keep]
-            for i, j in zip(i0[:4], j0[:4], strict=True):
-                f = frac[i, j]
+                        q0 = _mode_residual(prob, k, x1a, x2g[i0], x3[i0, j0], x4g[j0])
+                        q1 = _mode_residual(prob, k, x1a, x2g[i1], x3[i1, j1], x4g[j1])
+                        keep &= np.abs(q0 + frac * (q1 - q0)) <= prob.tols[k]
+                i0, j0, frac = i0[keep], j0[keep], frac[keep]
+            for i, j, f in zip(i0[:4], j0[:4], frac[:4], strict=True):
                 p0 = np.array([x1, x2g[i], x3[i, j], x4g[j]])
                 p1 = np.array([x1, x2g[i + di], x3[i + di, j + dj], x4g[j + dj]])
                 cands.append(p0 * (1 - f) + p1 * f)
