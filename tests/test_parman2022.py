@@ -213,6 +213,76 @@ def test_simulation_conserves_angular_momentum(satellite):
     assert np.abs(sim.q[:, model.w_dof_of_node(27)]).max() > 1e-3
 
 
+def _simulate_plain(model, schedule, *, duration_s, step_s, initial_attitude_rad=(0, 0, 0)):
+    # simulate() before issue 23: a fresh matrix exponential per sub-interval, the switches
+    # inside each step and the torque found per step
+    n = model.n_dof
+    m_inv = np.linalg.inv(model.mass)
+    a = np.zeros((2 * n, 2 * n))
+    a[:n, n:] = np.eye(n)
+    a[n:, :n] = -m_inv @ model.stiffness
+    a[n:, n:] = -m_inv @ model.damping
+    b = np.zeros((2 * n, 3))
+    b[n:, :] = m_inv[:, 3:6]
+
+    def discretise(dt):
+        aug = np.zeros((2 * n + 3, 2 * n + 3))
+        aug[: 2 * n, : 2 * n] = a * dt
+        aug[: 2 * n, 2 * n :] = b * dt
+        e = sla.expm(aug)
+        return e[: 2 * n, : 2 * n], e[: 2 * n, 2 * n :]
+
+    n_steps = int(round(duration_s / step_s))
+    times = np.arange(n_steps + 1) * step_s
+    phi, gam = discretise(step_s)
+    x = np.zeros(2 * n)
+    x[3:6] = np.asarray(initial_attitude_rad, dtype=float)
+    out = np.empty((n_steps + 1, 2 * n))
+    out[0] = x
+    switches = schedule.times_s
+    for k in range(n_steps):
+        t0, t1 = times[k], times[k + 1]
+        inner = switches[(switches > t0 + 1e-12) & (switches < t1 - 1e-12)]
+        if inner.size == 0:
+            x = phi @ x + gam @ schedule.at(t0)
+        else:
+            t = t0
+            for ts in [*inner, t1]:
+                ph, gm = discretise(ts - t)
+                x = ph @ x + gm @ schedule.at(t)
+                t = ts
+        out[k + 1] = x
+    return out
+
+
+def test_simulate_and_a_shared_discretisation_match_the_plain_simulation(satellite):
+    # issue 23: the switches and torques are looked up for all steps at once and a
+    # Discretisation shares the matrix exponentials between runs: the same numbers exactly
+    from rig_models.reference.parman2022_satellite import Discretisation
+
+    # switches inside steps, on step boundaries (0.4, 1.0) and two in one step (1.23, 1.27)
+    sch_a = TorqueSchedule.from_impulses(
+        [([0.4, 1.23, 1.27, 2.05], [1, -1, -1, 1]), ([0.33, 1.0], [1, -1]), ([0.0], [0.0])], 8.0
+    )
+    sch_b = TorqueSchedule.from_impulses(
+        [([0.55], [0.0]), ([0.33, 1.0], [1, -1]), ([0.2, 0.9, 1.6], [-1, 2, -1])], 8.0
+    )
+    kw = dict(duration_s=2.5, step_s=0.1, initial_attitude_rad=(0.01, -0.02, 0.03))
+    shared = Discretisation(satellite, max_kept=3)  # small: entries are dropped and redone
+    for sch in (sch_a, sch_b, sch_a):
+        plain = _simulate_plain(satellite, sch, **kw)
+        alone = simulate(satellite, sch, **kw)
+        reused = simulate(satellite, sch, discretisation=shared, **kw)
+        assert len(shared._kept) <= 3
+        for sim in (alone, reused):
+            np.testing.assert_array_equal(np.hstack([sim.q, sim.qdot]), plain)
+    with pytest.raises(ValueError, match="another model"):
+        simulate(build_satellite(SatelliteParameters(offset_angle_deg=0.0)), sch_a,
+                 discretisation=shared, **kw)
+    t = np.array([-1.0, 0.0, 0.2, 0.33, 0.5, 0.9, 1.0, 1.6, 3.0])
+    np.testing.assert_array_equal(sch_b.at_times(t), np.array([sch_b.at(x) for x in t]))
+
+
 def test_shaped_roll_leaves_much_less_residual_than_bang_bang(satellite_no_offset):
     """On the zero-offset satellite (coupled frequencies within 0.3 % of the paper's) the
     paper's LHHL roll sequence leaves a small fraction of the bang-bang residual at node 27,

@@ -77,6 +77,20 @@ def test_shaped_wheel_command_stays_within_torque_and_reaches_the_angle(shaper):
     assert c.step(RigState(tick=0)).wheel_torque_n_m == 0.0
 
 
+def test_schedule_reference_is_the_rigid_reference_row_of_the_tick():
+    # issue 23: reference() reads rows kept as Python floats; the plain path is the array's
+    from harness.controllers.shaped_wheel_slew import rigid_reference
+
+    c = ShapedWheelSlew(math.radians(20), J, 0.06, 1.0, DT, design_shaper("zvd", MODES), "zvd")
+    s = c.schedule
+    ref = rigid_reference(s.values * 1.0, J, DT)
+    for t in (0.0, 0.999, 1.0, 1.0031, 5.5, c.end_s, c.end_s + 0.0009, c.end_s + 50.0):
+        k = min(max(int(round(t / DT)) - s.start_tick, 0), len(ref) - 1)
+        got = s.reference(t)
+        assert got == tuple(float(v) for v in ref[k])
+        assert all(type(v) is float for v in got)
+
+
 def test_shaper_on_the_tick_grid_still_cancels_the_design_modes():
     for kind, limit in (("zv", 1.0), ("zvd", 1.0), ("ei", 6.0)):
         c = ShapedWheelSlew(math.radians(20), J, 0.06, 1.0, DT, design_shaper(kind, MODES))
@@ -264,6 +278,27 @@ def test_damped_design_meets_its_limits_and_the_paper_design_does_not_on_damped_
     neg = design_profile("lhhl", angle_rad=-angle, inertia_kg_m2=J, torque_n_m=0.1,
                          modes=THRUSTER_MODES, vmax_percent=1.0, n_starts=32)
     assert neg.amplitudes == tuple(-x for x in damped.amplitudes)
+
+
+def test_paper_design_is_computed_once_per_input_and_is_the_solvers():
+    # issue 23: the paper profile and the damped one's homotopy start need the same design
+    from harness.controllers.thruster_two_level import _paper_design, _paper_design_cached
+    from harness.shaping.two_amplitude import ModeConstraint, design_two_amplitude
+
+    angle = math.radians(5)
+    _paper_design_cached.cache_clear()
+    first = _paper_design("lhhl", angle, J, 0.1, THRUSTER_MODES, 1.0)
+    again = _paper_design("LHHL", abs(angle), J, 0.1, list(THRUSTER_MODES), 1.0)
+    info = _paper_design_cached.cache_info()
+    assert again is first and (info.hits, info.misses) == (1, 1)
+    plain = design_two_amplitude("LHHL", inertia_kg_m2=J, torque_n_m=0.1, angle_rad=angle,
+                                 modes=[ModeConstraint(m.omega_rad_s, 1.0)
+                                        for m in THRUSTER_MODES],
+                                 n_starts=64, grid_points=200)
+    assert first == (plain.times_s, plain.amplitudes)
+    # another limit is another design
+    _paper_design("lhhl", angle, J, 0.1, THRUSTER_MODES, 2.0)
+    assert _paper_design_cached.cache_info().misses == 2
 
 
 @pytest.mark.parametrize("profile", ["lhhl", "hllh"])

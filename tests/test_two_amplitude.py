@@ -210,3 +210,187 @@ def test_cli_design_and_evaluate_json(capsys):
     assert ev["residual_percent"][1] == pytest.approx(0.675, abs=0.01)
     assert cli_main(["design", "evaluate", "--times", "0", "1", "--amplitudes", "1", "1",
                      "--inertia-kg-m2", "1", "--torque-n-m", "1"]) == 2  # fmt: skip
+
+
+# --------------------------------------------------------------------------- fast == plain
+# issue 23: the dense scan evaluates only the tightest mode on the whole grid. The plain scan
+# below (the code before that change) evaluates every mode everywhere; both must give the
+# same first level and the same candidates.
+
+
+def _grid_scan_plain(prob, x1_lo, x1_hi, n_side, x1_step):
+    k_star = int(np.argmin(prob.tols))
+    others = [k for k in range(len(prob.tols)) if k != k_star]
+    cuts = (
+        ((slice(None, -1), slice(None)), (slice(1, None), slice(None))),
+        ((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
+    )
+    u = np.linspace(0.0, 1.0, n_side)
+    for x1 in np.arange(x1_lo, x1_hi + x1_step / 2, x1_step):
+        x2_lo = math.sqrt(max(x1**2 - prob.theta_a / prob.p1, 0.0))
+        x2g = x2_lo + (x1 - prob.min_pulse_s - x2_lo) * u
+        x4g = x1 * u
+        x2, x4 = np.meshgrid(x2g, x4g, indexing="ij")
+        area = (prob.theta_a - prob.p1 * (x1**2 - x2**2)) / prob.p2
+        x3 = np.sqrt(x4**2 + np.maximum(area, 0.0))
+        b = x2 - x3
+        valid = area >= 0
+        if not (valid & (b >= 0)).any():
+            continue
+        xs = np.stack([np.full_like(x2, x1), x2, x3, x4])
+        r = prob.residuals(xs)
+        rs = np.where(valid, r[k_star], np.nan)
+        cands = []
+        for sl0, sl1 in cuts:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                frac = rs[sl0] / (rs[sl0] - rs[sl1])
+                ok = (rs[sl0] * rs[sl1] <= 0) & np.isfinite(frac)
+            if not ok.any():
+                continue
+            ok &= b[sl0] + frac * (b[sl1] - b[sl0]) >= 0
+            with np.errstate(invalid="ignore"):
+                for k in others:
+                    rk = r[k][sl0] + frac * (r[k][sl1] - r[k][sl0])
+                    ok &= np.abs(rk) <= prob.tols[k]
+            for i, j in np.argwhere(ok)[:4]:
+                f = frac[i, j]
+                cands.append(
+                    xs[(slice(None), *sl0)][:, i, j] * (1 - f)
+                    + xs[(slice(None), *sl1)][:, i, j] * f
+                )
+        if cands:
+            return float(x1), cands
+    return math.inf, []
+
+
+def _scan_problem(kind, inertia, angle, modes, margin=1e-3):
+    from harness.shaping.two_amplitude import _bang_bang_magnitude, _levels, _Problem
+
+    p1, p2 = _levels(kind)
+    theta_a = abs(angle) * inertia / T_N_M
+    tau = math.sqrt(theta_a)
+    omegas = np.array([m.freq_rad_s for m in modes])
+    vmax = np.array([m.vmax_percent for m in modes])
+    den = _bang_bang_magnitude(omegas, tau)
+    return _Problem(p1, p2, theta_a, omegas, (1 - margin) * vmax / 100 * den, 1e-6 * tau), tau
+
+
+@pytest.mark.parametrize(
+    ("kind", "axis", "modes"),
+    [
+        ("LHHL", "roll", MODES),
+        ("HLLH", "yaw", MODES),
+        ("HLLH", "roll", MODES[:1]),  # one mode: no others to check
+        # three modes, the second one binding at many crossings
+        ("LHHL", "yaw", (*MODES, ModeConstraint(0.7, 1.0))),
+        # the tightest mode is not the first one
+        ("HLLH", "yaw", (ModeConstraint(1.082, 0.0005), ModeConstraint(0.3354, 2.0))),
+    ],
+)
+def test_grid_scan_matches_the_plain_scan(kind, axis, modes):
+    from harness.shaping.two_amplitude import _grid_scan
+
+    inertia, angle = AXIS[axis]
+    prob, tau = _scan_problem(kind, inertia, angle, modes)
+    for n_side, step in ((60, 0.02), (101, 0.015)):
+        x1_fast, c_fast = _grid_scan(prob, tau, 3 * tau, n_side, step)
+        x1_plain, c_plain = _grid_scan_plain(prob, tau, 3 * tau, n_side, step)
+        assert math.isfinite(x1_plain)  # the comparison is about a scan that finds points
+        assert x1_fast == x1_plain
+        assert len(c_fast) == len(c_plain) > 0
+        for a, b in zip(c_fast, c_plain, strict=True):
+            # same arithmetic on the same points: equal (allclose only for another CPU's cos)
+            np.testing.assert_allclose(a, b, rtol=1e-13, atol=0)
+
+
+def _residuals_plain(prob, x):
+    # _Problem.residuals before issue 23: a generator of the four terms, summed
+    x = np.asarray(x)
+    w = prob.omegas.reshape((-1,) + (1,) * (x.ndim - 1))
+    weights = np.array([prob.p1, -prob.p1, prob.p2, -prob.p2])
+    return 2 * sum(weights[i] * np.cos(w * x[i]) for i in range(4))
+
+
+def _local_solve_plain(prob, x0, h_max):
+    # _local_solve before issue 23: two inequality functions, R_k evaluated twice
+    from scipy.optimize import minimize
+
+    from harness.shaping.two_amplitude import _ORDER
+
+    lo = np.array([prob.min_pulse_s, 0.0, prob.min_pulse_s, 0.0])
+    gscale = 4 * prob.omegas * (prob.p1 + prob.p2)
+    ascale = 2 * math.sqrt(prob.theta_a)
+    res_ = lambda x: _residuals_plain(prob, x)  # noqa: E731
+    constraints = [
+        {
+            "type": "eq",
+            "fun": lambda x: np.array([prob.angle_gap(x) / ascale]),
+            "jac": lambda x: prob.angle_grad(x)[None, :] / ascale,
+        },
+        {"type": "ineq", "fun": lambda x: _ORDER @ x - lo, "jac": lambda x: _ORDER},
+        {
+            "type": "ineq",
+            "fun": lambda x: np.concatenate(
+                [(prob.tols - res_(x)) / gscale, (prob.tols + res_(x)) / gscale]
+            ),
+            "jac": lambda x: np.vstack(
+                [-prob.residual_jac(x) / gscale[:, None], prob.residual_jac(x) / gscale[:, None]]
+            ),
+        },
+    ]
+    try:
+        with np.errstate(all="ignore"):
+            res = minimize(
+                lambda x: x[0],
+                x0,
+                jac=lambda x: np.array([1.0, 0.0, 0.0, 0.0]),
+                method="SLSQP",
+                bounds=[(0.0, h_max)] * 4,
+                constraints=constraints,
+                options={"maxiter": 400, "ftol": 1e-13},
+            )
+    except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+        return None
+    x = np.asarray(res.x, dtype=float)
+    if not np.all(np.isfinite(x)):
+        return None
+    for _ in range(10):
+        r = res_(x)
+        excess = r - np.clip(r, -prob.tols, prob.tols)
+        gap = prob.angle_gap(x)
+        if not np.any(excess) and abs(gap) <= 1e-12 * prob.theta_a:
+            break
+        rows = excess != 0
+        jac = np.vstack([prob.angle_grad(x)[None, :], prob.residual_jac(x)[rows]])
+        target = np.concatenate(
+            [[gap], excess[rows] + np.sign(excess[rows]) * 1e-3 * prob.tols[rows]]
+        )
+        x = x - np.linalg.lstsq(jac, target, rcond=None)[0]
+    return x
+
+
+def test_residuals_match_the_plain_sum_at_points_and_on_grids():
+    prob, tau = _scan_problem("LHHL", I_ROLL, math.radians(3.0), (*MODES, ModeConstraint(0.7, 1)))
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(0, 3 * tau, size=(4, 50, 7))
+    for x in pts.reshape(4, -1).T[:200]:  # one point: the local solver's path
+        np.testing.assert_array_equal(prob.residuals(x), _residuals_plain(prob, x))
+    np.testing.assert_array_equal(prob.residuals(pts), _residuals_plain(prob, pts))
+
+
+@pytest.mark.parametrize(("kind", "axis"), [("LHHL", "roll"), ("HLLH", "yaw")])
+def test_design_matches_the_plain_solver_and_scan(kind, axis, monkeypatch):
+    # the whole design with the fast pieces and with the plain ones: the same result
+    import harness.shaping.two_amplitude as ta
+
+    inertia, angle = AXIS[axis]
+    kw = dict(inertia_kg_m2=inertia, torque_n_m=T_N_M, angle_rad=angle, modes=MODES,
+              n_starts=24, grid_points=80, grid_step_t8_s=0.04)
+    fast = design_two_amplitude(kind, **kw)
+    monkeypatch.setattr(ta, "_grid_scan", _grid_scan_plain)
+    monkeypatch.setattr(ta, "_local_solve", _local_solve_plain)
+    monkeypatch.setattr(ta._Problem, "residuals", _residuals_plain)
+    plain = design_two_amplitude(kind, **kw)
+    assert fast.search == plain.search
+    np.testing.assert_allclose(fast.times_s, plain.times_s, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(fast.residual_percent, plain.residual_percent, rtol=1e-9)

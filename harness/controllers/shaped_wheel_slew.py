@@ -147,6 +147,9 @@ class TickSchedule:
         # the command of the last non-zero tick acts until the next tick
         self.end_tick = self.start_tick + (int(nz[-1]) + 1 if len(nz) else 0)
         self._ref = rigid_reference(self.values * torque_scale_n_m, inertia_kg_m2, dt_s)
+        # the same rows as Python floats: ``reference`` is called every tick (issue 23)
+        self._ref_rows: list[tuple[float, float, float]] = [
+            (a, r, acc) for a, r, acc in self._ref.tolist()]
 
     @property
     def start_s(self) -> float:
@@ -163,9 +166,8 @@ class TickSchedule:
 
     def reference(self, t_s: float) -> tuple[float, float, float]:
         k = int(round(t_s / self.dt_s)) - self.start_tick
-        k = min(max(k, 0), len(self._ref) - 1)
-        a, r, acc = self._ref[k]
-        return float(a), float(r), float(acc)
+        k = min(max(k, 0), len(self._ref_rows) - 1)
+        return self._ref_rows[k]
 
 
 class ScheduledSlew:

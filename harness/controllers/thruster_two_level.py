@@ -172,7 +172,19 @@ def design_bang_bang(angle_rad: float, inertia_kg_m2: float, torque_n_m: float,
 def _paper_design(kind: str, angle: float, inertia: float, torque: float,
                   modes: Sequence[Mode], vmax: float) -> tuple[tuple[float, ...],
                                                                tuple[float, ...]]:
-    d = design_two_amplitude(kind.upper(), inertia_kg_m2=inertia, torque_n_m=torque,
+    """The paper's (undamped, symmetric) design: switch times and amplitudes (pure).
+
+    Cached: a ``paper`` profile and the ``damped`` one of the same slew (whose homotopy
+    starts from it) need the same design; it is computed once per process (issue 23)."""
+    return _paper_design_cached(kind.upper(), float(angle), float(inertia), float(torque),
+                                tuple(modes), float(vmax))
+
+
+@lru_cache(maxsize=64)
+def _paper_design_cached(kind: str, angle: float, inertia: float, torque: float,
+                         modes: tuple[Mode, ...], vmax: float) -> tuple[tuple[float, ...],
+                                                                       tuple[float, ...]]:
+    d = design_two_amplitude(kind, inertia_kg_m2=inertia, torque_n_m=torque,
                              angle_rad=angle,
                              modes=[ModeConstraint(m.omega_rad_s, vmax) for m in modes],
                              n_starts=64, grid_points=200)

@@ -488,6 +488,22 @@ class ShapedCommand:
         return float(out) if out.ndim == 0 else out
 
     def process(self, samples: ArrayLike) -> FloatArray:
-        """Feed a whole array of samples (first axis = time) and return the shaped samples."""
+        """Feed a whole array of samples (first axis = time) and return the shaped samples.
+
+        The same as ``step`` on each sample in turn (the same values, bit for bit, and the
+        same state afterwards): every output is the same ``np.dot`` of the weights with the
+        delayed samples that ``step`` takes, gathered from the history and ``samples`` at once
+        instead of through the ring buffer one sample at a time (issue 23)."""
         arr = np.asarray(samples, dtype=float)
-        return np.array([self.step(s) for s in arr])
+        if arr.ndim == 0 or arr.shape[0] == 0 or arr.shape[1:] != self._initial.shape:
+            return np.array([self.step(s) for s in arr])  # step's errors and empty output
+        n, length, k = arr.shape[0], self._length, self._ticks.size
+        # the buffer oldest first, then the samples: sample i sits at ext[length + i]
+        ext = np.concatenate([self._buffer[(self._head + 1 + np.arange(length)) % length], arr])
+        delayed = ext[length + np.arange(n)[:, None] - self._ticks[None, :]].reshape(n, k, -1)
+        # np.tensordot(weights, buffer[idx], axes=1) in step is this dot of (1, k) by (k, m)
+        w = self._weights.reshape(1, k)
+        out = np.array([np.dot(w, d)[0] for d in delayed])
+        self._head = (self._head + n) % length
+        self._buffer[(self._head - np.arange(length)[::-1]) % length] = ext[-length:]
+        return out.reshape(arr.shape)

@@ -43,6 +43,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+from functools import cached_property
 from typing import Literal
 
 import numpy as np
@@ -309,15 +310,26 @@ class _Problem:
     tols: np.ndarray  # limit on |R_k|
     min_pulse_s: float
 
-    @property
+    @cached_property
     def weights(self) -> np.ndarray:
         return np.array([self.p1, -self.p1, self.p2, -self.p2])
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         """R_k for x of shape (4, ...) -> (n_modes, ...)."""
         x = np.asarray(x)
+        wts = self.weights
+        # the four terms summed left to right from 0 (as sum() over them did until issue 23)
+        if x.ndim == 1:  # one point (the local solver's): the 4 x n_modes cosines in one call
+            t = wts * np.cos(np.multiply.outer(self.omegas, x))
+            return 2 * ((((0 + t[:, 0]) + t[:, 1]) + t[:, 2]) + t[:, 3])
         w = self.omegas.reshape((-1,) + (1,) * (x.ndim - 1))
-        return 2 * sum(self.weights[i] * np.cos(w * x[i]) for i in range(4))
+        return 2 * (
+            (
+                ((0 + wts[0] * np.cos(w * x[0])) + wts[1] * np.cos(w * x[1]))
+                + wts[2] * np.cos(w * x[2])
+            )
+            + wts[3] * np.cos(w * x[3])
+        )
 
     def residual_jac(self, x: np.ndarray) -> np.ndarray:
         return -2 * self.omegas[:, None] * self.weights[None, :] * np.sin(np.outer(self.omegas, x))
@@ -341,6 +353,19 @@ class _Problem:
 _ORDER = np.array([[1.0, -1, 0, 0], [0, 1, -1, 0], [0, 0, 1, -1], [0, 0, 0, 1]])
 
 
+def _margins(prob: _Problem, x: np.ndarray, lo: np.ndarray, gscale: np.ndarray) -> np.ndarray:
+    """The inequalities, >= 0 when met: the order of the impulses (_ORDER @ x >= lo), then
+    (tol_k - R_k, tol_k + R_k) / gscale_k (R_k once). One function for SLSQP, which stacks
+    its inequality functions' outputs in the same rows."""
+    r = prob.residuals(x)
+    return np.concatenate([_ORDER @ x - lo, (prob.tols - r) / gscale, (prob.tols + r) / gscale])
+
+
+def _margins_jac(prob: _Problem, x: np.ndarray, gscale: np.ndarray) -> np.ndarray:
+    jac = prob.residual_jac(x)
+    return np.vstack([_ORDER, -jac / gscale[:, None], jac / gscale[:, None]])
+
+
 def _local_solve(prob: _Problem, x0: np.ndarray, h_max: float) -> np.ndarray | None:
     """SLSQP (minimise x1) from x0, then a Newton projection onto any slightly violated
     residual limit or angle equation. None if it fails."""
@@ -353,15 +378,10 @@ def _local_solve(prob: _Problem, x0: np.ndarray, h_max: float) -> np.ndarray | N
             "fun": lambda x: np.array([prob.angle_gap(x) / ascale]),
             "jac": lambda x: prob.angle_grad(x)[None, :] / ascale,
         },
-        {"type": "ineq", "fun": lambda x: _ORDER @ x - lo, "jac": lambda x: _ORDER},
         {
             "type": "ineq",
-            "fun": lambda x: np.concatenate(
-                [(prob.tols - prob.residuals(x)) / gscale, (prob.tols + prob.residuals(x)) / gscale]
-            ),
-            "jac": lambda x: np.vstack(
-                [-prob.residual_jac(x) / gscale[:, None], prob.residual_jac(x) / gscale[:, None]]
-            ),
+            "fun": lambda x: _margins(prob, x, lo, gscale),
+            "jac": lambda x: _margins_jac(prob, x, gscale),
         },
     ]
     try:
@@ -395,6 +415,19 @@ def _local_solve(prob: _Problem, x0: np.ndarray, h_max: float) -> np.ndarray | N
     return x
 
 
+def _mode_residual(
+    prob: _Problem, k: int, x1: np.ndarray, x2: np.ndarray, x3: np.ndarray, x4: np.ndarray
+) -> np.ndarray:
+    """R_k alone, with the arithmetic of `_Problem.residuals` (the same terms summed in the same
+    order, so the same values); x1..x4 broadcast against each other."""
+    w = prob.omegas[k]
+    wts = prob.weights
+    return 2 * (
+        (((0 + wts[0] * np.cos(w * x1)) + wts[1] * np.cos(w * x2)) + wts[2] * np.cos(w * x3))
+        + wts[3] * np.cos(w * x4)
+    )
+
+
 def _grid_scan(
     prob: _Problem, x1_lo: float, x1_hi: float, n_side: int, x1_step: float
 ) -> tuple[float, list[np.ndarray]]:
@@ -405,6 +438,14 @@ def _grid_scan(
     points; at the interpolated crossing b >= 0 and every other mode's limit are checked.
     A feasible region thinner than the grid spacing is missed, so the scan's x1 is, to its
     resolution, an independent upper estimate of the optimum reached from below.
+
+    Only the tightest mode is evaluated on the whole grid, and only its sign test is taken
+    on every pair of neighbours: the crossing's fraction and b only where the sign changes,
+    the other modes only at the two ends of the crossings that passed b >= 0, with the same
+    arithmetic as ``_Problem.residuals`` (x1 is one value per level, x2 one per row and x4 one
+    per column, so their cosines are taken once per level and broadcast): the same points and
+    candidates as evaluating everything everywhere (issue 23; tests/test_two_amplitude.py
+    compares).
     """
     k_star = int(np.argmin(prob.tols))
     others = [k for k in range(len(prob.tols)) if k != k_star]
@@ -412,39 +453,51 @@ def _grid_scan(
         ((slice(None, -1), slice(None)), (slice(1, None), slice(None))),
         ((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
     )
+    # index offsets of the second end of a crossing, per cut
+    steps = ((1, 0), (0, 1))
     u = np.linspace(0.0, 1.0, n_side)
     for x1 in np.arange(x1_lo, x1_hi + x1_step / 2, x1_step):
         x2_lo = math.sqrt(max(x1**2 - prob.theta_a / prob.p1, 0.0))
         x2g = x2_lo + (x1 - prob.min_pulse_s - x2_lo) * u
         x4g = x1 * u
-        x2, x4 = np.meshgrid(x2g, x4g, indexing="ij")
+        x2 = x2g[:, None]
+        x4 = x4g[None, :]
         area = (prob.theta_a - prob.p1 * (x1**2 - x2**2)) / prob.p2
         x3 = np.sqrt(x4**2 + np.maximum(area, 0.0))
         b = x2 - x3
         valid = area >= 0
         if not (valid & (b >= 0)).any():
             continue
-        xs = np.stack([np.full_like(x2, x1), x2, x3, x4])
-        r = prob.residuals(xs)
-        rs = np.where(valid, r[k_star], np.nan)
+        x1a = np.array([x1])  # one value per level
+        rs = np.where(valid, _mode_residual(prob, k_star, x1a, x2, x3, x4), np.nan)
         cands: list[np.ndarray] = []
-        for sl0, sl1 in cuts:
-            with np.errstate(invalid="ignore", divide="ignore"):
-                frac = rs[sl0] / (rs[sl0] - rs[sl1])
-                ok = (rs[sl0] * rs[sl1] <= 0) & np.isfinite(frac)
-            if not ok.any():
-                continue
-            ok &= b[sl0] + frac * (b[sl1] - b[sl0]) >= 0
+        for (sl0, sl1), (di, dj) in zip(cuts, steps, strict=True):
+            # neighbours with a sign change (NaN, outside the angle's reach, compares false);
+            # the crossing's fraction and the checks only there
             with np.errstate(invalid="ignore"):
-                for k in others:
-                    rk = r[k][sl0] + frac * (r[k][sl1] - r[k][sl0])
-                    ok &= np.abs(rk) <= prob.tols[k]
-            for i, j in np.argwhere(ok)[:4]:
-                f = frac[i, j]
-                cands.append(
-                    xs[(slice(None), *sl0)][:, i, j] * (1 - f)
-                    + xs[(slice(None), *sl1)][:, i, j] * f
-                )
+                i0, j0 = np.nonzero(rs[sl0] * rs[sl1] <= 0)
+            if not i0.size:
+                continue
+            i1, j1 = i0 + di, j0 + dj
+            r0, r1 = rs[i0, j0], rs[i1, j1]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                frac = r0 / (r0 - r1)
+            keep = np.isfinite(frac)
+            b0 = b[i0, j0]
+            keep &= b0 + frac * (b[i1, j1] - b0) >= 0
+            i0, j0, i1, j1, frac = i0[keep], j0[keep], i1[keep], j1[keep], frac[keep]
+            if others and i0.size:
+                keep = np.ones(i0.size, dtype=bool)
+                with np.errstate(invalid="ignore"):
+                    for k in others:
+                        q0 = _mode_residual(prob, k, x1a, x2g[i0], x3[i0, j0], x4g[j0])
+                        q1 = _mode_residual(prob, k, x1a, x2g[i1], x3[i1, j1], x4g[j1])
+                        keep &= np.abs(q0 + frac * (q1 - q0)) <= prob.tols[k]
+                i0, j0, frac = i0[keep], j0[keep], frac[keep]
+            for i, j, f in zip(i0[:4], j0[:4], frac[:4], strict=True):
+                p0 = np.array([x1, x2g[i], x3[i, j], x4g[j]])
+                p1 = np.array([x1, x2g[i + di], x3[i + di, j + dj], x4g[j + dj]])
+                cands.append(p0 * (1 - f) + p1 * f)
         if cands:
             return float(x1), cands
     return math.inf, []

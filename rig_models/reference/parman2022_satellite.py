@@ -459,6 +459,17 @@ class TorqueSchedule:
         k = np.searchsorted(self.times_s, t, side="right") - 1
         return np.zeros(3) if k < 0 else self.torques_n_m[k]
 
+    def level_index(self, t: np.ndarray) -> np.ndarray:
+        """Row of `torques_n_m` acting at each of the times t (-1: before the first time)."""
+        return np.searchsorted(self.times_s, np.asarray(t, dtype=float), side="right") - 1
+
+    def at_times(self, t: np.ndarray) -> np.ndarray:
+        """`at` for each of the times t: shape (len(t), 3)."""
+        k = self.level_index(t)
+        out = np.zeros((k.size, 3))
+        out[k >= 0] = self.torques_n_m[k[k >= 0]]
+        return out
+
 
 @dataclass(frozen=True)
 class SimulationResult:
@@ -471,6 +482,47 @@ class SimulationResult:
         return self.q[:, 3:6]
 
 
+class Discretisation:
+    """Exact zero-order-hold transition of one model's eq. (1): (Phi, Gamma) over dt with
+    x(t + dt) = Phi x(t) + Gamma T for a torque T held over dt (matrix exponential).
+
+    Each distinct dt is computed once and kept (up to `max_kept`, least recently used
+    dropped): runs of the same model that share switch times (a study's cases) reuse the
+    same matrices instead of recomputing them, so their results are the same bit for bit.
+    """
+
+    def __init__(self, model: SatelliteModel, max_kept: int = 64) -> None:
+        n = model.n_dof
+        m_inv = np.linalg.inv(model.mass)
+        a = np.zeros((2 * n, 2 * n))
+        a[:n, n:] = np.eye(n)
+        a[n:, :n] = -m_inv @ model.stiffness
+        a[n:, n:] = -m_inv @ model.damping
+        b = np.zeros((2 * n, 3))
+        b[n:, :] = m_inv[:, 3:6]
+        self.model = model
+        self._a, self._b = a, b
+        self._max_kept = max_kept
+        self._kept: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+
+    def __call__(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        dt = float(dt)
+        hit = self._kept.pop(dt, None)
+        if hit is None:
+            n2 = self._a.shape[0]
+            aug = np.zeros((n2 + 3, n2 + 3))
+            aug[:n2, :n2] = self._a * dt
+            aug[:n2, n2:] = self._b * dt
+            e = sla.expm(aug)
+            hit = (e[:n2, :n2], e[:n2, n2:])
+            for m in hit:
+                m.setflags(write=False)
+            if len(self._kept) >= self._max_kept:
+                del self._kept[next(iter(self._kept))]
+        self._kept[dt] = hit  # most recently used last
+        return hit
+
+
 def simulate(
     model: SatelliteModel,
     schedule: TorqueSchedule,
@@ -478,29 +530,22 @@ def simulate(
     duration_s: float,
     step_s: float,
     initial_attitude_rad: Sequence[float] = (0.0, 0.0, 0.0),
+    discretisation: Discretisation | None = None,
 ) -> SimulationResult:
     """Exact response of eq. (1) to a piecewise-constant torque, sampled every `step_s`.
 
     Starts at rest, undeformed, at `initial_attitude_rad`. Torque switches that fall between
     samples are integrated exactly (matrix exponential over each sub-interval).
+    `discretisation` (of this model) lets several runs share the matrix exponentials.
     """
     _check_positive("duration_s", duration_s)
     _check_positive("step_s", step_s)
+    if discretisation is None:
+        discretisation = Discretisation(model)
+    elif discretisation.model is not model:
+        raise ValueError("discretisation belongs to another model")
+    discretise = discretisation
     n = model.n_dof
-    m_inv = np.linalg.inv(model.mass)
-    a = np.zeros((2 * n, 2 * n))
-    a[:n, n:] = np.eye(n)
-    a[n:, :n] = -m_inv @ model.stiffness
-    a[n:, n:] = -m_inv @ model.damping
-    b = np.zeros((2 * n, 3))
-    b[n:, :] = m_inv[:, 3:6]
-
-    def discretise(dt: float) -> tuple[np.ndarray, np.ndarray]:
-        aug = np.zeros((2 * n + 3, 2 * n + 3))
-        aug[: 2 * n, : 2 * n] = a * dt
-        aug[: 2 * n, 2 * n :] = b * dt
-        e = sla.expm(aug)
-        return e[: 2 * n, : 2 * n], e[: 2 * n, 2 * n :]
 
     n_steps = int(round(duration_s / step_s))
     times = np.arange(n_steps + 1) * step_s
@@ -510,14 +555,18 @@ def simulate(
     out = np.empty((n_steps + 1, 2 * n))
     out[0] = x
     switches = schedule.times_s
+    # per step: the switches strictly inside it (t0 + 1e-12 < ts < t1 - 1e-12; the times are
+    # increasing) and the torque at its start, looked up for all steps at once
+    first = np.searchsorted(switches, times[:-1] + 1e-12, side="right")
+    last = np.searchsorted(switches, times[1:] - 1e-12, side="left")
+    level = schedule.level_index(times[:-1])
+    zero = np.zeros(3)
     for k in range(n_steps):
-        t0, t1 = times[k], times[k + 1]
-        inner = switches[(switches > t0 + 1e-12) & (switches < t1 - 1e-12)]
-        if inner.size == 0:
-            x = phi @ x + gam @ schedule.at(t0)
+        if first[k] >= last[k]:
+            x = phi @ x + gam @ (schedule.torques_n_m[level[k]] if level[k] >= 0 else zero)
         else:
-            t = t0
-            for ts in [*inner, t1]:
+            t = times[k]
+            for ts in [*switches[first[k] : last[k]], times[k + 1]]:
                 ph, gm = discretise(ts - t)
                 x = ph @ x + gm @ schedule.at(t)
                 t = ts
