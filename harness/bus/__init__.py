@@ -148,7 +148,6 @@ class CopyingVirtualBus(VirtualBus):
             except Exception as exc:  # queue.Full
                 raise can.CanOperationError(f"virtual bus {self.channel_id}: {exc}") from exc
 
-
     def send_owned(self, msg: can.Message) -> None:
         """``send`` for a frame its sender made for this call and never uses again (the
         virtual rig's telemetry): with one other end on the channel, that end receives

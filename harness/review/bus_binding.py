@@ -43,10 +43,9 @@ class _Column:
         self.v = array("d")
 
     def add(self, t: float, v: float) -> None:
-        ts = self.t
-        ts.append(t)
+        self.t.append(t)
         self.v.append(v)
-        if len(ts) >= self.block:
+        if len(self.t) >= self.block:
             self.flush()
 
     def flush(self) -> None:

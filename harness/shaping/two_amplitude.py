@@ -323,13 +323,7 @@ class _Problem:
             t = wts * np.cos(np.multiply.outer(self.omegas, x))
             return 2 * ((((0 + t[:, 0]) + t[:, 1]) + t[:, 2]) + t[:, 3])
         w = self.omegas.reshape((-1,) + (1,) * (x.ndim - 1))
-        return 2 * (
-            (
-                ((0 + wts[0] * np.cos(w * x[0])) + wts[1] * np.cos(w * x[1]))
-                + wts[2] * np.cos(w * x[2])
-            )
-            + wts[3] * np.cos(w * x[3])
-        )
+        return _four_terms(wts, w, x[0], x[1], x[2], x[3])
 
     def residual_jac(self, x: np.ndarray) -> np.ndarray:
         return -2 * self.omegas[:, None] * self.weights[None, :] * np.sin(np.outer(self.omegas, x))
@@ -420,8 +414,13 @@ def _mode_residual(
 ) -> np.ndarray:
     """R_k alone, with the arithmetic of `_Problem.residuals` (the same terms summed in the same
     order, so the same values); x1..x4 broadcast against each other."""
-    w = prob.omegas[k]
-    wts = prob.weights
+    return _four_terms(prob.weights, prob.omegas[k], x1, x2, x3, x4)
+
+
+def _four_terms(wts: np.ndarray, w: np.ndarray | float, x1: np.ndarray, x2: np.ndarray,
+                x3: np.ndarray, x4: np.ndarray) -> np.ndarray:
+    """2 sum_i wts_i cos(w x_i), the four terms summed left to right from 0 (the order the
+    residuals' values, and so the scan's candidates, depend on)."""
     return 2 * (
         (((0 + wts[0] * np.cos(w * x1)) + wts[1] * np.cos(w * x2)) + wts[2] * np.cos(w * x3))
         + wts[3] * np.cos(w * x4)

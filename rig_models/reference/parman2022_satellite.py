@@ -456,7 +456,7 @@ class TorqueSchedule:
         return cls(events, torque_n_m * levels)
 
     def at(self, t: float) -> np.ndarray:
-        k = np.searchsorted(self.times_s, t, side="right") - 1
+        k = int(self.level_index(t))
         return np.zeros(3) if k < 0 else self.torques_n_m[k]
 
     def level_index(self, t: np.ndarray) -> np.ndarray:
@@ -544,12 +544,11 @@ def simulate(
         discretisation = Discretisation(model)
     elif discretisation.model is not model:
         raise ValueError("discretisation belongs to another model")
-    discretise = discretisation
     n = model.n_dof
 
     n_steps = int(round(duration_s / step_s))
     times = np.arange(n_steps + 1) * step_s
-    phi, gam = discretise(step_s)
+    phi, gam = discretisation(step_s)
     x = np.zeros(2 * n)
     x[3:6] = np.asarray(initial_attitude_rad, dtype=float)
     out = np.empty((n_steps + 1, 2 * n))
@@ -567,7 +566,7 @@ def simulate(
         else:
             t = times[k]
             for ts in [*switches[first[k] : last[k]], times[k + 1]]:
-                ph, gm = discretise(ts - t)
+                ph, gm = discretisation(ts - t)
                 x = ph @ x + gm @ schedule.at(t)
                 t = ts
         out[k + 1] = x
