@@ -274,13 +274,16 @@ class PiezoAmplifier:
             self.voltages_v = (0.0, 0.0)
             return
         lim = self.max_voltage_v
-        new = (max(-lim, min(lim, ch1_v)), max(-lim, min(lim, ch2_v)))
-        for c, v_old, v_new in zip(self.capacitance_f, self.voltages_v, new, strict=True):
-            if c * abs(v_new - v_old) / self.dt_s > self.max_current_a:
-                self.overcurrent = True
-                self.voltages_v = (0.0, 0.0)
-                return
-        self.voltages_v = new
+        v1, v2 = max(-lim, min(lim, ch1_v)), max(-lim, min(lim, ch2_v))
+        # each channel's C dV/dt against the limit (both channels written out: every tick
+        # of a piezo run)
+        (c1, c2), (old1, old2) = self.capacitance_f, self.voltages_v
+        dt, i_max = self.dt_s, self.max_current_a
+        if c1 * abs(v1 - old1) / dt > i_max or c2 * abs(v2 - old2) / dt > i_max:
+            self.overcurrent = True
+            self.voltages_v = (0.0, 0.0)
+            return
+        self.voltages_v = (v1, v2)
 
     def make_safe(self) -> None:
         self.voltages_v = (0.0, 0.0)

@@ -324,3 +324,22 @@ def test_process_is_step_on_every_sample_bit_for_bit(rounding, initial):
     assert fast.process(np.zeros((0, *shape))).size == 0
     with pytest.raises(ValueError, match="shape"):
         fast.process(np.zeros((4, 2)))
+
+
+def test_si_designs_are_cached_by_their_inputs_and_equal_a_fresh_design() -> None:
+    """A calibration builds each candidate's controller several times: the SI design (a few
+    linear programs) is computed once per input (issue 23), and the cached sequence is the
+    one the design gives afresh; bad input still raises every time (never cached)."""
+    from harness.shaping.impulse_shapers import _si_design, si
+
+    first = si(2.6, 3.4, 0.0, 0.02, 0.05)
+    assert si(2.6, 3.4, 0.0, 0.02, 0.05) is first
+    fresh = _si_design.__wrapped__(2.6, 3.4, 0.0, 0.02, 0.05, 16, 24, 400)
+    assert np.array_equal(fresh.times_s, first.times_s)
+    assert np.array_equal(fresh.amplitudes, first.amplitudes)
+    assert si(2.6, 3.6, 0.0, 0.02, 0.05) is not first  # another band, another design
+    for _ in range(2):
+        with pytest.raises(ValueError, match="v_tol"):
+            si(2.6, 3.4, 0.0, 0.02, 1.5)
+        with pytest.raises(ValueError, match="omega_hi"):
+            si(3.4, 2.6)

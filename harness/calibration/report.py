@@ -72,17 +72,20 @@ def plot_spectrum(c: Any, path: Path) -> None:
     plt.close(fig)
 
 
-def _curve(c: Any, cand: Any, w: np.ndarray, zeta: float) -> np.ndarray:
-    """Residual vibration (%) of ``cand`` as sent, at frequencies ``w`` and damping ``zeta``."""
+def _curves(c: Any, cand: Any, ws: list[np.ndarray], zetas: list[float]) -> list[np.ndarray]:
+    """Residual vibration (%) of ``cand`` as sent, at each mode's frequencies ``ws[i]`` and
+    damping ``zetas[i]`` (its controller built once for all the modes)."""
     _, ctrl = build(c.spec, "plot", "", cand.controller)
     if c.options.actuator == "wheel":
-        return residual_vibration(ctrl.applied_shaper, w, zeta)
+        return [residual_vibration(ctrl.applied_shaper, w, zeta)
+                for w, zeta in zip(ws, zetas, strict=True)]
     _, base = build(c.spec, "plot", "", baseline_controller(c.spec, c.modes))
     steps = np.diff(np.r_[0.0, ctrl.directions.astype(float), 0.0])
     k = np.flatnonzero(steps)
     tau = base.design.bang_bang_duration_s / 2
-    return damped_residual_percent(k / c.spec.rate_hz, steps[k],
-                                   [Mode(float(x), zeta) for x in w], tau)
+    return [damped_residual_percent(k / c.spec.rate_hz, steps[k],
+                                    [Mode(float(x), zeta) for x in w], tau)
+            for w, zeta in zip(ws, zetas, strict=True)]
 
 
 def plot_sensitivity(c: Any, path: Path) -> None:
@@ -93,8 +96,8 @@ def plot_sensitivity(c: Any, path: Path) -> None:
     cands = [x for x in c.candidates if x.feasible]
     curves = {}
     for x in cands:
-        curves[x.key] = [_curve(c, x, np.linspace(0.7, 1.3, 241) * m.omega_rad_s,
-                                m.damping_ratio) for m in c.modes]
+        curves[x.key] = _curves(c, x, [np.linspace(0.7, 1.3, 241) * m.omega_rad_s
+                                       for m in c.modes], [m.damping_ratio for m in c.modes])
     for i, (m, b) in enumerate(zip(c.modes, bands, strict=True)):
         ax = axes[0, i]
         r = np.linspace(0.7, 1.3, 241)

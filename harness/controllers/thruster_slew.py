@@ -41,6 +41,7 @@ unit gain, every bank, all rig modes) and ``design_report()`` returns the whole 
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -276,8 +277,10 @@ class ThrusterSlewController:
             ch: d.controller(self.voltage_limit_v) for ch, d in self.oppf.items()}
         self._min_pulse_ticks = max(1, math.ceil(self.min_pulse_s / self.dt_s - 1e-9))
         if self.csvs is not None:
-            self._times = self.csvs.times
-            self._cum = np.cumsum(self.csvs.amplitudes)
+            # the staircase as Python floats: the reference is looked up every tick (a bisect
+            # on a list, not numpy's searchsorted on a scalar: issue 23; the same index)
+            self._times = self.csvs.times.tolist()
+            self._cum = np.cumsum(self.csvs.amplitudes).tolist()
         self.reset()
 
     def reset(self) -> None:
@@ -298,8 +301,8 @@ class ThrusterSlewController:
             return 0.0, 0.0, 0.0
         if self.csvs is None:
             return self.angle_rad, 0.0, 0.0
-        k = int(np.searchsorted(self._times, tau + 1e-9, side="right")) - 1
-        return float(self.angle_rad * self._cum[k]), 0.0, 0.0
+        k = bisect.bisect_right(self._times, tau + 1e-9) - 1
+        return self.angle_rad * self._cum[k], 0.0, 0.0
 
     def _valve(self, u: int) -> int:
         if self._direction != 0 and self._on_ticks < self._min_pulse_ticks and u != \

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -238,6 +239,17 @@ def si(
     v = float(v_tol)
     if not (math.isfinite(v) and 0.0 < v < 1.0):
         raise ValueError(f"v_tol: expected a fraction in (0, 1), got {v_tol}")
+    return _si_design(lo, hi, z_lo, z_hi, v, int(points_per_period), int(n_angles),
+                      int(max_impulses))
+
+
+@lru_cache(maxsize=64)
+def _si_design(lo: float, hi: float, z_lo: float, z_hi: float, v: float,
+               points_per_period: int, n_angles: int, max_impulses: int) -> ImpulseSequence:
+    """``si``'s design, its inputs checked. Cached by its inputs: a calibration builds each
+    candidate's controller several times (candidates, report, verification runs), each a
+    few linear programs; the design is deterministic and the sequence immutable, so a
+    cached one is the one the LPs would give again."""
     step = 2.0 * math.pi / hi / points_per_period
     zetas = np.unique([z_lo, 0.5 * (z_lo + z_hi), z_hi])
     dense_w = np.linspace(lo, hi, 401) if hi > lo else np.array([lo])
