@@ -2,6 +2,13 @@ from __future__ import annotations
 
 import os
 
+# Python's bytecode cache on for the tests and every process they start. This machine's
+# environment sets PYTHONDONTWRITEBYTECODE=1, and a fresh clone has no __pycache__: every
+# process the tests start (harness commands, suite workers, studies: a few hundred) compiled
+# the harness from source again, about 0.2 s of CPU each (issue 23). What is written is
+# Python's own __pycache__ beside the sources (ignored by git); a read-only tree is skipped.
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+
 # one BLAS thread: on these shared 2-core machines threaded BLAS made small solves 5x slower
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -17,6 +24,8 @@ import pytest
 
 from harness.core.runs import load_run
 from harness.core.session import RunResult, execute_run
+
+sys.dont_write_bytecode = False  # this process too, from here on (the test modules)
 
 
 @pytest.fixture(scope="session")
