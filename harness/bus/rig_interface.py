@@ -112,7 +112,7 @@ class RigInterface:
             self._sync_payload = sync.encode
         self._commands = b.commands
         # each actuator's command frames as positional encoders of its driver's
-        # ``command_args`` and the counter (no dict per frame: issue 23)
+        # ``command_args`` and the counter (no dict per frame: the tick's cost)
         self._command_encoders: dict[str, tuple[tuple[Callable[..., bytes],
                                                       tuple[int, bool]], ...]] = {
             device: tuple((cmap.encoder(every[device].command_quantities), cmap.key)
