@@ -24,7 +24,7 @@ duration is set so the run ends at the window's end, so the summary's
   signal over the window; the peak of the fitted vibration, and each mode's amplitude at the
   window's start. Noise averages out over the ~3000 samples (``sigma``: the
   fit's 1-sigma uncertainty of that signal at its worst point). This is what the lab rig
-  would measure; the Done-when ratios use it.
+  would measure; the study's 10x checks use it.
 * ``truth``: the noise-free tip acceleration of the virtual rig's own state (its final state
   propagated back over the window; the window is free motion), every mode included.
 """
@@ -384,7 +384,7 @@ def format_tables(results: dict[str, Any]) -> str:
                 f"{r['impulse_n_m_s']:.4f} | {r['impulse_n_m_s'] / bb['impulse_n_m_s']:.2f} | "
                 f"{r['manoeuvre_s'] / bb['manoeuvre_s']:.2f} | {pi} | {pd} |")
         lines.append("")
-    lines.append("Done-when checks (ratios on the fitted residual; the truth alongside):")
+    lines.append("Checks (ratios on the fitted residual; the truth alongside):")
     for name, ok in results["checks"].items():
         lines.append(f"  {'PASS' if ok else 'FAIL'}  {name}")
     return "\n".join(lines)

@@ -1,6 +1,6 @@
 """Device profiles on a VirtualNode: CiA 402 drive, CiA 401 I/O module, CiA 406 encoder.
 
-Raw CANopen values in and out, no physics: the lead's virtual-rig glue calls these each
+Raw CANopen values in and out, no physics: the virtual rig's glue (``rig_devices``) calls these each
 physics step and maps raw values to SI with the rig file (per mille of 0x6076 rated torque,
 0.001 rad/s velocity counts, 10/32768 V analog counts, 1e-7 rad encoder counts: the EDS files
 and docs/canopen.md say which).
