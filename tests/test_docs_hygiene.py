@@ -64,11 +64,32 @@ def _relative_links(text: str) -> list[str]:
     return links
 
 
+def _anchors(page: Path) -> set[str]:
+    """The anchors GitHub gives a page's headings: lower case, punctuation dropped, spaces
+    as hyphens (a repeated heading gets -1, -2, ...)."""
+    seen: dict[str, int] = {}
+    out = set()
+    for line in FENCE.sub("", page.read_text(encoding="utf-8")).splitlines():
+        m = re.match(r"^#{1,6}\s+(.*?)\s*#*\s*$", line)
+        if not m:
+            continue
+        slug = re.sub(r"[^\w\- ]", "", m.group(1).lower()).replace(" ", "-")
+        n = seen.get(slug, 0)
+        seen[slug] = n + 1
+        out.add(slug if n == 0 else f"{slug}-{n}")
+    return out
+
+
 def _broken_links(page: Path) -> list[str]:
+    """Relative links whose file, or whose heading anchor in a Markdown file, is missing."""
+    text = page.read_text(encoding="utf-8")
     broken = []
-    for target in _relative_links(page.read_text(encoding="utf-8")):
-        path = target.split("#", 1)[0]
-        resolved = (page.parent / path).resolve()
+    targets = _relative_links(text)
+    prose = INLINE_CODE.sub("", FENCE.sub("", text))
+    targets += [t for t in LINK.findall(prose) if t.startswith("#")]
+    for target in targets:
+        path, _, anchor = target.partition("#")
+        resolved = (page.parent / path).resolve() if path else page
         try:
             rel = resolved.relative_to(ROOT).as_posix()
         except ValueError:
@@ -76,6 +97,8 @@ def _broken_links(page: Path) -> list[str]:
         if rel in PAGES_BEING_WRITTEN:
             continue
         if not resolved.exists():
+            broken.append(target)
+        elif anchor and resolved.suffix == ".md" and anchor not in _anchors(resolved):
             broken.append(target)
     return broken
 
@@ -115,13 +138,14 @@ def test_relative_links_resolve(page: Path):
 
 def test_a_broken_link_is_found(tmp_path: Path):
     page = tmp_path / "page.md"
-    (tmp_path / "there.md").write_text("# there\n", encoding="utf-8")
+    (tmp_path / "there.md").write_text("# There: `a` one\n## Two\n## Two\n", encoding="utf-8")
     page.write_text(
-        "[ok](there.md#a) [web](https://example.org) [anchor](#top) `[code](gone.md)`\n"
-        "```\n[fenced](gone.md)\n```\n[bad](missing.md) [bad dir](nowhere/)\n",
+        "# Top\n[ok](there.md#there-a-one) [ok](there.md#two-1) [web](https://example.org)\n"
+        "[anchor](#top) `[code](gone.md)`\n```\n[fenced](gone.md)\n```\n"
+        "[bad](missing.md) [bad dir](nowhere/) [bad anchor](there.md#three) [bad](#bottom)\n",
         encoding="utf-8",
     )
-    assert _broken_links(page) == ["missing.md", "nowhere/"]
+    assert _broken_links(page) == ["missing.md", "nowhere/", "there.md#three", "#bottom"]
 
 
 def test_no_issue_numbers():
