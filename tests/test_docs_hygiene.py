@@ -161,3 +161,10 @@ def test_no_issue_numbers():
             if ISSUE_NUMBER.search(line):
                 hits.append(f"{rel}:{number}: {line.strip()[:100]}")
     assert hits == [], "name the subject, not the issue:\n" + "\n".join(hits)
+
+
+def test_every_docs_page_is_in_the_index():
+    index = (ROOT / "docs" / "README.md").read_text(encoding="utf-8")
+    linked = {t.split("#", 1)[0] for t in _relative_links(index)}
+    pages = {p.name for p in (ROOT / "docs").glob("*.md")} - {"README.md"}
+    assert sorted(pages - linked) == []
