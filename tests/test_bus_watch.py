@@ -136,10 +136,10 @@ def _run(tmp_path: Path, port: int, clock: str, act, duration_s: float = 4.0):  
 
 
 ATTACKS = {
-    "second SYNC": (_second_sync, "bus", "second master", "SYNC frame (id 0x080"),
+    "second SYNC": (_second_sync, "bus", "second master", "SYNC (id 0x080"),
     "SDO controlword 0": (_controlword_zero, "bus", "second master",
-                          "SDO request to node 2 frame (id 0x602"),
-    "NMT stop": (_nmt_stop_all, "bus", "second master", "NMT command frame (id 0x000"),
+                          "SDO request to node 2 (id 0x602"),
+    "NMT stop": (_nmt_stop_all, "bus", "second master", "NMT command (id 0x000"),
     "short EMCY": (_short_emcy, "reaction_wheel", "malformed frame", "EMCY of 2 bytes"),
     "node id twice": (_duplicate_heartbeats, "reaction_wheel", "node id used twice",
                       "two nodes answer with id 2"),

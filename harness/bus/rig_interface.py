@@ -373,9 +373,9 @@ class RigInterface:
         c.foreign += 1
         if not c.first_foreign:
             what = self.own_ids[(msg.arbitration_id, msg.is_extended_id)]
-            c.first_foreign = (f"a {what} frame (id 0x{msg.arbitration_id:03X}, "
-                               f"{bytes(msg.data).hex(' ') or 'no data'}) the harness did not "
-                               "send: another master is on the bus")
+            c.first_foreign = (f"{what} (id 0x{msg.arbitration_id:03X}, "
+                               f"{bytes(msg.data).hex(' ') or 'no data'}) that the harness did "
+                               "not send: another master is on the bus")
 
     # ------------------------------------------------------------------ CANopen
     def watch_heartbeats(self, dt_s: float, start_tick: int = 0, grace_ticks: int = 0) -> None:

@@ -18,16 +18,26 @@ rotor in the default rig file):
 | flags | accelerometer saturated, wheel fault, piezo over-current | d |
 | overspeed | wheel speed beyond 1.02 x its limit | 1 |
 | valve stuck | open while commanded closed past closing delay + min on-time | that + 2 d + 1 |
-| EMCY (CANopen) | a node's emergency frame (code and register named), a drive fault | 1 |
+| EMCY (CANopen) | a node's emergency frame, a drive fault; an EMCY not 8 bytes long | 1 |
 | node rebooted (CANopen) | a node's boot-up frame mid-run | 1 |
 | NMT state (CANopen) | a node's heartbeat says it is not operational | its heartbeat period |
 | heartbeat lost (CANopen) | no heartbeat for 3 periods (or the real-time grace) | 3 periods + 1 |
+| second master | a SYNC, NMT, SDO request, command or heartbeat the harness did not send | 1 |
+| drive disabled | a drive commanded enabled reports otherwise (its CiA 402 state named) | d |
+| frames lost (wall clock) | frames older than the grace g not come (see below) | 2 (g+6) d |
+| duplicate frames | a device's frames beyond what the SYNCs asked for | 20 + s; s |
+| node id used twice | 8 heartbeats of one CANopen node within 5 of its periods | 8 heartbeats |
 | limits | hub angle, rate, wheel speed or tip acceleration beyond the run's `limits` | 1 |
 
 On the real-time clock, frames may arrive a few ticks late with nothing wrong (a busy
 machine): there "silent" and "late" wait at least `realtime_grace_s` (50 ms), and missing
-frames count only through the frame counters (sequence gaps), not per tick. A device never
-heard from is reported silent only after `startup_s` (0.5 s).
+frames count through the frame counters (sequence gaps) and against the SYNCs that asked for
+them (a CANopen PDO has no counter): frames asked for more than the grace g ago and not come,
+`lost_frames` more than their least count over the last 4 (g + 20 d) ticks, are lost (every
+other frame missing: within 2 (g + lost_frames + 1) d ticks). More frames than the SYNCs asked
+for (a second node with a device's id) are counted every 20 ticks in lockstep, every tick on
+the wall clock, past a slack s of (g / d + 2) frames + 2. A device never heard from is
+reported silent only after `startup_s` (0.5 s).
 
 The safe state is commanded in the tick the fault is detected, so the actuators are safe one
 tick after detection at the latest (the virtual rig applies commands at the next SYNC).
