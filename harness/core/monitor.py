@@ -467,12 +467,14 @@ class FaultMonitor:
         # past a limit; the order of the checks (the first event wins) is unchanged. Each
         # check's all-clear path is inline here (one call a tick, issue 23); anything past
         # it goes to the check's own method, which decides and words the event.
+        c = self._bus_counters
+        if c.foreign:  # another master first: what the nodes report next may be its doing
+            return self._bus(tick, state, sent)
         if self._protocol_fault is not None:
             event = self._protocol(tick, state, sent)
             if event is not None:
                 return event
-        c = self._bus_counters
-        if (c.bus_off or c.foreign or c.error_frames > self._max_error_frames
+        if (c.bus_off or c.error_frames > self._max_error_frames
                 or c.unknown > self._max_unknown_frames):
             return self._bus(tick, state, sent)
         max_malformed = self._max_malformed
