@@ -580,6 +580,10 @@ class VirtualRig:
                 drive = co.drive(f.device)
                 if drive is not None:
                     drive.inject_fault(0x2310)
+            elif f.kind == "drive_disabled":
+                drive = co.drive(f.device)
+                if drive is not None:
+                    drive.disable_voltage()
             elif f.kind == "node_reboot":
                 node.reboot()
             elif f.kind == "node_stopped":

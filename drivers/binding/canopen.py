@@ -58,6 +58,22 @@ ERROR_REGISTER_BITS = ("generic", "current", "voltage", "temperature", "communic
                        "device profile specific", "reserved", "manufacturer specific")
 
 
+CIA402_STATES = (  # (mask, value, name) of the statusword, CiA 402's state table
+    (0x4F, 0x00, "not ready to switch on"), (0x4F, 0x40, "switch on disabled"),
+    (0x6F, 0x21, "ready to switch on"), (0x6F, 0x23, "switched on"),
+    (0x6F, 0x27, "operation enabled"), (0x6F, 0x07, "quick stop active"),
+    (0x4F, 0x0F, "fault reaction active"), (0x4F, 0x08, "fault"),
+)
+
+
+def cia402_state(statusword: int) -> str:
+    """The CiA 402 drive state a statusword reports, by name."""
+    for mask, value, name in CIA402_STATES:
+        if statusword & mask == value:
+            return name
+    return "an undefined state"
+
+
 def emcy_meaning(code: int, register: int) -> str:
     """An EMCY's error code and error register in words (CiA 301 / the profiles)."""
     text = EMCY_CODES.get(code) or EMCY_CLASSES.get(code >> 8) or EMCY_CLASSES.get(

@@ -197,6 +197,14 @@ class Cia402Drive:
                 self.state = DriveState.SWITCH_ON_DISABLED
         self._publish()
 
+    def disable_voltage(self) -> None:
+        """The power stage off by the drive's own input (safe torque off), as a controlword
+        with bit 1 clear would: switch on disabled, no EMCY; the master's enable operation
+        alone does not bring it back (it needs a shutdown first)."""
+        if self.state in _POWERED:
+            self.state = DriveState.SWITCH_ON_DISABLED
+            self._publish()
+
     def inject_fault(self, error_code: int = 0x2310) -> None:
         """A drive fault (default 0x2310 continuous overcurrent): fault bit, 0x603F, EMCY,
         torque off at once; 'fault' from the next SYNC until a fault reset (bit 7)."""
