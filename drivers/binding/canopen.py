@@ -287,7 +287,7 @@ class PdoTelemetryMap:
         pos = {e: i for i, e in enumerate(codec.entries)}
         self._f = tuple((f.quantity, pos[f.ref], f.conv.si_function()) for f in fields)
         #: payload -> {quantity: SI value}; FrameError on a wrong length. One compiled
-        #: function (every TPDO of every tick: issue 20's tick), equal to
+        #: function (every TPDO of every tick), equal to
         #: ``{q: conv(raw[i]) for q, i, conv in _f}`` over ``codec.decode_raw(data)``
         self.decode: Callable[[bytes | bytearray], dict[str, float] | None] = \
             self._compile_decode()
@@ -328,7 +328,7 @@ class PdoCommandMap:
     def encoder(self, quantities: tuple[str, ...]) -> Callable[..., bytes]:
         """A positional encoder: ``encoder(quantities)(v0, v1, ..., counter)`` is
         ``encode(dict(zip(quantities, (v0, v1, ...))), counter)`` (as ``CommandMap``'s)."""
-        # compiled once into one function (every tick: issue 20): each mapped object's raw
+        # compiled once into one function (every tick): each mapped object's raw
         # value as an expression, a bit-packed object OR-ed together, as encode() does
         arg = {q: f"p{k}" for k, q in enumerate(quantities)}  # a repeated name: the last
         namespace: dict[str, Any] = {"_encode_raw": self.codec.encode_raw}

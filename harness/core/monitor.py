@@ -465,7 +465,7 @@ class FaultMonitor:
         # driven by what changed: a device's checks run only in a tick its telemetry came
         # (or, for the valves, a tick they were commanded open), the limits' messages only
         # past a limit; the order of the checks (the first event wins) is unchanged. Each
-        # check's all-clear path is inline here (one call a tick, issue 23); anything past
+        # check's all-clear path is inline here (one call a tick); anything past
         # it goes to the check's own method, which decides and words the event.
         c = self._bus_counters
         if c.foreign:  # another master first: what the nodes report next may be its doing
