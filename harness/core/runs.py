@@ -14,7 +14,7 @@ from typing import Any
 
 import yaml
 
-from harness.controllers.registry import CONTROLLERS
+from harness.controllers.registry import controller_names, controller_type
 from harness.core.monitor import LIMITS_SCHEMA, MONITOR_SCHEMA
 from rig_models.faults import FaultSpec, make_fault
 from rig_models.rig_file import RigConfig, load_rig, rig_from_dict
@@ -158,17 +158,18 @@ def run_from_dict(raw: Any, source: str = "run", base_dir: Path | None = None,
         raise ConfigError(
             f"{source}: actuators: expected a list from {list(ACTUATORS)}, got {actuators!r}")
     ctrl = data["controller"]
+    names = controller_names()  # the registered types (built-in and installed plugins)
     if (not isinstance(ctrl, dict) or not isinstance(ctrl.get("type"), str)
-            or ctrl["type"] not in CONTROLLERS):
+            or ctrl["type"] not in names):
         raise ConfigError(
-            f"{source}: controller.type: expected one of {sorted(CONTROLLERS)}, "
+            f"{source}: controller.type: expected one of {names}, "
             f"got {ctrl.get('type') if isinstance(ctrl, dict) else ctrl!r}")
     if data["faults"] is not None and not isinstance(data["faults"], list):
         raise ConfigError(f"{source}: faults: expected a list of {{kind, at_s, ...}}")
     for i, f in enumerate(data["faults"] or []):
         make_fault(f, f"{source}: faults[{i}]")
-    schema, _ = CONTROLLERS[ctrl["type"]]
-    data["controller"] = validate(ctrl, schema, source, "controller")
+    data["controller"] = validate(ctrl, controller_type(ctrl["type"]).schema, source,
+                                  "controller")
     rig = load_rig(data["rig"])
     if data["rig_overrides"]:
         if not isinstance(data["rig_overrides"], dict):
@@ -194,9 +195,9 @@ def _check_expect(data: dict[str, Any], rig: RigConfig, source: str, base_dir: P
 
 
 def build_controller(run: RunConfig) -> Any:
-    _, builder = CONTROLLERS[run.controller["type"]]
+    ctype = controller_type(run.controller["type"])
     try:
-        controller = builder(run.controller, run.rig, run.dt_s)
+        controller = ctype.build(run.controller, run.rig, run.dt_s)
     except ValueError as exc:
         raise ConfigError(f"{run.source}: controller: {exc}") from exc
     except (OverflowError, ZeroDivisionError, FloatingPointError) as exc:
@@ -206,4 +207,13 @@ def build_controller(run: RunConfig) -> Any:
                          and abs(v) > 1e6)
         raise ConfigError(f"{run.source}: controller: its numbers are out of range ({exc}"
                           f"{'; ' + keys if keys else ''})") from exc
+    except Exception as exc:
+        if ctype.builtin:
+            raise
+        # a plugin's own failure: named, one line, before anything is sent
+        raise ConfigError(f"{run.source}: controller: {ctype.describe()} failed to build: "
+                          f"{type(exc).__name__}: {exc}") from exc
+    if not callable(getattr(controller, "step", None)):
+        raise ConfigError(f"{run.source}: controller: {ctype.describe()} returned "
+                          f"{type(controller).__name__}, which has no step(state) method")
     return controller
