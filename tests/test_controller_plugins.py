@@ -9,6 +9,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 import tomllib
 from pathlib import Path
 
@@ -18,6 +19,8 @@ import yaml
 from harness.controllers import registry
 from harness.controllers.api import controller_factory
 from harness.core.runs import build_controller, run_from_dict
+from harness.core.session import execute_run
+from harness.state import RigCommand
 from rig_models.schema import ConfigError, Field
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -163,6 +166,44 @@ def test_the_declared_schema_gets_the_type_key():
     assert build.schema == {"type": Field("str", required=True), "k": Field("number")}
 
 
+class Slow:
+    """A controller whose step() takes ``step_s`` of the CPU."""
+
+    def __init__(self, step_s: float) -> None:
+        self.step_s = step_s
+
+    def reset(self) -> None:
+        pass
+
+    def step(self, state: object) -> RigCommand:
+        end = time.perf_counter() + self.step_s
+        while time.perf_counter() < end:
+            pass
+        return RigCommand()
+
+
+def test_a_controller_over_its_tick_budget_is_named_in_the_summary_with_its_time(
+        tmp_path, monkeypatch):
+    reg = registry.ControllerRegistry()
+    reg.add(registry.ControllerType(
+        "lab_slow", {"type": Field("str", required=True), "step_s": Field("number")},
+        lambda c, rig, dt_s: Slow(c["step_s"]), "lab-slow", "lab_slow:build"))
+    monkeypatch.setattr(registry, "REGISTRY", reg)
+    slow = run_from_dict({"name": "slow", "duration_s": 0.4, "controller_budget_ms": 0.5,
+                          "controller": {"type": "lab_slow", "step_s": 0.001}})
+    s = execute_run(slow, out_dir=tmp_path, show_progress=False).summary
+    c = s["controller"]
+    assert c["type"] == "lab_slow" and c["distribution"] == "lab-slow" and c["over_budget"]
+    assert c["step_budget_ms"] == 0.5 and c["ticks_over_budget"] == s["ticks"] == 201
+    assert c["step_mean_ms"] >= 1.0 and c["step_max_ms"] >= 1.0
+    # a quick controller, the default budget (a tenth of the 2 ms period)
+    hold = run_from_dict({"name": "hold", "duration_s": 1.0, "controller": {"type": "hold"}})
+    c = execute_run(hold, out_dir=tmp_path, show_progress=False).summary["controller"]
+    assert c["step_budget_ms"] == pytest.approx(0.2) and not c["over_budget"]
+    assert c["type"] == "hold" and c["distribution"] == "sgsrt-harness"
+    assert 0 < c["step_mean_ms"] < 0.2
+
+
 # ---------------------------------------------------------------- the example package, for real
 
 
@@ -208,6 +249,10 @@ def test_the_installed_example_runs_by_its_name_through_the_acceptance_slew_chec
     (summary,) = tmp_path.glob("*-example-controller/*cascade-slew/summary.json")
     s = json.loads(summary.read_text())
     assert s["stopped_by"] == "completed" and s["target_angle_deg"] == 2.0
+    assert s["controller"]["type"] == "cascade_slew"
+    assert s["controller"]["distribution"] == "sgsrt-example-controller"
+    assert s["controller"]["entry_point"] == "sgsrt_example_controller:build_cascade_slew"
+    assert not s["controller"]["over_budget"], s["controller"]
 
 
 def test_without_the_package_installed_the_type_is_unknown(tmp_path):
