@@ -245,7 +245,7 @@ def test_the_installed_example_runs_by_its_name_through_the_acceptance_slew_chec
     assert test["verdict"] == "PASS"
     assert checks == {name: "PASS" for name in (
         "final_error", "settles", "wheel_torque", "wheel_torque_measured", "malformed",
-        "unknown_ids", "safe", "residual_vibration")}
+        "unknown_ids", "safe", "within_budget", "residual_vibration")}
     (summary,) = tmp_path.glob("*-example-controller/*cascade-slew/summary.json")
     s = json.loads(summary.read_text())
     assert s["stopped_by"] == "completed" and s["target_angle_deg"] == 2.0
