@@ -18,7 +18,7 @@ import yaml
 
 from harness.controllers import registry
 from harness.controllers.api import controller_factory
-from harness.core.runs import build_controller, run_from_dict
+from harness.core.runs import build_controller, load_run, run_from_dict
 from harness.core.session import execute_run
 from harness.state import RigCommand
 from rig_models.schema import ConfigError, Field
@@ -234,6 +234,7 @@ def harness(args: list[str], site: Path | None, cwd: Path) -> subprocess.Complet
                           text=True, env=env, cwd=cwd, timeout=600)
 
 
+@pytest.mark.slow
 def test_the_installed_example_runs_by_its_name_through_the_acceptance_slew_checks(
         example_site, tmp_path):
     proc = harness(["test", str(EXAMPLE / "suite.yaml"), "--out", str(tmp_path),
@@ -255,31 +256,43 @@ def test_the_installed_example_runs_by_its_name_through_the_acceptance_slew_chec
     assert not s["controller"]["over_budget"], s["controller"]
 
 
-def test_without_the_package_installed_the_type_is_unknown(tmp_path):
+def test_without_the_package_installed_the_type_is_unknown():
     if "cascade_slew" in registry.controller_names():
         pytest.skip("the example package is installed in this environment (pip install -e)")
-    proc = harness(["run", str(EXAMPLE / "runs" / "cascade-slew.yaml"), "--out",
-                    str(tmp_path)], None, tmp_path)
-    assert proc.returncode == 2
-    assert "controller.type: expected one of" in proc.stderr and "cascade_slew" in proc.stderr
-    assert not list(tmp_path.iterdir())  # refused before anything was written
+    with pytest.raises(ConfigError, match=r"controller.type: expected one of \[.*\], got "
+                                          r"'cascade_slew'"):
+        load_run(str(EXAMPLE / "runs" / "cascade-slew.yaml"))
 
 
-@pytest.mark.parametrize(("change", "expected"), [
-    ({"max_rate_deg_s": "fast"}, "controller.max_rate_deg_s: expected a finite number > 0 "
-                                 "(deg/s), got 'fast'"),
-    ({"rate_gain": 2.0}, "controller.rate_gain: unknown key (expected one of: angle_bandwidth"),
-    ({"rate_bandwidth_rad_s": 400.0}, "controller: rate_bandwidth_rad_s 400 is too fast"),
-])
-def test_the_examples_schema_errors_name_its_keys(example_site, tmp_path, change, expected):
+def test_the_examples_schema_errors_name_its_keys(example_site, tmp_path):
+    """On the command line: one line naming the key, exit 2, nothing written."""
     run = yaml.safe_load((EXAMPLE / "runs" / "cascade-slew.yaml").read_text())
-    run["controller"].update(change)
+    run["controller"]["rate_gain"] = 2.0
     path = tmp_path / "bad.yaml"
     path.write_text(yaml.safe_dump(run))
     out = tmp_path / "logs"
     proc = harness(["run", str(path), "--out", str(out)], example_site, tmp_path)
     assert proc.returncode == 2, proc.stderr
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and expected in lines[0], proc.stderr
-    assert lines[0].startswith("harness: run file bad.yaml: ")
+    assert proc.stderr.strip().splitlines() == [
+        "harness: run file bad.yaml: controller.rate_gain: unknown key (expected one of: "
+        "angle_bandwidth_rad_s, angle_deg, feedforward, max_rate_deg_s, rate_bandwidth_rad_s, "
+        "start_s, torque_fraction, type)"]
     assert not out.exists() or not list(out.iterdir())
+
+
+@pytest.mark.parametrize(("change", "expected"), [
+    ({"max_rate_deg_s": "fast"}, "controller.max_rate_deg_s: expected a finite number > 0 "
+                                 "(deg/s), got 'fast'"),
+    ({"torque_fraction": 1.5}, "controller.torque_fraction: expected a finite number > 0 "
+                               "<= 1, got 1.5"),
+    ({"rate_bandwidth_rad_s": 400.0}, "controller: rate_bandwidth_rad_s 400 is too fast"),
+])
+def test_the_installed_examples_values_are_checked_by_its_schema(example_site, monkeypatch,
+                                                                 change, expected):
+    monkeypatch.syspath_prepend(str(example_site))
+    monkeypatch.setattr(registry, "REGISTRY", registry.ControllerRegistry())
+    path = EXAMPLE / "runs" / "cascade-slew.yaml"
+    assert build_controller(load_run(str(path))).step is not None
+    with pytest.raises(ConfigError) as err:
+        build_controller(load_run(str(path), {"controller": change}))
+    assert str(err.value).startswith(f"run file cascade-slew.yaml: {expected}")
