@@ -36,9 +36,10 @@ class ExplodingController:
 
 @pytest.fixture
 def exploding(monkeypatch):
-    monkeypatch.setitem(registry.CONTROLLERS, "explode", (
-        {"type": registry.Field("str", required=True)},
-        lambda c, rig, dt: ExplodingController(300)))
+    reg = registry.ControllerRegistry()
+    reg.add(registry.ControllerType("explode", {"type": registry.Field("str", required=True)},
+                                    lambda c, rig, dt: ExplodingController(300)))
+    monkeypatch.setattr(registry, "REGISTRY", reg)
 
 
 def _last_commands(blf: Path) -> dict[str, dict[str, float]]:

@@ -151,6 +151,13 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
                 print("harness: monitor warnings: " + ", ".join(
                     f"{k} {n}" for k, n in warned.items()) + " (events under /events/monitor)",
                       file=sys.stderr)
+            ctrl = s.get("controller") or {}
+            if ctrl.get("over_budget"):
+                print(f"harness: controller {ctrl['type']} of {ctrl['distribution']} overran "
+                      f"its budget of {ctrl['step_budget_ms']:.3g} ms a tick in "
+                      f"{ctrl['ticks_over_budget']} of {s['ticks']} ticks (step() "
+                      f"{ctrl['step_mean_ms']:.3g} ms on average, {ctrl['step_max_ms']:.3g} ms "
+                      "at most)", file=sys.stderr)
             for f in s.get("faults", []):
                 print(f"harness: FAULT {f['device']}: {f['kind']}: {f['message']} at "
                       f"t = {f['time_s']:.3f} s; actuators commanded safe", file=sys.stderr)

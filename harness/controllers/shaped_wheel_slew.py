@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.controllers.api import controller_factory
 from harness.shaping.impulse_shapers import ImpulseSequence, ShapedCommand, ei, multi_mode, zv, zvd
 from harness.shaping.robust import mode_band, si_for_band
 from harness.state import RigCommand, RigState
@@ -236,6 +237,7 @@ SHAPED_WHEEL_SLEW_SCHEMA = {
 }
 
 
+@controller_factory(SHAPED_WHEEL_SLEW_SCHEMA)
 def build_shaped_wheel_slew(c: dict[str, Any], rig: RigConfig, dt_s: float) -> ShapedWheelSlew:
     t_max = rig.section("reaction_wheel")["max_torque_n_m"]
     if c["torque_n_m"] > t_max:
@@ -249,6 +251,3 @@ def build_shaped_wheel_slew(c: dict[str, Any], rig: RigConfig, dt_s: float) -> S
                            c["band_sigmas"], c["band_min_percent"] / 100.0)
     return ShapedWheelSlew(math.radians(c["angle_deg"]), rig.plant.inertia_kg_m2,
                            c["torque_n_m"], c["start_s"], dt_s, shaper, c["shaper"])
-
-
-CONTROLLER_TYPES = {"shaped_wheel_slew": (SHAPED_WHEEL_SLEW_SCHEMA, build_shaped_wheel_slew)}

@@ -48,6 +48,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.controllers.api import controller_factory
 from harness.controllers.oppf import (
     OPPFDesign,
     OPPFWeights,
@@ -373,6 +374,7 @@ class ThrusterSlewController:
         }
 
 
+@controller_factory(THRUSTER_SLEW_SCHEMA)
 def build_thruster_slew(c: dict[str, Any], rig: RigConfig, dt_s: float) -> ThrusterSlewController:
     tv = rig.section("thruster_valves")
     couple = tv["couple_n_m"]
@@ -427,6 +429,3 @@ def build_thruster_slew(c: dict[str, Any], rig: RigConfig, dt_s: float) -> Thrus
         couple_n_m=couple, pwpf=pwpf, dt_s=dt_s, min_pulse_s=min_pulse, csvs=seq,
         csvs_modes=modes, oppf=designs, voltage_limit_v=pa["max_voltage_v"],
         max_step_v=(max_step[0], max_step[1]), closed_loop=report)
-
-
-CONTROLLER_TYPES = {"thruster_pd_pwpf": (THRUSTER_SLEW_SCHEMA, build_thruster_slew)}

@@ -72,6 +72,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import minimize
 
+from harness.controllers.api import controller_factory
 from harness.controllers.shaped_wheel_slew import (
     Mode,
     ScheduledSlew,
@@ -563,6 +564,7 @@ def parse_extra_zv_modes(raw: Any, modes: Sequence[Mode]) -> tuple[Mode, ...]:
     return tuple(modes[i - 1] for i in raw)
 
 
+@controller_factory(THRUSTER_TWO_LEVEL_SCHEMA)
 def build_thruster_two_level(c: dict[str, Any], rig: RigConfig,
                              dt_s: float) -> ThrusterTwoLevelSlew:
     tv = rig.section("thruster_valves")
@@ -584,6 +586,3 @@ def build_thruster_two_level(c: dict[str, Any], rig: RigConfig,
                            inertia_kg_m2=inertia, torque_n_m=tv["couple_n_m"])
     return ThrusterTwoLevelSlew(design, tv["couple_n_m"], inertia, c["start_s"], dt_s,
                                 tv["min_on_time_s"], c["pwm_period_s"])
-
-
-CONTROLLER_TYPES = {"thruster_two_level": (THRUSTER_TWO_LEVEL_SCHEMA, build_thruster_two_level)}

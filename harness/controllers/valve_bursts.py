@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from harness.controllers.api import controller_factory
 from harness.controllers.registry import WheelBursts, _bursts
 from harness.state import RigCommand, RigState
 from rig_models.rig_file import RigConfig
@@ -28,6 +29,11 @@ class ValveBursts(WheelBursts):
         return RigCommand(valve_direction=int(round(self.torque(state.time_s))))
 
 
+@controller_factory({
+    "type": Field("str", required=True),
+    "start_s": Field("number", "s", default=0.5, minimum=0.0),
+    "bursts": Field("any", required=True),
+})
 def build_valve_bursts(c: dict[str, Any], rig: RigConfig, dt_s: float) -> ValveBursts:
     bursts = _bursts(c)
     min_on = rig.section("thruster_valves")["min_on_time_s"]
@@ -40,14 +46,3 @@ def build_valve_bursts(c: dict[str, Any], rig: RigConfig, dt_s: float) -> ValveB
                 f"{min_on * 1e3:g} ms (or one tick, {dt_s * 1e3:g} ms)")
     return ValveBursts(c["start_s"], bursts)
 
-
-CONTROLLER_TYPES = {
-    "valve_bursts": (
-        {
-            "type": Field("str", required=True),
-            "start_s": Field("number", "s", default=0.5, minimum=0.0),
-            "bursts": Field("any", required=True),
-        },
-        build_valve_bursts,
-    ),
-}

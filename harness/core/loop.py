@@ -70,6 +70,11 @@ class LoopStats:
     # process's SYNC timing tells which of them the host kept the rig from answering in time
     missing_on_time_ticks: list[tuple[int, int, float]] = field(default_factory=list)
     wall_s: float = 0.0
+    # the controller's step() per tick (wall time, perf_counter around the call): the sum,
+    # the longest and the ticks over its budget (run_loop's step_budget_s)
+    step_total_s: float = 0.0
+    step_max_s: float = 0.0
+    steps_over_budget: int = 0
     stopped_by: str = "completed"
     error: str = ""
     faults: list[Any] = field(default_factory=list)
@@ -115,9 +120,12 @@ def run_loop(
     stats: LoopStats | None = None,
     monitor: Any = None,
     should_stop: Callable[[], str | None] | None = None,
+    step_budget_s: float = math.inf,
 ) -> LoopStats:
     """Run ``n_ticks`` ticks. ``pump`` lets an in-process virtual rig answer (lockstep).
-    ``stats`` (filled in place) stays with the caller even when the loop raises."""
+    ``stats`` (filled in place) stays with the caller even when the loop raises.
+    ``step_budget_s``: the controller's time per tick; the ticks its step() took longer are
+    counted (``stats.steps_over_budget``)."""
     stats = stats if stats is not None else LoopStats()
     step = controller.step  # type: ignore[attr-defined]
     perf = time.perf_counter
@@ -154,6 +162,8 @@ def run_loop(
     check = monitor.check if monitor is not None else None
     degrees = math.degrees
     on_time_ticks = 0
+    step_total = step_max = 0.0
+    steps_over = 0
     wall0 = perf()
     clock.start()
     tick = 0
@@ -184,7 +194,14 @@ def run_loop(
                 stats.missing_frames += missing
             t_s = tick * dt_s
             state = snapshot(tick, t_s)
+            t_step = perf()
             cmd = step(state)
+            t_step = perf() - t_step
+            step_total += t_step
+            if t_step > step_max:
+                step_max = t_step
+            if t_step > step_budget_s:
+                steps_over += 1
             sent = command(cmd)
             work = perf() - t_start
             if realtime:
@@ -256,6 +273,8 @@ def run_loop(
         raise
     finally:
         stats.wall_s = perf() - wall0
+        stats.step_total_s, stats.step_max_s = step_total, step_max
+        stats.steps_over_budget = steps_over
         if on_time_ticks:
             stats.lateness_s.add_repeated(0.0, on_time_ticks)
         leave_safe(interface, pump)

@@ -14,7 +14,7 @@ from typing import Any
 
 import yaml
 
-from harness.controllers.registry import CONTROLLERS
+from harness.controllers.registry import controller_names, controller_type
 from harness.core.monitor import LIMITS_SCHEMA, MONITOR_SCHEMA
 from rig_models.faults import FaultSpec, make_fault
 from rig_models.rig_file import RigConfig, load_rig, rig_from_dict
@@ -40,6 +40,8 @@ RUN_SCHEMA: dict[str, Any] = {
                                   maximum=100.0),
     "actuators": Field("any", default=["reaction_wheel"]),
     "controller": Field("any", required=True),
+    # the controller's step() time per tick; default STEP_BUDGET_FRACTION of the period
+    "controller_budget_ms": Field("number", "ms", default=None, exclusive_minimum=0.0),
     "settle_band_deg": Field("number", "deg", default=0.1, exclusive_minimum=0.0),
     # windows at most 30 days too: 1e308 s overflowed the rows the recorder keeps
     "residual_window_s": Field("number", "s", default=10.0, exclusive_minimum=0.0,
@@ -72,6 +74,17 @@ RUN_SCHEMA: dict[str, Any] = {
 }
 
 
+STEP_BUDGET_FRACTION = 0.1
+"""A controller's default time per tick, as a fraction of the loop period (0.2 ms at
+500 Hz): the loop keeps ``harness.core.loop.RESERVE_FRACTION`` (0.3) of the period after the
+telemetry for the controller, the commands and the recording."""
+
+OVER_BUDGET_TICKS_FRACTION = 0.01
+"""A controller is named as over its budget when more than this fraction of its ticks took
+longer: a step now and then is stretched by the host (the process preempted in the call),
+a slow controller is slow in every tick of a phase."""
+
+
 @dataclass(frozen=True)
 class RunConfig:
     source: str
@@ -93,6 +106,12 @@ class RunConfig:
     @property
     def controller(self) -> dict[str, Any]:
         return self.data["controller"]
+
+    @property
+    def step_budget_s(self) -> float:
+        """The controller's time per tick (s): the run file's or the default."""
+        budget_ms = self.data.get("controller_budget_ms")
+        return budget_ms / 1e3 if budget_ms is not None else STEP_BUDGET_FRACTION * self.dt_s
 
     @property
     def faults(self) -> list[FaultSpec]:
@@ -158,17 +177,18 @@ def run_from_dict(raw: Any, source: str = "run", base_dir: Path | None = None,
         raise ConfigError(
             f"{source}: actuators: expected a list from {list(ACTUATORS)}, got {actuators!r}")
     ctrl = data["controller"]
+    names = controller_names()  # the registered types (built-in and installed plugins)
     if (not isinstance(ctrl, dict) or not isinstance(ctrl.get("type"), str)
-            or ctrl["type"] not in CONTROLLERS):
+            or ctrl["type"] not in names):
         raise ConfigError(
-            f"{source}: controller.type: expected one of {sorted(CONTROLLERS)}, "
+            f"{source}: controller.type: expected one of {names}, "
             f"got {ctrl.get('type') if isinstance(ctrl, dict) else ctrl!r}")
     if data["faults"] is not None and not isinstance(data["faults"], list):
         raise ConfigError(f"{source}: faults: expected a list of {{kind, at_s, ...}}")
     for i, f in enumerate(data["faults"] or []):
         make_fault(f, f"{source}: faults[{i}]")
-    schema, _ = CONTROLLERS[ctrl["type"]]
-    data["controller"] = validate(ctrl, schema, source, "controller")
+    data["controller"] = validate(ctrl, controller_type(ctrl["type"]).schema, source,
+                                  "controller")
     rig = load_rig(data["rig"])
     if data["rig_overrides"]:
         if not isinstance(data["rig_overrides"], dict):
@@ -194,9 +214,9 @@ def _check_expect(data: dict[str, Any], rig: RigConfig, source: str, base_dir: P
 
 
 def build_controller(run: RunConfig) -> Any:
-    _, builder = CONTROLLERS[run.controller["type"]]
+    ctype = controller_type(run.controller["type"])
     try:
-        controller = builder(run.controller, run.rig, run.dt_s)
+        controller = ctype.build(run.controller, run.rig, run.dt_s)
     except ValueError as exc:
         raise ConfigError(f"{run.source}: controller: {exc}") from exc
     except (OverflowError, ZeroDivisionError, FloatingPointError) as exc:
@@ -206,4 +226,31 @@ def build_controller(run: RunConfig) -> Any:
                          and abs(v) > 1e6)
         raise ConfigError(f"{run.source}: controller: its numbers are out of range ({exc}"
                           f"{'; ' + keys if keys else ''})") from exc
+    except Exception as exc:
+        if ctype.builtin:
+            raise
+        # a plugin's own failure: named, one line, before anything is sent
+        raise ConfigError(f"{run.source}: controller: {ctype.describe()} failed to build: "
+                          f"{type(exc).__name__}: {exc}") from exc
+    if not callable(getattr(controller, "step", None)):
+        raise ConfigError(f"{run.source}: controller: {ctype.describe()} returned "
+                          f"{type(controller).__name__}, which has no step(state) method")
     return controller
+
+
+def controller_summary(run: RunConfig, stats: Any) -> dict[str, Any]:
+    """summary.json's ``controller``: which type ran (its distribution and entry point) and
+    its step() time per tick against its budget (``stats``: the loop's ``LoopStats``)."""
+    ctype = controller_type(run.controller["type"])
+    ticks = stats.ticks
+    over = stats.steps_over_budget
+    return {
+        "type": ctype.name,
+        "distribution": ctype.distribution,
+        "entry_point": ctype.entry_point,
+        "step_budget_ms": run.step_budget_s * 1e3,
+        "step_mean_ms": stats.step_total_s / ticks * 1e3 if ticks else 0.0,
+        "step_max_ms": stats.step_max_s * 1e3,
+        "ticks_over_budget": over,
+        "over_budget": over > OVER_BUDGET_TICKS_FRACTION * ticks,
+    }

@@ -32,7 +32,7 @@ from harness.core.loop import CHANNELS, HELD_FRACTION, RESERVE_FRACTION, LoopSta
 from harness.core.monitor import FaultMonitor, MonitorWarning
 from harness.core.paths import safe_child, safe_name
 from harness.core.periodic import steady_state_amplitude
-from harness.core.runs import RunConfig, build_controller
+from harness.core.runs import RunConfig, build_controller, controller_summary
 from harness.core.streaming import RunningSummary
 from harness.record.can_log import CanLog
 from harness.record.output import (
@@ -419,7 +419,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                 interface, controller, loop_clock, recorder, run.n_ticks, dt_s,
                 heartbeat_every, run.data["receive_timeout_ms"] / 1e3, pump=pump,
                 reference=reference, progress=_progress if show_progress else None,
-                stats=stats, monitor=monitor, should_stop=should_stop)
+                stats=stats, monitor=monitor, should_stop=should_stop,
+                step_budget_s=run.step_budget_s)
         finally:
             if show_progress:
                 print("", file=sys.stderr)
@@ -436,6 +437,7 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
             if callable(design_report):
                 summary["controller_design"] = design_report()
             summary["dry_run"] = dry_run
+            summary["controller"] = controller_summary(run, stats)
             summary["faults"] = [f.to_dict() for f in stats.faults]
             summary["injected_faults"] = [vars(f) for f in (rig.injector.faults if rig else [])]
             failure = recorder.space_stop or recorder.failed or can_log.failed

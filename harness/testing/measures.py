@@ -71,6 +71,12 @@ SUMMARY_MEASURES: dict[str, str] = {
     "virtual_rig.malformed": "count",
     "virtual_rig.unknown": "count",
     "dry_run": "bool",
+    # the controller's step() time per tick against its budget (docs/controllers.md)
+    "controller.step_budget_ms": "ms",
+    "controller.step_mean_ms": "ms",
+    "controller.step_max_ms": "ms",
+    "controller.ticks_over_budget": "count",
+    "controller.over_budget": "bool",
     # periodic disturbance runs (case-a/b/c)
     "rotor_speed_rad_s": "rad_s",
     "rotor_period_s": "s",
