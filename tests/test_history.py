@@ -17,6 +17,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -297,36 +298,45 @@ def test_a_plain_run_and_a_suite_item_are_two_series_unless_the_run_file_is_the_
         assert runs == {run_sha256(plain): 2, run_sha256(item): 1}
 
 
-def test_a_database_of_the_first_layout_opens_migrated(tmp_path):
-    """A history.sqlite written before run configurations were kept: opened, migrated (the
-    column added, the version raised), its records kept and readable beside new ones."""
-    import sqlite3
-
+def write_first_layout(conn: Any, pk: str) -> None:
+    """The database as the first layout wrote it (no ``run_sha256``), with one record."""
     from harness.history.db import _TABLES
 
-    path = tmp_path / "history.sqlite"
-    old = sqlite3.connect(path)
     for stmt in _TABLES:
-        old.execute(stmt.format(pk="INTEGER PRIMARY KEY AUTOINCREMENT")
-                    .replace("        run_sha256 TEXT,\n", "")
-                    .replace("records(test, rig, run_sha256)", "records(test, rig)"))
-    assert "run_sha256" not in {r[1] for r in old.execute("PRAGMA table_info(records)")}
-    old.execute("INSERT INTO schema_version (version) VALUES (1)")
-    old.execute("INSERT INTO records (key, kind, time_utc, recorded_utc, test, rig, real_rig) "
-                "VALUES ('old', 'run', '2026-01-01T00:00:00Z', '2026-01-01T00:00:00Z', 't', "
-                "'sgsrt', 0)")
-    old.execute("INSERT INTO criteria (record_id, name, value, unit) VALUES (1, 'c', 1.0, 'm')")
-    old.commit()
-    old.close()
-    with HistoryDB(str(path)) as db:
+        if "records_series" not in stmt:  # an index of the second layout
+            conn.execute(stmt.format(pk=pk).replace("        run_sha256 TEXT,\n", ""))
+    conn.execute("INSERT INTO schema_version (version) VALUES (1)")
+    conn.execute("INSERT INTO records (key, kind, time_utc, recorded_utc, test, rig, "
+                 "real_rig) VALUES ('old', 'run', '2026-01-01T00:00:00Z', "
+                 "'2026-01-01T00:00:00Z', 't', 'sgsrt', 0)")
+    conn.execute("INSERT INTO criteria (record_id, name, value, unit) VALUES "
+                 "((SELECT id FROM records WHERE key = 'old'), 'c', 1.0, 'm')")
+
+
+def check_first_layout_opens_migrated(path: str) -> None:
+    with HistoryDB(path) as db:
         assert db._query("SELECT version FROM schema_version")[0]["version"] == SCHEMA_VERSION
         db.add(Record(key="new", kind="run", test="t", rig="sgsrt", run_sha256="abc",
                       time_utc="2026-02-01T00:00:00Z",
                       criteria=[{"name": "c", "value": 2.0, "unit": "m"}]))
         assert sorted(c["run_sha256"] for c in db.catalogue()) == ["", "abc"]
         assert [r["value"] for r in db.criterion_series("t", "c")] == [1.0, 2.0]
-    with HistoryDB(str(path)) as db:  # opened again: nothing to migrate
+    with HistoryDB(path) as db:  # opened again: nothing to migrate
         assert db.count() == 2
+
+
+def test_a_database_of_the_first_layout_opens_migrated(tmp_path):
+    """A history.sqlite written before run configurations were kept: opened, migrated (the
+    column added, the version raised), its records kept and readable beside new ones."""
+    import sqlite3
+
+    path = tmp_path / "history.sqlite"
+    old = sqlite3.connect(path)
+    write_first_layout(old, "INTEGER PRIMARY KEY AUTOINCREMENT")
+    assert "run_sha256" not in {r[1] for r in old.execute("PRAGMA table_info(records)")}
+    old.commit()
+    old.close()
+    check_first_layout_opens_migrated(str(path))
 
 
 def test_history_times_are_instants(tmp_path):
@@ -547,6 +557,18 @@ def test_postgresql_many_writers_and_series(pg_url):
         assert [a.index for a in s.alarms if a.kind == "control"] == [5]  # the margin's chart
     code, out = cli("history", "show", "pg", "--criterion", "c", "--db", pg_url)
     assert code == 1 and "ALARM (control, run 5)" in out
+
+
+def test_postgresql_two_rigs_keep_two_series(pg_url):
+    check_two_rigs_keep_two_series(pg_url, ["--db", pg_url])
+
+
+def test_postgresql_database_of_the_first_layout_opens_migrated(pg_url):
+    import psycopg
+
+    with psycopg.connect(pg_url, autocommit=True) as conn:
+        write_first_layout(conn, "BIGSERIAL PRIMARY KEY")
+    check_first_layout_opens_migrated(pg_url)
 
 
 def test_a_mode_leaving_the_calibrated_band_says_to_calibrate_again(tmp_path):

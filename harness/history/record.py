@@ -281,8 +281,8 @@ def record_calibration(folder: Path, data: Mapping[str, Any]) -> None:
 
 def record_suite(out_dir: Path, doc: dict[str, Any]) -> None:
     """Record a suite's tests, then add each criterion's recent values (``trend``: this
-    run's and up to TREND_RUNS - 1 before it, same test and rig) to ``doc`` for its
-    report."""
+    run's and up to TREND_RUNS - 1 before it, same series: test, rig and run configuration)
+    to ``doc`` for its report."""
     out_dir = Path(out_dir)
     try:
         records = suite_records(out_dir, doc)
@@ -298,8 +298,9 @@ def record_suite(out_dir: Path, doc: dict[str, Any]) -> None:
         for t, rec in zip((t for t in doc.get("tests") or [] if t.get("verdict") != "SKIPPED"),
                           records, strict=True):
             for c in t.get("criteria") or []:
-                rows = db.criterion_series(rec.test, str(c.get("name", "")),
-                                           Filters(rig=rec.rig, until=_after(rec.time_utc)))
+                rows = db.criterion_series(rec.test, str(c.get("name", "")), Filters(
+                    rig=rec.rig or "", real=rec.real_rig, run_sha256=rec.run_sha256 or "",
+                    until=_after(rec.time_utc)))
                 vals = [r["value"] for r in rows if r["value"] is not None][-TREND_RUNS:]
                 if len(vals) >= 2:
                     c["trend"] = vals
