@@ -5,7 +5,8 @@ identification (``harness identify`` of a run directory) and calibration (``harn
 calibrate``) is recorded in ``history.sqlite`` beside the logs (or the database of
 ``--db URL`` / ``$SGSRT_HISTORY_DB``: an SQLite path or ``postgresql://...``). Sub-commands:
 
-  list                      the series recorded: (test, criterion) and (test, mode)
+  list                      the series recorded, by rig: (test, criterion) and (test, mode)
+                            on one rig under one run configuration
   show TEST --criterion C   one criterion's value, limits, margin and verdict across runs
   show TEST --mode N        identified mode N (1 = lowest) with its 1 sigma across runs
   drift                     the alarms of every series (a change beyond k x its combined
@@ -16,10 +17,14 @@ calibrate``) is recorded in ``history.sqlite`` beside the logs (or the database 
                             of its noise, cached under --logs) and whether each value is
                             within it: a failure beyond it is a real change, within it noise
 
-Filters: ``--rig NAME``, ``--real`` / ``--virtual``, ``--since`` / ``--until`` (UTC dates or
-times, ISO 8601). ``show`` prints a table (``--json``: JSON), ``--png FILE`` a plot and
-``--page FILE`` a self-contained HTML page. Exit 0, 1 when an alarm fires (``show``,
-``drift``) or a value is beyond the predicted scatter (``scatter``), 2 bad input.
+A series is one test on one rig (its name, real or virtual) under one run configuration (the
+run file's data): ``show`` and ``drift`` take each rig's series on its own, and every alarm
+names its rig. Filters: ``--rig NAME``, ``--real`` / ``--virtual``, ``--since`` /
+``--until`` (ISO 8601 dates or times: 20260101, 2026-01-01, 2026-01-01T10:00+02:00; UTC
+unless they name an offset; compared as instants). ``show`` prints a table (``--json``:
+JSON), ``--png FILE`` a plot and ``--page FILE`` a self-contained HTML page. Exit 0, 1 when
+an alarm fires (``show``, ``drift``) or a value is beyond the predicted scatter
+(``scatter``), 2 bad input.
 docs/history.md explains the statistics.
 """
 
@@ -50,8 +55,10 @@ def register(sub: argparse._SubParsersAction) -> None:
             g = q.add_mutually_exclusive_group()
             g.add_argument("--real", action="store_true", help="only runs on the real rig")
             g.add_argument("--virtual", action="store_true", help="only runs on virtual rigs")
-            q.add_argument("--since", help="only runs from this UTC date/time (ISO 8601)")
-            q.add_argument("--until", help="only runs before this UTC date/time")
+            q.add_argument("--since", help="only runs from this date/time (ISO 8601: "
+                           "20260101, 2026-01-01T10:00, 2026-01-01T10:00+02:00; UTC unless "
+                           "it names an offset)")
+            q.add_argument("--until", help="only runs before this date/time (as --since)")
 
     def stats(q: argparse.ArgumentParser) -> None:
         q.add_argument("--k", type=float, default=drift.DEFAULT_K,
@@ -284,7 +291,13 @@ def _drift(db: Any, args: argparse.Namespace, filters: Any) -> int:
     from dataclasses import replace
 
     found = []
+    seen: set[tuple[Any, ...]] = set()
     for entry in db.catalogue(filters):
+        key = (entry["series"], entry["test"], entry.get("criterion"), entry.get("mode"),
+               entry["rig"], entry["real_rig"], entry["run_sha256"])
+        if key in seen:  # the same series under two units: analysed once
+            continue
+        seen.add(key)
         one = replace(filters, rig=entry["rig"], real=entry["real_rig"],
                       run_sha256=entry["run_sha256"])
         if entry["series"] == "mode":
