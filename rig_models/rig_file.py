@@ -334,7 +334,9 @@ def rig_identity(data: Mapping[str, Any], bus: str | None = None) -> dict[str, A
     and each device's binding. One function for every output that names the rig
     (summary.json, verdict.json, a suite's results and reports, JUnit properties, ``harness
     logs``, the probe, the results database)."""
-    return {"rig": data.get("name"), "rig_sha256": rig_sha256(data), "bus": bus,
+    name = data.get("name")
+    return {"rig": name if isinstance(name, str) else None, "rig_sha256": rig_sha256(data),
+            "bus": bus,
             "binding": binding_summary(data)}
 
 

@@ -115,9 +115,11 @@ def run_rig_identity(cfg: Mapping[str, Any], summary: Mapping[str, Any]) -> dict
     run = cfg.get("run") if isinstance(cfg.get("run"), Mapping) else {}
     rig = cfg.get("rig") if isinstance(cfg.get("rig"), Mapping) else None
     bus = summary.get("bus") or run.get("bus")
-    if summary.get("rig_sha256") and summary.get("rig"):
+    bus = bus if isinstance(bus, str) else None
+    if isinstance(summary.get("rig_sha256"), str) and isinstance(summary.get("rig"), str):
+        binding = summary.get("binding")
         return {"rig": summary["rig"], "rig_sha256": summary["rig_sha256"], "bus": bus,
-                "binding": summary.get("binding")}
+                "binding": binding if isinstance(binding, Mapping) else None}
     if rig is None:
         return {"rig": None, "rig_sha256": None, "bus": bus, "binding": None}
     return rig_identity(rig, bus)
