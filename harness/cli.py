@@ -113,7 +113,13 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help(sys.stderr)
         return 2
     ABANDONED.clear()
-    code = _run(args)
+    try:
+        code = _run(args)
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
+    except BrokenPipeError:
+        # the reader went away (`harness logs | head -1`): what it read is all it wanted
+        _silence_stdout()
+        return EXIT_BROKEN_PIPE
     if ABANDONED.is_set():
         # a Rerun sink stopped answering (a viewer gone, a dead disk): Rerun's own shutdown
         # at exit would wait for it forever; everything of ours is written and closed
@@ -121,6 +127,25 @@ def main(argv: list[str] | None = None) -> int:
         sys.stderr.flush()
         os._exit(code)
     return code
+
+
+EXIT_BROKEN_PIPE = 141
+"""The exit code when stdout's reader closed it: 128 + SIGPIPE, what a shell reports for a
+program its pipe's reader left, never a traceback."""
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null, so the interpreter's own flush at exit of what was still
+    buffered finds no closed pipe (which it would report as an ignored BrokenPipeError)."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # not a file (an in-process caller's)
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, fd)
+    finally:
+        os.close(devnull)
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -5,12 +5,16 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 from typing import Any
 
 from drivers.binding import BindingError, RigBinding, absolutize, build_binding
+from drivers.binding.quantities import DEVICES
 from rig_models.beam import BeamModes, BeamSpec, beam_modes
 from rig_models.flexible_hub import HubBeamModel, build_hub_beam
 from rig_models.piezo import PatchGains, PiezoPatch, patch_gains
@@ -268,3 +272,103 @@ def rig_from_dict(raw: Any, source: str = "rig", base_dir: Path | None = None) -
     cfg = RigConfig(source=source, data=absolutize(data, base_dir), base_dir=base_dir)
     cfg.binding  # noqa: B018 (built to be checked)
     return cfg
+
+
+# ------------------------------------------------------------------------ identity
+def _file_ref(value: str) -> dict[str, Any]:
+    """A DBC/EDS path as the identity sees it: its file name and its content's SHA-256
+    (None when it cannot be read), not the folder it lay in."""
+    path = Path(value)
+    try:
+        digest: str | None = hashlib.sha256(path.read_bytes()).hexdigest()
+    except (OSError, ValueError):
+        digest = None
+    return {"file": path.name, "sha256": digest}
+
+
+def _without_folders(obj: Any) -> Any:
+    if isinstance(obj, Mapping):
+        return {str(k): _file_ref(v) if k in ("dbc", "eds") and isinstance(v, str) and v
+                else _without_folders(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_without_folders(v) for v in obj]
+    return obj
+
+
+def rig_sha256(data: Mapping[str, Any]) -> str:
+    """SHA-256 of a resolved rig (its ``extends:`` bases merged, defaults filled, overrides
+    applied) as canonical JSON, with each DBC/EDS file it names as its file name and content
+    hash: the same rig hashes the same wherever its files lie, and an edited DBC or EDS is
+    another rig."""
+    text = json.dumps(_without_folders(data), sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def binding_summary(data: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+    """How each device speaks on the bus, from a rig's data: ``{"binding": "sgsrt"}``,
+    ``{"binding": "dbc", "dbc": FILE}``, ``{"binding": "canopen", "node_id": N, "eds":
+    FILE}`` or ``{"binding": "none"}`` (file names without their folder)."""
+    devices = data.get("devices") if isinstance(data.get("devices"), Mapping) else {}
+    out: dict[str, dict[str, Any]] = {}
+    for device in DEVICES:
+        cfg = devices.get(device)
+        if cfg is None or isinstance(cfg, str):
+            out[device] = {"binding": cfg or "sgsrt"}
+            continue
+        if not isinstance(cfg, Mapping):
+            out[device] = {"binding": str(cfg)}
+            continue
+        kind = str(cfg.get("binding", "sgsrt"))
+        entry: dict[str, Any] = {"binding": kind}
+        if kind == "dbc":
+            entry["dbc"] = Path(str(cfg.get("dbc", ""))).name
+        elif kind == "canopen":
+            entry["node_id"] = cfg.get("node_id")
+            entry["eds"] = Path(str(cfg.get("eds", ""))).name
+        out[device] = entry
+    return out
+
+
+def rig_identity(data: Mapping[str, Any], bus: str | None = None) -> dict[str, Any]:
+    """Which rig said it: the rig's name, its hash (``rig_sha256``), the bus the run used
+    and each device's binding. One function for every output that names the rig
+    (summary.json, verdict.json, a suite's results and reports, JUnit properties, ``harness
+    logs``, the probe, the results database)."""
+    name = data.get("name")
+    return {"rig": name if isinstance(name, str) else None, "rig_sha256": rig_sha256(data),
+            "bus": bus,
+            "binding": binding_summary(data)}
+
+
+def _device_text(entry: Mapping[str, Any]) -> str:
+    kind = str(entry.get("binding", "?"))
+    if kind == "dbc":
+        return f"dbc {entry.get('dbc')}"
+    if kind == "canopen":
+        return f"canopen node {entry.get('node_id')} {entry.get('eds')}"
+    return kind
+
+
+def binding_text(binding: Mapping[str, Any] | None) -> str:
+    """A binding summary in one line: devices grouped by how they speak (``sgsrt: every
+    device``; ``canopen node 2 sgsrt_wheel_drive.eds: reaction_wheel; ...``)."""
+    if not isinstance(binding, Mapping) or not binding:
+        return "-"
+    groups: dict[str, list[str]] = {}
+    for device, entry in binding.items():
+        text = _device_text(entry) if isinstance(entry, Mapping) else str(entry)
+        groups.setdefault(text, []).append(str(device))
+    if len(groups) == 1:
+        return f"{next(iter(groups))}: every device"
+    return "; ".join(f"{text}: {', '.join(devices)}" for text, devices in groups.items())
+
+
+def identity_text(ident: Mapping[str, Any] | None) -> str:
+    """``rig sgsrt-canopen (sha256 0123456789ab), bus virtual:sgsrt-canopen, binding ...``:
+    a rig identity in one line, for headers and logs."""
+    if not isinstance(ident, Mapping) or not ident.get("rig"):
+        return "rig unknown"
+    sha = str(ident.get("rig_sha256") or "")[:12] or "-"
+    bus = f", bus {ident['bus']}" if ident.get("bus") else ""
+    return (f"rig {ident['rig']} (sha256 {sha}){bus}, binding "
+            f"{binding_text(ident.get('binding'))}")

@@ -5,13 +5,16 @@ CANopen rig and on the custom-DBC rig, in lockstep, ends with the verdicts it ha
 from __future__ import annotations
 
 import json
+import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import can
 import pytest
 from in_process import harness_in_process
 
+from harness.history.db import HistoryDB
 from harness.testing.judge import left_safe_problems
-from rig_models.rig_file import load_rig
+from rig_models.rig_file import load_rig, rig_sha256
 
 
 @pytest.mark.slow
@@ -19,7 +22,7 @@ from rig_models.rig_file import load_rig
 def test_acceptance_passes_on_the_labs_devices(tmp_path, rig):
     # in process (tests/in_process.py): the claim is the suite's verdicts on that rig
     out = harness_in_process("test", "acceptance", "--rig", rig, "--out", str(tmp_path),
-                             "--quiet")
+                             "--quiet", "--junit", str(tmp_path / "junit.xml"))
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
     (results,) = tmp_path.glob("*/results.json")
     tests = json.loads(results.read_text())["tests"]
@@ -31,6 +34,30 @@ def test_acceptance_passes_on_the_labs_devices(tmp_path, rig):
     # every run really went over that rig's frames
     for cfg in tmp_path.glob("*/*/config.yaml"):
         assert f"name: {rig}" in cfg.read_text()
+    check_names_its_rig(tmp_path, results, rig)
+
+
+def check_names_its_rig(out: Path, results: Path, rig: str) -> None:
+    """Every output of the suite names the rig it ran on, with its hash."""
+    sha = rig_sha256(load_rig(rig).data)
+    doc = json.loads(results.read_text())
+    assert [(r["rig"], r["rig_sha256"]) for r in doc["rigs"]] == [(rig, sha)]
+    assert all(t["rig"]["rig"] == rig for t in doc["tests"])
+    head = f"rig {rig} (sha256 {sha[:12]})"
+    for report in ("report.md", "report.html"):
+        text = (results.parent / report).read_text()
+        assert f"on {rig}" in text.splitlines()[0] + text[:400] and head in text, report
+    suite_props = {p.get("name"): p.get("value") for p in
+                   ET.parse(out / "junit.xml").getroot().find("testsuite/properties")}
+    assert suite_props["rig"] == rig and suite_props["rig_sha256"] == sha
+    for run_dir in results.parent.glob("*/summary.json"):
+        summary = json.loads(run_dir.read_text())
+        assert summary["rig"] == rig and summary["bus"].endswith(f"-{rig}")
+        verdict = json.loads((run_dir.parent / "verdict.json").read_text())
+        assert verdict["identity"]["rig"] == rig
+        assert verdict["identity"]["rig_sha256"] == summary["rig_sha256"]
+    with HistoryDB(str(out / "history.sqlite")) as db:
+        assert {r["rig"] for r in db.records()} == {rig}
 
 
 def test_left_safe_decodes_a_custom_dbc(tmp_path):

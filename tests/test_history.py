@@ -17,6 +17,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -27,7 +28,7 @@ from harness.cli import main
 from harness.core.runs import load_run
 from harness.core.session import execute_run
 from harness.history import drift
-from harness.history.db import Filters, HistoryDB, Record, open_db
+from harness.history.db import SCHEMA_VERSION, Filters, HistoryDB, Record, open_db
 from harness.history.record import record_identify
 from harness.history.series import analyse, criterion_series, flaky
 from harness.testing.work import private_channel
@@ -118,12 +119,14 @@ def test_mode_drift_alarm_fires_on_the_first_run_beyond_the_combined_uncertainty
     code, out = cli("history", "show", "identify[decay-drift]", "--mode", "1", "--logs",
                     str(logs), "--json", "--png", str(png), "--page", str(page))
     assert code == 1, out  # an alarm fired
-    doc = first_json(out)
+    series = first_json(out)["series"]
+    assert len(series) == 1 and series[0]["rig"] == "sgsrt"  # ten rig files, one rig
+    doc = series[0]
     changes = [a for a in doc["alarms"] if a["kind"] == "change"]
     assert changes and min(a["index"] for a in changes) == expected
     first = min(changes, key=lambda a: a["index"])
     assert first["time_utc"] == rows[expected]["time_utc"]
-    assert "identify[decay-drift] mode 1" in first["message"]
+    assert "identify[decay-drift] mode 1 on sgsrt" in first["message"]
     assert all(r["sigma"] is not None for r in doc["runs"])  # the plot's error bars
     assert png.stat().st_size > 10_000
     assert "data:image/png;base64," in page.read_text()
@@ -187,7 +190,7 @@ def test_parallel_writers_lose_nothing(tmp_path):
         assert db.count("criteria") == 120
         assert db.count("modes") == 120
         assert db.add(_rec(0, 0)) is None  # the same result twice is recorded once
-        assert db._query("SELECT version FROM schema_version")[0]["version"] == 1
+        assert db._query("SELECT version FROM schema_version")[0]["version"] == SCHEMA_VERSION
         assert db._query("PRAGMA journal_mode")[0]["journal_mode"] == "wal"
 
 
@@ -222,6 +225,167 @@ def test_history_bad_input_is_a_clear_error(tmp_path):
     assert code == 2 and "Traceback" not in out and "history.sqlite" in out
     code, out = cli("history", "list", "--logs", str(tmp_path), "--since", "yesterday")
     assert code == 2 and "--since" in out
+
+
+# ----------------------------------------------------------------------------- per rig
+TWO_RIGS = {"sgsrt": [1.00, 1.01, 0.99, 1.00, 1.01, 0.50],
+            "lab-aging": [0.60, 0.61, 0.59, 0.60, 0.61, 0.10]}
+"""A criterion's margin on two rigs recording one test name into one database, their runs
+interleaved in time: each rig's last run drops its margin by 0.5."""
+
+
+def _add_two_rigs(db: HistoryDB) -> None:
+    for i in range(6):
+        for j, (rig, margins) in enumerate(TWO_RIGS.items()):
+            db.add(Record(key=f"{rig}-{i}", kind="run", test="free-decay",
+                          time_utc=f"2026-11-{1 + i:02d}T0{j}:00:00Z", verdict="PASS",
+                          rig=rig, run_sha256="r1", criteria=[{
+                              "name": "residual", "value": 2 - margins[i], "unit": "m_s2",
+                              "limit": {"max_m_s2": 2.0}, "margin": margins[i],
+                              "verdict": "PASS"}]))
+
+
+def check_two_rigs_keep_two_series(location: str, where: list[str]) -> None:
+    with HistoryDB(location) as db:
+        _add_two_rigs(db)
+        assert sorted((c["rig"], c["runs"]) for c in db.catalogue()) == [
+            ("lab-aging", 6), ("sgsrt", 6)]
+    code, out = cli("history", "drift", "--json", *where)
+    assert code == 1, out
+    found = json.JSONDecoder().raw_decode(out[out.index("["):])[0]
+    by_rig = {s["rig"]: s for s in found}
+    assert sorted(by_rig) == ["lab-aging", "sgsrt"] and len(found) == 2
+    for rig, s in by_rig.items():
+        other = next(r for r in TWO_RIGS if r != rig)
+        # measured from its own first runs: only its own last run is beyond the limits
+        assert [a["index"] for a in s["alarms"] if a["kind"] == "control"] == [5]
+        for a in s["alarms"]:
+            assert f"on {rig}" in a["message"] and other not in a["message"], a["message"]
+            assert a["unit"] == "m/s^2"
+    code, out = cli("history", "show", "free-decay", "--criterion", "residual", *where)
+    assert code == 1
+    assert "free-decay residual on sgsrt" in out and "free-decay residual on lab-aging" in out
+    assert "m/s^2" in out and "m_s2" not in out
+    code, out = cli("history", "list", *where)
+    assert code == 0 and out.index("lab-aging:") < out.index("sgsrt:")
+
+
+def test_two_rigs_writing_one_test_keep_two_series_each_alarm_naming_its_rig(tmp_path):
+    location = str(tmp_path / "history.sqlite")
+    check_two_rigs_keep_two_series(location, ["--db", location])
+
+
+def test_a_plain_run_and_a_suite_item_are_two_series_unless_the_run_file_is_the_same():
+    from harness.history.record import run_sha256
+    from harness.testing.suite import load_suite
+
+    plain = load_run("slew-rw").data
+    case = next(c for c in load_suite("acceptance").cases if c.id == "slew-rw")
+    item = load_run(case.run, case.overrides).data
+    assert len(item["expect"]) == len(plain["expect"]) + 1  # the suite adds a criterion
+    assert run_sha256(item) != run_sha256(plain)
+    # the same run data on another rig (its own default bus) and prose: the same run
+    # configuration, the rig is the series' own key
+    other = load_run("slew-rw", {"rig": "sgsrt-canopen", "description": "again"}).data
+    assert other["bus"] == "virtual:sgsrt-canopen"
+    assert run_sha256(other) == run_sha256(plain)
+    with HistoryDB(":memory:") as db:
+        for i, (run, n) in enumerate([(plain, 7), (item, 8), (plain, 7)]):
+            db.add(Record(key=f"k{i}", kind="run", test="slew-rw", rig="sgsrt",
+                          time_utc=f"2026-11-0{1 + i}T00:00:00Z", run_sha256=run_sha256(run),
+                          criteria=[{"name": f"c{j}", "value": 1.0} for j in range(n)]))
+        runs = {c["run_sha256"]: c["runs"] for c in db.catalogue() if c["criterion"] == "c0"}
+        assert runs == {run_sha256(plain): 2, run_sha256(item): 1}
+
+
+def write_first_layout(conn: Any, pk: str) -> None:
+    """The database as the first layout wrote it (no ``run_sha256``), with one record."""
+    from harness.history.db import _TABLES
+
+    for stmt in _TABLES:
+        if "records_series" not in stmt:  # an index of the second layout
+            conn.execute(stmt.format(pk=pk).replace("        run_sha256 TEXT,\n", ""))
+    conn.execute("INSERT INTO schema_version (version) VALUES (1)")
+    conn.execute("INSERT INTO records (key, kind, time_utc, recorded_utc, test, rig, "
+                 "real_rig) VALUES ('old', 'run', '2026-01-01T00:00:00Z', "
+                 "'2026-01-01T00:00:00Z', 't', 'sgsrt', 0)")
+    conn.execute("INSERT INTO criteria (record_id, name, value, unit) VALUES "
+                 "((SELECT id FROM records WHERE key = 'old'), 'c', 1.0, 'm')")
+
+
+def check_first_layout_opens_migrated(path: str) -> None:
+    with HistoryDB(path) as db:
+        assert db._query("SELECT version FROM schema_version")[0]["version"] == SCHEMA_VERSION
+        db.add(Record(key="new", kind="run", test="t", rig="sgsrt", run_sha256="abc",
+                      time_utc="2026-02-01T00:00:00Z",
+                      criteria=[{"name": "c", "value": 2.0, "unit": "m"}]))
+        assert sorted(c["run_sha256"] for c in db.catalogue()) == ["", "abc"]
+        assert [r["value"] for r in db.criterion_series("t", "c")] == [1.0, 2.0]
+    with HistoryDB(path) as db:  # opened again: nothing to migrate
+        assert db.count() == 2
+
+
+def test_a_database_of_the_first_layout_opens_migrated(tmp_path):
+    """A history.sqlite written before run configurations were kept: opened, migrated (the
+    column added, the version raised), its records kept and readable beside new ones."""
+    import sqlite3
+
+    path = tmp_path / "history.sqlite"
+    old = sqlite3.connect(path)
+    write_first_layout(old, "INTEGER PRIMARY KEY AUTOINCREMENT")
+    assert "run_sha256" not in {r[1] for r in old.execute("PRAGMA table_info(records)")}
+    old.commit()
+    old.close()
+    check_first_layout_opens_migrated(str(path))
+
+
+def test_history_times_are_instants(tmp_path):
+    location = str(tmp_path / "history.sqlite")
+    with HistoryDB(location) as db:
+        for i, t in enumerate(["2025-12-31T23:30:00Z", "2026-01-01T07:30:00Z",
+                               "2026-01-01T08:30:00Z", "2026-01-02T00:00:00Z"]):
+            db.add(Record(key=f"k{i}", kind="run", test="t", rig="sgsrt", time_utc=t,
+                          criteria=[{"name": "c", "value": float(i), "margin": 1.0}]))
+
+    def times(*filters: str) -> list[str]:
+        code, out = cli("history", "show", "t", "--criterion", "c", "--json", "--db",
+                        location, *filters)
+        assert code == 0, out
+        return [r["time_utc"][:16] for r in first_json(out)["series"][0]["runs"]]
+
+    assert times("--since", "20260101") == times("--since", "2026-01-01") == [
+        "2026-01-01T07:30", "2026-01-01T08:30", "2026-01-02T00:00"]
+    # 10:00 at UTC+2 is 08:00 UTC: between the two runs of that morning
+    assert times("--since", "2026-01-01T10:00+02:00") == ["2026-01-01T08:30",
+                                                          "2026-01-02T00:00"]
+    assert times("--until", "2026-01-01T10:00+02:00") == ["2025-12-31T23:30",
+                                                          "2026-01-01T07:30"]
+    for bad in ("yesterday", "2026-13-01", "2026-01-01T10:00+25:00"):
+        code, out = cli("history", "list", "--db", location, "--until", bad)
+        assert code == 2 and "--until" in out and "Traceback" not in out
+        assert len(out.strip().splitlines()) == 1, out
+
+
+def test_history_import_skips_and_names_a_bad_folder(tmp_path):
+    logs = tmp_path / "logs"
+    path = decay_run_file(tmp_path, rig_file(tmp_path, "r"), "imported",
+                          {"peak": {"measure": "peak_tip_accel_m_s2", "max_m_s2": 1.0}},
+                          duration_s=1.0, rate_hz=100)
+    for _ in range(3):
+        assert main(["run", str(path), "--out", str(logs), "--quiet"]) == 0
+    dirs = sorted(logs.glob("*-imported"))
+    # hand-edited: the first run's verdict is a list, the second's identity one too
+    (dirs[0] / "verdict.json").write_text("[1, 2]")
+    v = json.loads((dirs[1] / "verdict.json").read_text())
+    v["identity"] = ["edited"]
+    (dirs[1] / "verdict.json").write_text(json.dumps(v))
+    db = tmp_path / "fresh.sqlite"
+    code, out = cli("history", "import", "--logs", str(logs), "--db", str(db))
+    assert code == 0 and "Traceback" not in out, out
+    assert f"skipped {dirs[0]}" in out and f"skipped {dirs[1]}" in out
+    assert "run added: 1" in out and "run skipped: 2" in out
+    with HistoryDB(str(db)) as h:
+        assert [r["source"] for r in h.records()] == [str(dirs[2])]
 
 
 # ----------------------------------------------------------------------------- scatter
@@ -393,6 +557,18 @@ def test_postgresql_many_writers_and_series(pg_url):
         assert [a.index for a in s.alarms if a.kind == "control"] == [5]  # the margin's chart
     code, out = cli("history", "show", "pg", "--criterion", "c", "--db", pg_url)
     assert code == 1 and "ALARM (control, run 5)" in out
+
+
+def test_postgresql_two_rigs_keep_two_series(pg_url):
+    check_two_rigs_keep_two_series(pg_url, ["--db", pg_url])
+
+
+def test_postgresql_database_of_the_first_layout_opens_migrated(pg_url):
+    import psycopg
+
+    with psycopg.connect(pg_url, autocommit=True) as conn:
+        write_first_layout(conn, "BIGSERIAL PRIMARY KEY")
+    check_first_layout_opens_migrated(pg_url)
 
 
 def test_a_mode_leaving_the_calibrated_band_says_to_calibrate_again(tmp_path):

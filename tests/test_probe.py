@@ -127,3 +127,18 @@ def test_cli_exit_codes_and_json(capsys):
     assert main(["probe", "--bus", "socketcand:127.0.0.1:1", "--fault",
                  "silent_sensor@0:hub_sensor"]) == 2
     assert "--fault" in capsys.readouterr().err
+
+
+def test_probe_names_the_rig_it_probed(capsys):
+    from rig_models.rig_file import load_rig, rig_sha256
+
+    assert main(["probe", "--rig", "sgsrt-dbc2", "--duration-s", "0.2"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    sha = rig_sha256(load_rig("sgsrt-dbc2").data)
+    assert first == (f"rig sgsrt-dbc2 (sha256 {sha[:12]}), bus virtual:sgsrt-dbc2, binding "
+                     "dbc sgsrt_dbc2.dbc: every device")
+    assert main(["probe", "--rig", "sgsrt-canopen", "--duration-s", "0.2", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["rig"] == "sgsrt-canopen" and report["bus"] == "virtual:sgsrt-canopen"
+    assert report["binding"]["hub_sensor"] == {"binding": "canopen", "node_id": 4,
+                                               "eds": "sgsrt_encoder.eds"}

@@ -22,6 +22,7 @@ from harness.core.runs import RUNS_DIR
 from harness.testing.checks import judge_checks, judge_compare
 from harness.testing.measures import resolve
 from harness.testing.suite import load_suite, parse_checks
+from rig_models.rig_file import load_rig, rig_sha256
 from rig_models.schema import ConfigError
 
 ENV = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
@@ -117,6 +118,20 @@ def test_suite_runs_with_verdicts_junit_and_report(mini):
     folder = suite_dir_of(out, "mini")
     results = json.loads((folder / "results.json").read_text())
     assert results["exit_code"] == 1 and results["verdict"] == "FAIL"
+    # the rig in every output: results (case-a's rig_overrides make another rig hash),
+    # the reports' headers, the JUnit testsuite's and each testcase's properties
+    sha = rig_sha256(load_rig("sgsrt").data)
+    assert [(r["rig"], r["rig_sha256"] == sha) for r in results["rigs"]] == [
+        ("sgsrt", True), ("sgsrt", False)]
+    assert (folder / "report.md").read_text().startswith("# Suite mini on sgsrt: FAIL")
+    assert f"rig sgsrt (sha256 {sha[:12]}), binding sgsrt: every device" in (
+        folder / "report.html").read_text()
+    suite_props = [(p.get("name"), p.get("value"))
+                   for p in tree.getroot().find("testsuite/properties")]
+    assert ("rig", "sgsrt") in suite_props and ("rig_sha256", sha) in suite_props
+    slew_props = [(p.get("name"), p.get("value")) for p in cases["slew-rw"].iter("property")]
+    assert slew_props[0][0] == "verdict" and ("rig", "sgsrt") in slew_props
+    assert dict(slew_props)["bus"].startswith("virtual:job-")
     by_item = {t["item"]: t for t in results["tests"]}
     assert by_item["compare[case-a]"]["verdict"] == "PASS"
     # a suite's check: judged as the run file's form: worst element, marginal band, why

@@ -56,7 +56,7 @@ from harness.calibration.plan import (
 from harness.calibration.residual import fit_modal_residual, true_residual
 from harness.controllers.shaped_wheel_slew import Mode
 from harness.core.paths import safe_child, safe_name
-from harness.core.runs import RunConfig, run_from_dict
+from harness.core.runs import RunConfig, run_from_dict, virtual_bus
 from harness.core.session import RunResult, execute_run
 from rig_models.rig_file import RigConfig, load_rig
 from rig_models.schema import ConfigError
@@ -393,7 +393,7 @@ def calibrate(opts: Options, progress: Callable[[str], None] = lambda m: None) -
         raise ConfigError(f"--target-ratio: expected a ratio > 1, got {opts.target_ratio}")
     rig: RigConfig = load_rig(opts.rig)
     rig_ref = rig_reference(opts.rig)
-    bus = opts.bus or "virtual:sgsrt"
+    bus = opts.bus or virtual_bus(rig.name)
     spec_bus = parse_bus(bus)
     clock = "lockstep" if spec_bus.in_process else "realtime"
     plan = plan_excitation(rig, opts.actuator, rig_ref=rig_ref, rate_hz=opts.rate_hz,
@@ -566,7 +566,7 @@ def _jsonable(x: Any) -> Any:
 
 def plan_run_dict(c: Calibration) -> dict[str, Any]:
     """The excitation run file (for --dry-run)."""
-    return c.plan.run_dict(c.options.bus or "virtual:sgsrt")
+    return c.plan.run_dict(c.options.bus or virtual_bus(load_rig(c.options.rig).name))
 
 
 __all__ = ["Calibration", "CalibrationError", "Options", "calibrate", "run_dict"]

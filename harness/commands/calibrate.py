@@ -28,11 +28,11 @@
    `run_file`, `baseline_run_file`, `identified_modes`, `candidates`, ...). Progress goes to
    stderr.
 
-On the default bus (`virtual:sgsrt`) every run is lockstep against the in-process virtual rig
-of `--rig`; on another bus (the lab rig) the runs are real time. `--dry-run` prints the
-excitation plan and sends nothing. Exit status: 0 a recommendation meets the target, 1 none
-does (the best is still written), 2 bad input or a refused excitation, 3 a fault stopped a
-run, 4 another error.
+On the default bus (`virtual:RIG`, named after the rig) every run is lockstep against the
+in-process virtual rig of `--rig`; on another bus (the lab rig) the runs are real time.
+`--dry-run` prints the excitation plan and sends nothing. Exit status: 0 a recommendation
+meets the target, 1 none does (the best is still written), 2 bad input or a refused
+excitation, 3 a fault stopped a run, 4 another error.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("calibrate", help="excite, identify, design and verify a shaped slew "
                        "in one command", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--bus", help="INTERFACE:CHANNEL (default virtual:sgsrt, the in-process "
+    p.add_argument("--bus", help="INTERFACE:CHANNEL (default virtual:RIG, the in-process "
                    "virtual rig of --rig, lockstep; any other bus runs in real time)")
     p.add_argument("--rig", default="sgsrt", help="rig name or YAML path (default sgsrt)")
     p.add_argument("--actuator", choices=("wheel", "valves"), default="wheel",

@@ -5,7 +5,8 @@ identification (``harness identify`` of a run directory) and calibration (``harn
 calibrate``) is recorded in ``history.sqlite`` beside the logs (or the database of
 ``--db URL`` / ``$SGSRT_HISTORY_DB``: an SQLite path or ``postgresql://...``). Sub-commands:
 
-  list                      the series recorded: (test, criterion) and (test, mode)
+  list                      the series recorded, by rig: (test, criterion) and (test, mode)
+                            on one rig under one run configuration
   show TEST --criterion C   one criterion's value, limits, margin and verdict across runs
   show TEST --mode N        identified mode N (1 = lowest) with its 1 sigma across runs
   drift                     the alarms of every series (a change beyond k x its combined
@@ -16,10 +17,14 @@ calibrate``) is recorded in ``history.sqlite`` beside the logs (or the database 
                             of its noise, cached under --logs) and whether each value is
                             within it: a failure beyond it is a real change, within it noise
 
-Filters: ``--rig NAME``, ``--real`` / ``--virtual``, ``--since`` / ``--until`` (UTC dates or
-times, ISO 8601). ``show`` prints a table (``--json``: JSON), ``--png FILE`` a plot and
-``--page FILE`` a self-contained HTML page. Exit 0, 1 when an alarm fires (``show``,
-``drift``) or a value is beyond the predicted scatter (``scatter``), 2 bad input.
+A series is one test on one rig (its name, real or virtual) under one run configuration (the
+run file's data): ``show`` and ``drift`` take each rig's series on its own, and every alarm
+names its rig. Filters: ``--rig NAME``, ``--real`` / ``--virtual``, ``--since`` /
+``--until`` (ISO 8601 dates or times: 20260101, 2026-01-01, 2026-01-01T10:00+02:00; UTC
+unless they name an offset; compared as instants). ``show`` prints a table (``--json``:
+JSON), ``--png FILE`` a plot and ``--page FILE`` a self-contained HTML page. Exit 0, 1 when
+an alarm fires (``show``, ``drift``) or a value is beyond the predicted scatter
+(``scatter``), 2 bad input.
 docs/history.md explains the statistics.
 """
 
@@ -50,8 +55,10 @@ def register(sub: argparse._SubParsersAction) -> None:
             g = q.add_mutually_exclusive_group()
             g.add_argument("--real", action="store_true", help="only runs on the real rig")
             g.add_argument("--virtual", action="store_true", help="only runs on virtual rigs")
-            q.add_argument("--since", help="only runs from this UTC date/time (ISO 8601)")
-            q.add_argument("--until", help="only runs before this UTC date/time")
+            q.add_argument("--since", help="only runs from this date/time (ISO 8601: "
+                           "20260101, 2026-01-01T10:00, 2026-01-01T10:00+02:00; UTC unless "
+                           "it names an offset)")
+            q.add_argument("--until", help="only runs before this date/time (as --since)")
 
     def stats(q: argparse.ArgumentParser) -> None:
         q.add_argument("--k", type=float, default=drift.DEFAULT_K,
@@ -95,26 +102,19 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _filters(args: argparse.Namespace) -> Any:
     from harness.history.db import Filters
+    from harness.history.times import TimeError, utc_text
 
+    times = {}
     for name in ("since", "until"):
         v = getattr(args, name, None)
-        if v is not None and not _is_time(v):
-            raise ValueError(f"--{name}: expected a UTC date or time (2026-11-01 or "
-                             f"2026-11-01T12:00:00), got {v!r}")
+        try:
+            times[name] = None if v is None else utc_text(v)
+        except TimeError as exc:
+            raise ValueError(f"--{name}: {exc}") from exc
     real = True if getattr(args, "real", False) else (False if getattr(args, "virtual", False)
                                                      else None)
-    return Filters(rig=getattr(args, "rig", None), real=real, since=getattr(args, "since", None),
-                   until=getattr(args, "until", None))
-
-
-def _is_time(text: str) -> bool:
-    import datetime as dt
-
-    try:
-        dt.datetime.fromisoformat(text.rstrip("Z"))
-    except ValueError:
-        return False
-    return True
+    return Filters(rig=getattr(args, "rig", None), real=real, since=times["since"],
+                   until=times["until"])
 
 
 def cmd_history(args: argparse.Namespace) -> int:
@@ -150,9 +150,14 @@ def cmd_history(args: argparse.Namespace) -> int:
                     raise ValueError(f"--logs {args.logs}: not a directory")
                 from harness.history.record import import_logs
 
-                counts = import_logs(db, args.logs)
+                skipped: list[tuple[Path, str]] = []
+                counts = import_logs(db, args.logs, skipped)
+                for folder, why in skipped:
+                    print(f"harness history import: skipped {folder}: {why}",
+                          file=sys.stderr)
                 if args.json:
-                    print(json.dumps(counts, indent=2))
+                    print(json.dumps({**counts, "skipped_folders": [
+                        {"folder": str(f), "reason": why} for f, why in skipped]}, indent=2))
                 else:
                     for k, n in sorted(counts.items()):
                         print(f"{k}: {n}")
@@ -160,14 +165,27 @@ def cmd_history(args: argparse.Namespace) -> int:
                         print(f"nothing to import under {args.logs}")
                 return 0
             if args.history_command == "list":
-                rows = db.catalogue(filters)
+                from harness.testing.measures import unit_text
+
+                rows = sorted(db.catalogue(filters),
+                              key=lambda r: (r["rig"], r["real_rig"], r["test"]))
                 if args.json:
                     print(json.dumps(rows, indent=2))
                 else:
+                    rig = None
                     for r in rows:
+                        if (r["rig"], r["real_rig"]) != rig:
+                            rig = (r["rig"], r["real_rig"])
+                            print(f"{r['rig'] or '(no rig recorded)'}"
+                                  f"{' (real)' if r['real_rig'] else ''}:")
                         what = (f"--criterion {r['criterion']}" if r["series"] == "criterion"
                                 else f"--mode {r['mode']}")
-                        print(f"{r['test']} {what}: {r['runs']} runs, last {r['last_utc']}")
+                        u = unit_text(r.get("unit") or "")
+                        unit = f" ({u})" if u else ""
+                        run = (f", run configuration {r['run_sha256'][:8]}"
+                               if r["run_sha256"] else "")
+                        print(f"  {r['test']} {what}{unit}{run}: {r['runs']} runs, last "
+                              f"{r['last_utc']}")
                 return 0 if rows else 1
             if args.history_command == "show":
                 return _show(db, args, filters)
@@ -177,7 +195,9 @@ def cmd_history(args: argparse.Namespace) -> int:
         return 2
 
 
-def _bands(db: Any, args: argparse.Namespace, filters: Any) -> tuple[list[dict[str, float]], str]:
+def _bands(db: Any, args: argparse.Namespace, rig: str | None
+           ) -> tuple[list[dict[str, float]], str]:
+    """The mode bands of the newest calibration recorded for ``rig`` (or --recommended)."""
     from harness.history.db import Filters
     from harness.history.record import design_bands
 
@@ -189,7 +209,7 @@ def _bands(db: Any, args: argparse.Namespace, filters: Any) -> tuple[list[dict[s
             raise ValueError(f"--recommended {args.recommended}: no controller.modes (not a "
                              "run file from harness calibrate)")
         return bands, str(args.recommended)
-    cals = db.records(Filters(kind="calibrate", rig=filters.rig))
+    cals = db.records(Filters(kind="calibrate", rig=rig or None))
     for c in reversed(cals):
         if c["extra"].get("bands"):
             return c["extra"]["bands"], c["extra"].get("recommended") or c["source"]
@@ -206,17 +226,22 @@ def _spread(args: argparse.Namespace, series: Any) -> float | None:
 
 
 def _analysed(db: Any, args: argparse.Namespace, filters: Any, what: str, test: str,
-              name: str | int, reference: int = 0) -> Any:
+              name: str | int, reference: int = 0) -> list[Any]:
+    """The test's series of ``name`` the filters select, one per rig and run
+    configuration, each with its alarms."""
     from harness.history import series as hs
 
+    out = []
     if what == "mode":
-        s = hs.mode_series(db, test, int(name), filters)
-        bands, by = _bands(db, args, filters)
-        return hs.analyse(s, args.k, args.n_ref, args.n_trend, reference, bands=bands,
-                          designed_by=by)
-    s = hs.criterion_series(db, test, str(name), filters)
-    _mark_scatter(args, s)
-    return hs.analyse(s, args.k, args.n_ref, args.n_trend, spread=_spread(args, s))
+        for s in hs.split(hs.mode_series(db, test, int(name), filters)):
+            bands, by = _bands(db, args, s.rig)
+            out.append(hs.analyse(s, args.k, args.n_ref, args.n_trend, reference,
+                                  bands=bands, designed_by=by))
+        return out
+    for s in hs.split(hs.criterion_series(db, test, str(name), filters)):
+        _mark_scatter(args, s)
+        out.append(hs.analyse(s, args.k, args.n_ref, args.n_trend, spread=_spread(args, s)))
+    return out
 
 
 def _mark_scatter(args: argparse.Namespace, series: Any) -> None:
@@ -238,36 +263,54 @@ def _show(db: Any, args: argparse.Namespace, filters: Any) -> int:
     if args.mode is not None and args.mode < 1:
         raise ValueError(f"--mode: expected 1 or more, got {args.mode}")
     what, name = ("mode", args.mode) if args.mode is not None else ("criterion", args.criterion)
-    s = _analysed(db, args, filters, what, args.test, name, args.reference)
-    if not s.rows:
+    if args.reference < 0:
+        raise ValueError(f"--reference: expected a run index of 0 or more, got "
+                         f"{args.reference}")
+    found = _analysed(db, args, filters, what, args.test, name, args.reference)
+    if not found:
         raise ValueError(f"no runs of {args.test} with {what} {name} (see 'harness history "
                          "list')")
-    if not 0 <= args.reference < len(s.rows):
-        raise ValueError(f"--reference: expected a run index in [0, {len(s.rows) - 1}]")
+    longest = max(len(s.rows) for s in found)
+    if args.reference >= longest:
+        raise ValueError(f"--reference: expected a run index in [0, {longest - 1}]")
     if args.png:
-        hs.plot_png(s, args.png)
+        hs.plot_png(found, args.png)
     if args.page:
-        hs.page_html(s, args.page)
-    print(json.dumps(s.to_dict(), indent=2, default=str) if args.json else hs.table(s))
+        hs.page_html(found, args.page)
+    if args.json:
+        print(json.dumps({"series": [s.to_dict() for s in found]}, indent=2, default=str))
+    else:
+        print("\n\n".join(hs.table(s) for s in found))
     for path in (args.png, args.page):
         if path:
             print(f"harness history: wrote {path}", file=sys.stderr)
-    return 1 if s.alarms or s.flaky else 0
+    return 1 if any(s.alarms or s.flaky for s in found) else 0
 
 
 def _drift(db: Any, args: argparse.Namespace, filters: Any) -> int:
+    from dataclasses import replace
+
     found = []
+    seen: set[tuple[Any, ...]] = set()
     for entry in db.catalogue(filters):
+        key = (entry["series"], entry["test"], entry.get("criterion"), entry.get("mode"),
+               entry["rig"], entry["real_rig"], entry["run_sha256"])
+        if key in seen:  # the same series under two units: analysed once
+            continue
+        seen.add(key)
+        one = replace(filters, rig=entry["rig"], real=entry["real_rig"],
+                      run_sha256=entry["run_sha256"])
         if entry["series"] == "mode":
-            s = _analysed(db, args, filters, "mode", entry["test"], entry["mode"])
+            found += _analysed(db, args, one, "mode", entry["test"], entry["mode"])
         else:
-            s = _analysed(db, args, filters, "criterion", entry["test"], entry["criterion"])
-        if s.alarms or s.flaky:
-            found.append(s)
+            found += _analysed(db, args, one, "criterion", entry["test"], entry["criterion"])
+    found = [s for s in found if s.alarms or s.flaky]
+    found.sort(key=lambda s: (s.rig, s.real_rig, s.test, s.name))
     if args.json:
-        print(json.dumps([{"test": s.test, "name": s.name,
-                           "alarms": [a.to_dict() for a in s.alarms], "flaky": s.flaky}
-                          for s in found], indent=2))
+        print(json.dumps([{"test": s.test, "name": s.name, "rig": s.rig,
+                           "real_rig": s.real_rig, "run_sha256": s.run_sha256,
+                           "label": s.label, "alarms": [a.to_dict() for a in s.alarms],
+                           "flaky": s.flaky} for s in found], indent=2))
     else:
         for s in found:
             for a in s.alarms:

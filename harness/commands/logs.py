@@ -1,15 +1,16 @@
 """`harness logs [--logs DIR] [--last N] [--failed] [--json]`: the recorded runs, how each ended
 and its verdict.
 
-One line per run directory under ``--logs`` (default ``./logs``) at any depth (the runs of
-a suite, a calibration or a study included, with the folder each belongs to in the ``in``
-column), oldest first (directory names start with the UTC time): run name, clock and bus,
-simulated time, how it stopped (completed, fault, interrupted, error), the first fault, the
-final angle error and residual tip acceleration where the run has them, the real-time
-factor, and the verdict of its ``verdict.json`` (PASS, MARGINAL, FAIL, ERROR, NO CRITERIA;
-``-`` if the run was never judged: see ``harness judge``). A directory without a readable
-``summary.json`` (the harness was killed, or the file was damaged) is listed as such: its
-``run.rrd`` and ``can.blf`` hold what was written.
+One line per run directory under ``--logs`` (default ``./logs``) at any depth (the runs of a
+suite, a calibration or a study included, with the folder each belongs to in the ``in``
+column), oldest first (directory names start with the UTC time): the rig (its name;
+``--json`` adds its hash and each device's binding), the bus and the clock, simulated time,
+how it stopped (completed, fault, interrupted, error), the first fault, the final angle
+error and residual tip acceleration where the run has them, the real-time factor, and the
+verdict of its ``verdict.json`` (PASS, MARGINAL, FAIL, ERROR, NO CRITERIA; ``-`` if the run
+was never judged: see ``harness judge``). A directory without a readable ``summary.json``
+(the harness was killed, or the file was damaged) is listed as such: its ``run.rrd`` and
+``can.blf`` hold what was written.
 
 ``--failed`` lists only the failures: runs judged FAIL or ERROR, and runs without a
 verdict.json that did not complete (a fault, an exception, an interruption, no summary):
@@ -98,7 +99,8 @@ def collect(logs: Path) -> list[dict[str, Any]]:
             continue
         faults = s.get("faults") or []
         row.update({
-            "run": s.get("run"), "clock": s.get("clock"), "bus": s.get("bus"),
+            "run": s.get("run"), **_rig(run_dir, s), "clock": s.get("clock"),
+            "bus": s.get("bus"),
             "simulated_s": s.get("simulated_time_s"), "ticks": s.get("ticks"),
             "status": s.get("stopped_by") or "?", "dry_run": bool(s.get("dry_run")),
             "first_fault": _fault_text(faults[0]) if faults else None,
@@ -111,6 +113,31 @@ def collect(logs: Path) -> list[dict[str, Any]]:
             row["status"] = f"{row['status']} ({'; '.join(problems)})"
         rows.append(row)
     return rows
+
+
+def _rig(run_dir: Path, s: dict[str, Any]) -> dict[str, Any]:
+    """The run's rig as its summary names it (``rig_models.rig_file.rig_identity``); a
+    summary from before it did: the rig's name from config.yaml, no hash."""
+    if isinstance(s.get("rig"), str):
+        return {"rig": s["rig"], "rig_sha256": s.get("rig_sha256"),
+                "binding": s.get("binding")}
+    import yaml
+
+    name = None
+    path = run_dir / "config.yaml"
+    try:
+        if path.stat().st_size <= CONFIG_MAX_BYTES:
+            cfg = yaml.safe_load(path.read_text())
+            rig = cfg.get("rig") if isinstance(cfg, dict) else None
+            name = rig.get("name") if isinstance(rig, dict) else None
+    except (OSError, ValueError, yaml.YAMLError):
+        name = None
+    return {"rig": name if isinstance(name, str) else None, "rig_sha256": None,
+            "binding": None}
+
+
+CONFIG_MAX_BYTES = 4 << 20
+"""A config.yaml larger than this is not read for its rig's name (a hand-made file)."""
 
 
 def _verdict(run_dir: Path) -> dict[str, Any]:
@@ -167,7 +194,10 @@ def cmd_logs(args: argparse.Namespace) -> int:
         return 0
     w = max(len("run directory"), *(len(Path(r["dir"]).name) for r in rows))
     g = max(len("in"), *(len(r.get("group") or "-") for r in rows))
-    print(f"{'run directory':<{w}} {'in':<{g}} {'verdict':<11} {'clock':<9} {'sim s':>7} "
+    rw = max(len("rig"), *(len(str(r.get("rig") or "-")) for r in rows))
+    bw = max(len("bus"), *(len(str(r.get("bus") or "-")) for r in rows))
+    print(f"{'run directory':<{w}} {'in':<{g}} {'verdict':<11} {'rig':<{rw}} {'bus':<{bw}} "
+          f"{'clock':<9} {'sim s':>7} "
           f"{'status':<12} {'final err deg':>13} {'resid m/s^2':>11} {'x real':>7}  "
           "first fault / error")
     for r in rows:
@@ -178,7 +208,8 @@ def cmd_logs(args: argparse.Namespace) -> int:
             print(f"{name:<{w}} {group:<{g}} {verdict:<11} {r['status']}")
             continue
         status = r["status"] + (" (dry)" if r["dry_run"] else "")
-        print(f"{name:<{w}} {group:<{g}} {verdict:<11} {str(r['clock'] or '-'):<9} "
+        print(f"{name:<{w}} {group:<{g}} {verdict:<11} {str(r['rig'] or '-'):<{rw}} "
+              f"{str(r['bus'] or '-'):<{bw}} {str(r['clock'] or '-'):<9} "
               f"{_num(r['simulated_s'], '7.2f')} "
               f"{status:<12} {_num(r['final_angle_error_deg'], '13.2e')} "
               f"{_num(r['residual_tip_accel_m_s2'], '11.4f')} "

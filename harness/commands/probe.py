@@ -9,10 +9,11 @@ answer within the tick, malformed frames, sequence errors, status, and its last 
 a wheel that reports a fault flag or a hub angle that makes no sense shows up before a run).
 Unknown ids and error frames on the bus are reported too.
 
-On the default ``virtual:sgsrt`` the virtual rig answers in this process (pumped after each
-SYNC, as fast as it can); ``--fault KIND@AT_S[:DEVICE]`` injects a fault there, to see what
-the probe reports. On ``socketcan:can0`` (the lab rig), ``socketcan:vcan0`` or
-``socketcand:127.0.0.1:PORT`` the probe runs in real time against whatever answers.
+On the default in-process virtual bus (``virtual:RIG``, named after the rig) the virtual rig
+answers in this process (pumped after each SYNC, as fast as it can); ``--fault
+KIND@AT_S[:DEVICE]`` injects a fault there, to see what the probe reports. On
+``socketcan:can0`` (the lab rig), ``socketcan:vcan0`` or ``socketcand:127.0.0.1:PORT`` the
+probe runs in real time against whatever answers.
 
 Exit status: 0 every device answered every due SYNC with well-formed frames and the bus was
 clean; 3 a device is silent, late, malformed or out of sequence, or the bus carried unknown
@@ -30,7 +31,7 @@ from typing import Any
 from harness.bus import BusSpecError, open_bus, parse_bus
 from harness.core.probe import ProbeResult, probe
 from rig_models.faults import parse_fault
-from rig_models.rig_file import load_rig
+from rig_models.rig_file import identity_text, load_rig
 from rig_models.schema import ConfigError
 from rig_models.virtual_rig import VirtualRig
 
@@ -40,8 +41,9 @@ EXIT_PROBLEM = 3
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("probe", help="check that every device answers (never arms the rig)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--bus", default="virtual:sgsrt",
-                   help="INTERFACE:CHANNEL (default virtual:sgsrt, the in-process virtual rig; "
+    p.add_argument("--bus",
+                   help="INTERFACE:CHANNEL (default virtual:RIG, the in-process virtual rig "
+                   "named after the rig; "
                    "socketcan:can0 the lab rig; socketcand:127.0.0.1:PORT, loopback only)")
     p.add_argument("--rig", default="sgsrt", help="rig name or YAML path (default sgsrt)")
     p.add_argument("--rate-hz", type=float, default=100.0, help="SYNC rate (default 100 Hz)")
@@ -70,8 +72,10 @@ def cmd_probe(args: argparse.Namespace) -> int:
         if not args.receive_timeout_ms > 0:
             raise ValueError("--receive-timeout-ms: expected a number > 0 (ms), got "
                              f"{args.receive_timeout_ms}")
+        from harness.core.runs import virtual_bus
+
         rig_cfg = load_rig(args.rig)
-        spec = parse_bus(args.bus)
+        spec = parse_bus(args.bus or virtual_bus(rig_cfg.name))
         faults = [parse_fault(f) for f in args.fault or []]
         if faults and not spec.in_process:
             raise ValueError("--fault: only with an in-process virtual bus (virtual:NAME); for "
@@ -84,8 +88,9 @@ def cmd_probe(args: argparse.Namespace) -> int:
             buses.append(rig_bus)
             rig = VirtualRig(rig_cfg, rig_bus, 1.0 / args.rate_hz, faults=faults)
             pump = rig.service
-        print(f"harness probe: {args.duration_s:g} s of SYNC at {args.rate_hz:g} Hz on {spec} "
-              "(heartbeat disarmed, no commands) ...", file=sys.stderr, flush=True)
+        print(f"harness probe: {args.duration_s:g} s of SYNC at {args.rate_hz:g} Hz on {spec}, "
+              f"rig {rig_cfg.name} (heartbeat disarmed, no commands) ...", file=sys.stderr,
+              flush=True)
         result = probe(bus, rig_cfg, args.rate_hz, args.duration_s, bus_name=str(spec),
                        pump=pump, realtime=pump is None,
                        receive_timeout_s=args.receive_timeout_ms / 1e3, settle_s=args.settle_s)
@@ -110,6 +115,7 @@ def to_dict(result: ProbeResult) -> dict[str, Any]:
         "bus_off": result.bus_off,
         "devices": [dict(asdict(d), status=d.status, ok=d.ok) for d in result.devices],
         "canopen_nodes": result.nodes, "setup_error": result.setup_error,
+        **result.rig,  # rig, rig_sha256, bus (the same), binding
     }
 
 
@@ -118,6 +124,7 @@ def _values(values: dict[str, float]) -> str:
 
 
 def print_report(r: ProbeResult) -> None:
+    print(identity_text(r.rig))
     if r.setup_error:
         print(f"{r.bus}: CANopen set-up failed: {r.setup_error}")
         return

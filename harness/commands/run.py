@@ -40,7 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "(exception, missing data, real-time budget not held), 5 MARGINAL, "
                        "130 interrupted; with variants, the most severe.")
     p.add_argument("run", help="built-in run name (see 'harness cases') or a run file path")
-    p.add_argument("--bus", help="INTERFACE:CHANNEL, e.g. virtual:sgsrt (default), "
+    p.add_argument("--bus", help="INTERFACE:CHANNEL, e.g. virtual:sgsrt (default: virtual:RIG, "
+                   "the in-process virtual bus named after the rig), "
                    "socketcan:vcan0 / socketcan:can0 (the lab rig), or socketcand:127.0.0.1:PORT "
                    "(a virtual rig's own process; loopback only, any other host is refused)")
     p.add_argument("--clock", choices=("lockstep", "realtime"), help="override the run's clock")

@@ -23,7 +23,7 @@ import can
 from drivers.dbc import load_protocol
 from harness.bus.rig_interface import RigInterface
 from harness.core.clock import BUS_LOCKSTEP_WAIT_S, LockstepClock, RealTimeClock
-from rig_models.rig_file import RigConfig
+from rig_models.rig_file import RigConfig, rig_identity
 
 HEARTBEAT_HZ = 20.0
 
@@ -79,6 +79,8 @@ class ProbeResult:
     # from the rig file); a set-up failure instead of the SYNC count
     nodes: list[dict[str, Any]] = field(default_factory=list)
     setup_error: str = ""
+    # which rig was probed: rig_models.rig_file.rig_identity (name, hash, bus, binding)
+    rig: dict[str, Any] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -114,7 +116,7 @@ def probe(bus: can.BusABC, rig: RigConfig, rate_hz: float, duration_s: float, *,
         except SetupError as exc:
             return ProbeResult(bus=bus_name, rate_hz=rate_hz, ticks=0, devices=[], unknown=0,
                                last_unknown_id=0, error_frames=0, bus_off=False,
-                               setup_error=str(exc))
+                               setup_error=str(exc), rig=rig_identity(rig.data, bus_name))
     dt_s = 1.0 / rate_hz
     clock: LockstepClock | RealTimeClock = RealTimeClock(dt_s) if realtime else LockstepClock(dt_s)
     n_settle = round(settle_s * rate_hz)
@@ -161,4 +163,5 @@ def probe(bus: can.BusABC, rig: RigConfig, rate_hz: float, duration_s: float, *,
     c = iface.counters
     return ProbeResult(bus=bus_name, rate_hz=rate_hz, ticks=n_ticks - n_settle, devices=devices,
                        unknown=c.unknown, last_unknown_id=c.last_unknown_id,
-                       error_frames=c.error_frames, bus_off=c.bus_off, nodes=nodes)
+                       error_frames=c.error_frames, bus_off=c.bus_off, nodes=nodes,
+                       rig=rig_identity(rig.data, bus_name))

@@ -29,7 +29,8 @@ RUN_SCHEMA: dict[str, Any] = {
     "description": Field("str", default=""),
     "rig": Field("str", default="sgsrt"),
     "rig_overrides": Field("any", default=None),
-    "bus": Field("str", default="virtual:sgsrt"),
+    # default: the in-process virtual bus named after the rig (``virtual:sgsrt-canopen``)
+    "bus": Field("str", default=None),
     "clock": Field("str", default="lockstep", choices=("lockstep", "realtime")),
     "rate_hz": Field("number", "Hz", default=500.0, minimum=1.0, maximum=2000.0),
     # at most 30 days: a duration of 1e308 s overflowed the tick count (a traceback)
@@ -197,7 +198,16 @@ def run_from_dict(raw: Any, source: str = "run", base_dir: Path | None = None,
                             source=f"{rig.source} + rig_overrides of {source}",
                             base_dir=rig.base_dir)
     _check_expect(data, rig, source, base_dir, check_files)
+    if data["bus"] is None:
+        data["bus"] = virtual_bus(rig.name)
     return RunConfig(source=source, data=data, rig=rig)
+
+
+def virtual_bus(rig_name: str) -> str:
+    """The in-process virtual bus of a rig, named after it (``virtual:sgsrt-canopen``): a
+    run on it says which rig answered."""
+    name = "".join(ch if ch.isalnum() or ch in "-_." else "-" for ch in str(rig_name))
+    return f"virtual:{name.strip('-') or 'rig'}"
 
 
 def _check_expect(data: dict[str, Any], rig: RigConfig, source: str, base_dir: Path | None,

@@ -49,6 +49,7 @@ from harness.review.bus import write_bus
 from harness.review.events import log_event
 from harness.review.layouts import PlotStats, layout_for_run, write_layout_file
 from rig_models.faults import FaultSpec
+from rig_models.rig_file import rig_identity
 from rig_models.schema import ConfigError
 from rig_models.virtual_rig import VirtualRig
 
@@ -663,7 +664,7 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
     return {
         "run": run.name,
         "clock": clock_name,
-        "bus": bus,
+        **rig_identity(run.rig.data, bus),  # rig, rig_sha256, bus, binding
         "rate_hz": run.data["rate_hz"],
         "ticks": stats.ticks,
         "stopped_by": stats.stopped_by,

@@ -4,8 +4,10 @@
 (what a judged run, a suite, an identification or a calibration adds to it; the import of
 runs already on disk), ``drift`` (control charts and drift alarms with uncertainty: pure),
 ``scatter`` (the virtual rig's predicted scatter of each criterion, flaky or real),
-``series`` (a series across runs as a table, JSON, a PNG and a page) and ``twin`` (a
-recorded run's commands through the virtual rig's physics: the twin's residual).
+``series`` (a series across runs, one test on one rig under one run configuration, as a
+table, JSON, a PNG and a page), ``times`` (``--since`` / ``--until`` read as instants) and
+``twin`` (a recorded run's commands through the virtual rig's physics: the twin's
+residual).
 
 It may import ``harness.testing``, ``harness.identification``, ``harness.core`` (scatter
 and twin run the virtual rig), ``harness.record``, ``harness.calibration`` and

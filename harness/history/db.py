@@ -27,7 +27,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+"""1: the first layout; 2: ``records.run_sha256`` (the run configuration's hash: a series is
+one test on one rig and one run configuration). An older file is migrated when opened
+(columns added with their defaults), never refused."""
 DB_FILENAME = "history.sqlite"
 ENV_URL = "SGSRT_HISTORY_DB"
 """A database URL (postgresql://...) or an SQLite file's path, for every command."""
@@ -51,6 +54,7 @@ _TABLES = [
         rig TEXT,
         rig_sha256 TEXT,
         config_sha256 TEXT,
+        run_sha256 TEXT,
         bus TEXT,
         real_rig INTEGER NOT NULL,
         source TEXT,
@@ -74,6 +78,7 @@ _TABLES = [
         sigma_damping DOUBLE PRECISION,
         model_omega_rad_s DOUBLE PRECISION)""",
     """CREATE INDEX IF NOT EXISTS records_test ON records(test, time_utc)""",
+    """CREATE INDEX IF NOT EXISTS records_series ON records(test, rig, run_sha256)""",
     """CREATE INDEX IF NOT EXISTS criteria_record ON criteria(record_id)""",
     """CREATE INDEX IF NOT EXISTS modes_record ON modes(record_id)""",
 ]
@@ -100,8 +105,10 @@ class Record:
     rig: str | None = None
     rig_sha256: str | None = None
     config_sha256: str | None = None
+    run_sha256: str | None = None  # the run file's data without its rig reference
     bus: str | None = None
     real_rig: bool = False
+    binding: dict[str, Any] | None = None  # each device's binding (kept in ``extra``)
     source: str | None = None
     criteria: list[dict[str, Any]] = field(default_factory=list)
     modes: list[dict[str, Any]] = field(default_factory=list)
@@ -177,22 +184,44 @@ class HistoryDB:
             with self._write() as cur:
                 if self.is_pg:  # two first writers must not both create the tables
                     cur.execute("SELECT pg_advisory_xact_lock(2026112201)")
-                for stmt in _TABLES:
+                for stmt in _TABLES[:4]:  # the tables; indexes once they are migrated
                     cur.execute(stmt.format(pk=pk))
                 cur.execute("SELECT version FROM schema_version")
                 rows = cur.fetchall()
-                if not rows:
+                version = max((r[0] for r in rows), default=None)
+                if version is not None and version > SCHEMA_VERSION:
+                    raise HistoryError(
+                        f"{_redact(self.location)}: schema version {version} is newer than "
+                        f"this harness's {SCHEMA_VERSION}: update the harness")
+                if version is not None and version < SCHEMA_VERSION:
+                    self._migrate(cur, version)
+                for stmt in _TABLES[4:]:
+                    cur.execute(stmt.format(pk=pk))
+                if version is None:
                     cur.execute(self._sql("INSERT INTO schema_version (version) VALUES (?)"),
                                 (SCHEMA_VERSION,))
-                elif max(r[0] for r in rows) > SCHEMA_VERSION:
-                    raise HistoryError(
-                        f"{_redact(self.location)}: schema version {max(r[0] for r in rows)} "
-                        f"is newer than this harness's {SCHEMA_VERSION}: update the harness")
+                elif version < SCHEMA_VERSION:
+                    cur.execute(self._sql("UPDATE schema_version SET version = ?"),
+                                (SCHEMA_VERSION,))
         except HistoryError:
             raise
         except Exception as exc:  # noqa: BLE001 - sqlite3.Error / psycopg.Error
             raise HistoryError(f"{_redact(self.location)}: {type(exc).__name__}: {exc}") \
                 from exc
+
+    def _columns(self, cur: Any, table: str) -> set[str]:
+        if self.is_pg:
+            cur.execute("SELECT column_name FROM information_schema.columns WHERE "
+                        "table_name = %s AND table_schema = current_schema()", (table,))
+            return {r[0] for r in cur.fetchall()}
+        cur.execute(f"PRAGMA table_info({table})")
+        return {r[1] for r in cur.fetchall()}
+
+    def _migrate(self, cur: Any, version: int) -> None:
+        """Bring an older layout up to this one in the open transaction: columns added
+        with their defaults (records from before keep NULL: a series of their own)."""
+        if version < 2 and "run_sha256" not in self._columns(cur, "records"):
+            cur.execute("ALTER TABLE records ADD COLUMN run_sha256 TEXT")
 
     def close(self) -> None:
         self.conn.close()
@@ -209,13 +238,14 @@ class HistoryDB:
         with self._write() as cur:
             cur.execute(self._sql(
                 "INSERT INTO records (key, kind, time_utc, recorded_utc, suite, test, verdict, "
-                "harness_version, commit_sha, rig, rig_sha256, config_sha256, bus, real_rig, "
-                "source, extra) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
-                "ON CONFLICT (key) DO NOTHING RETURNING id"),
+                "harness_version, commit_sha, rig, rig_sha256, config_sha256, run_sha256, bus, "
+                "real_rig, source, extra) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
+                "?, ?) ON CONFLICT (key) DO NOTHING RETURNING id"),
                 (rec.key, rec.kind, rec.time_utc, utc_now(), rec.suite, rec.test, rec.verdict,
                  rec.harness_version, rec.commit, rec.rig, rec.rig_sha256, rec.config_sha256,
-                 rec.bus, int(bool(rec.real_rig)), rec.source,
-                 json.dumps(rec.extra, default=str)))
+                 rec.run_sha256, rec.bus, int(bool(rec.real_rig)), rec.source,
+                 json.dumps({**rec.extra, **({"binding": rec.binding} if rec.binding else {})},
+                            default=str)))
             row = cur.fetchone()
             if row is None:
                 return None
@@ -271,7 +301,8 @@ class HistoryDB:
         where, params = Filters(**{**f.__dict__, "test": test}).sql()
         return self._query(
             "SELECT r.id, r.time_utc, r.test, r.verdict AS run_verdict, r.rig, r.real_rig, "
-            "r.config_sha256, r.commit_sha, r.source, c.name, c.value, c.value_text, c.unit, "
+            "r.config_sha256, r.run_sha256, r.rig_sha256, r.bus, r.commit_sha, r.source, "
+            "c.name, c.value, c.value_text, c.unit, "
             "c.limits, c.margin, c.verdict FROM records r JOIN criteria c ON c.record_id = r.id"
             + where + " AND c.name = ? ORDER BY r.time_utc, r.id", [*params, name])
 
@@ -281,30 +312,42 @@ class HistoryDB:
         f = filters or Filters()
         where, params = Filters(**{**f.__dict__, "test": test}).sql()
         return self._query(
-            "SELECT r.id, r.time_utc, r.test, r.rig, r.real_rig, r.config_sha256, r.source, "
-            "m.mode, m.omega_rad_s, m.sigma_omega_rad_s, m.damping_ratio, m.sigma_damping, "
+            "SELECT r.id, r.time_utc, r.test, r.rig, r.real_rig, r.config_sha256, "
+            "r.run_sha256, r.rig_sha256, r.bus, r.source, m.mode, m.omega_rad_s, "
+            "m.sigma_omega_rad_s, m.damping_ratio, m.sigma_damping, "
             "m.model_omega_rad_s FROM records r JOIN modes m ON m.record_id = r.id"
             + where + " AND m.mode = ? ORDER BY r.time_utc, r.id", [*params, mode])
 
     def catalogue(self, filters: Filters | None = None) -> list[dict[str, Any]]:
-        """Every (test, criterion) and (test, mode) series with its run count."""
+        """Every series with its run count: a (test, criterion) or (test, mode) on one rig
+        (its name, real or virtual) and one run configuration (``run_sha256``; "" for
+        records from before it was kept)."""
         where, params = (filters or Filters()).sql()
+        key = ("r.test, COALESCE(r.rig, '') AS rig, r.real_rig, "
+               "COALESCE(r.run_sha256, '') AS run_sha256")
+        group = "r.test, COALESCE(r.rig, ''), r.real_rig, COALESCE(r.run_sha256, '')"
         crit = self._query(
-            "SELECT r.test, c.name AS criterion, c.unit, COUNT(*) AS runs, "
+            f"SELECT {key}, c.name AS criterion, c.unit, COUNT(*) AS runs, "
             "MAX(r.time_utc) AS last_utc FROM records r JOIN criteria c ON c.record_id = r.id"
-            + where + " GROUP BY r.test, c.name, c.unit ORDER BY r.test, c.name", params)
+            + where + f" GROUP BY {group}, c.name, c.unit ORDER BY r.test, c.name, "
+            "MAX(r.time_utc)", params)
         modes = self._query(
-            "SELECT r.test, m.mode, COUNT(*) AS runs, MAX(r.time_utc) AS last_utc "
+            f"SELECT {key}, m.mode, COUNT(*) AS runs, MAX(r.time_utc) AS last_utc "
             "FROM records r JOIN modes m ON m.record_id = r.id" + where
-            + " GROUP BY r.test, m.mode ORDER BY r.test, m.mode", params)
-        return ([{"series": "criterion", **c} for c in crit]
-                + [{"series": "mode", **m} for m in modes])
+            + f" GROUP BY {group}, m.mode ORDER BY r.test, m.mode, MAX(r.time_utc)", params)
+        out = ([{"series": "criterion", **c} for c in crit]
+               + [{"series": "mode", **m} for m in modes])
+        for r in out:
+            r["real_rig"] = bool(r["real_rig"])
+        return out
 
 
 @dataclass
 class Filters:
-    """Which records a query sees: a test, a rig (name), real or virtual, a time range
-    (ISO 8601 UTC strings, compared as text: ``2026-11-01`` means from its start)."""
+    """Which records a query sees: a test, a rig (name; "" the records without one), real
+    or virtual, a run configuration (``run_sha256``; "" the records without one), a time
+    range (``since`` inclusive, ``until`` exclusive: UTC times as the database keeps them,
+    ``YYYY-MM-DDTHH:MM:SSZ``; ``harness history`` parses what it is given into this form)."""
 
     test: str | None = None
     rig: str | None = None
@@ -312,10 +355,13 @@ class Filters:
     since: str | None = None
     until: str | None = None
     kind: str | None = None
+    run_sha256: str | None = None
 
     def sql(self) -> tuple[str, list[Any]]:
         conds, params = ["1 = 1"], []
-        for col, val in (("r.test", self.test), ("r.rig", self.rig), ("r.kind", self.kind)):
+        for col, val in (("r.test", self.test), ("COALESCE(r.rig, '')", self.rig),
+                         ("r.kind", self.kind),
+                         ("COALESCE(r.run_sha256, '')", self.run_sha256)):
             if val is not None:
                 conds.append(f"{col} = ?")
                 params.append(val)

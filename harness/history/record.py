@@ -74,24 +74,44 @@ def _config(run_dir: Path) -> dict[str, Any]:
     return cfg if isinstance(cfg, dict) else {}
 
 
+RUN_KEYS_OUTSIDE_SERIES = ("rig", "bus", "description")
+"""Run-file keys that do not make another series: which rig file the run named and its bus
+(the rig is a series' own key, by name, real or virtual: a rig file edited, or a rig that
+ages, stays one series; the default virtual bus is named after the rig) and the prose."""
+
+
+def run_sha256(run: Mapping[str, Any] | None) -> str | None:
+    """The run configuration's hash (config.yaml's ``run``, without
+    ``RUN_KEYS_OUTSIDE_SERIES``): a plain run and a suite's item of the same name are one
+    series only when their run data (criteria, overrides, duration...) is the same."""
+    if not isinstance(run, Mapping):
+        return None
+    return canonical_sha256({k: v for k, v in run.items() if k not in RUN_KEYS_OUTSIDE_SERIES})
+
+
 def run_identity(run_dir: Path) -> dict[str, Any]:
-    """The identity fields of a run directory: rig and its hash (the resolved rig the run
-    used, overrides included), the configuration's hash (run and rig, not where the run
-    file lay: an unchanged configuration hashes the same), bus, real or virtual."""
-    from harness.testing.judge import harness_version, source_commit
+    """The identity fields of a run directory: rig, its hash and binding (the resolved rig
+    the run used, overrides included: ``rig_models.rig_file.rig_identity``, as summary.json
+    says it), the configuration's hash (run and rig, not where the run file lay: an
+    unchanged configuration hashes the same), the run configuration's (the series), bus,
+    real or virtual."""
+    from harness.testing.judge import harness_version, run_rig_identity, source_commit
 
     cfg = _config(run_dir)
-    summary = _read_json(run_dir / "summary.json") or {}
+    summary = _read_json(run_dir / "summary.json")
+    summary = summary if isinstance(summary, dict) else {}
     rig = cfg.get("rig") if isinstance(cfg.get("rig"), dict) else None
     run = cfg.get("run") if isinstance(cfg.get("run"), dict) else None
-    bus = summary.get("bus") or (run or {}).get("bus")
+    ident = run_rig_identity(cfg, summary)
+    bus = ident["bus"]
     mode = summary.get("virtual_rig_mode")
     return {
         "harness_version": harness_version(), "commit": source_commit(),
-        "rig": (rig or {}).get("name"),
-        "rig_sha256": None if rig is None else canonical_sha256(rig),
+        "rig": ident["rig"], "rig_sha256": ident["rig_sha256"],
+        "binding": ident["binding"] if isinstance(ident["binding"], dict) else None,
         "config_sha256": None if rig is None and run is None else canonical_sha256(
             {"run": run, "rig": rig}),
+        "run_sha256": run_sha256(run),
         "bus": bus,
         # the virtual rig runs in the harness's process or its own; "external": the bus
         # is not the virtual one, so the rig answering is the real one (or one elsewhere)
@@ -144,9 +164,16 @@ def suite_records(out_dir: Path, doc: Mapping[str, Any]) -> list[Record]:
         if t.get("verdict") == "SKIPPED":
             continue
         run_dir = out_dir / t["run_dir"] if t.get("run_dir") else None
-        ident = run_identity(run_dir) if run_dir is not None and run_dir.is_dir() else {
-            "time_utc": when, "bus": doc.get("bus"),
-            "real_rig": not str(doc.get("bus") or "virtual").startswith("virtual")}
+        if run_dir is not None and run_dir.is_dir():
+            ident = run_identity(run_dir)
+        else:  # a probe or a study: the rig its document names
+            rig = t.get("rig") if isinstance(t.get("rig"), Mapping) else {}
+            bus = rig.get("bus") or doc.get("bus")
+            ident = {"time_utc": when, "bus": bus, "rig": rig.get("rig"),
+                     "rig_sha256": rig.get("rig_sha256"),
+                     "binding": rig.get("binding") if isinstance(rig.get("binding"), dict)
+                     else None,
+                     "real_rig": not str(bus or "virtual").startswith("virtual")}
         kind = t.get("kind") or "run"
         out.append(Record(key=f"suite:{base}:{t.get('nodeid') or t.get('item')}", kind=kind,
                           test=str(t.get("item")), verdict=t.get("verdict"), suite=suite,
@@ -254,8 +281,8 @@ def record_calibration(folder: Path, data: Mapping[str, Any]) -> None:
 
 def record_suite(out_dir: Path, doc: dict[str, Any]) -> None:
     """Record a suite's tests, then add each criterion's recent values (``trend``: this
-    run's and up to TREND_RUNS - 1 before it, same test and rig) to ``doc`` for its
-    report."""
+    run's and up to TREND_RUNS - 1 before it, same series: test, rig and run configuration)
+    to ``doc`` for its report."""
     out_dir = Path(out_dir)
     try:
         records = suite_records(out_dir, doc)
@@ -271,8 +298,9 @@ def record_suite(out_dir: Path, doc: dict[str, Any]) -> None:
         for t, rec in zip((t for t in doc.get("tests") or [] if t.get("verdict") != "SKIPPED"),
                           records, strict=True):
             for c in t.get("criteria") or []:
-                rows = db.criterion_series(rec.test, str(c.get("name", "")),
-                                           Filters(rig=rec.rig, until=_after(rec.time_utc)))
+                rows = db.criterion_series(rec.test, str(c.get("name", "")), Filters(
+                    rig=rec.rig or "", real=rec.real_rig, run_sha256=rec.run_sha256 or "",
+                    until=_after(rec.time_utc)))
                 vals = [r["value"] for r in rows if r["value"] is not None][-TREND_RUNS:]
                 if len(vals) >= 2:
                     c["trend"] = vals
@@ -318,23 +346,55 @@ def _walk(logs: Path) -> Iterator[tuple[str, Path]]:
             yield "identify", run_dir
 
 
-def import_logs(db: HistoryDB, logs: Path) -> dict[str, int]:
+def _records_of(kind: str, folder: Path) -> list[Record]:
+    if kind == "suite":
+        doc = _read_json(folder / "results.json")
+        if not isinstance(doc, dict) or not isinstance(doc.get("tests"), list):
+            raise ValueError("results.json: tests: expected a list")
+        return suite_records(folder, doc)
+    if kind == "calibrate":
+        return [calibration_record(folder, _read_json(folder / "results.json"))]
+    if kind == "identify":
+        ident = _read_json(folder / "identify.json")
+        if not isinstance(ident, dict):
+            raise ValueError("identify.json: expected an object")
+        return [identify_record(folder, ident)]
+    if not isinstance(_read_json(folder / "verdict.json"), dict):
+        raise ValueError("verdict.json: expected an object")
+    rec = verdict_record(folder)
+    return [rec] if rec else []
+
+
+def _database_failure(exc: BaseException) -> bool:
+    """The database itself failed (locked past its timeout, a full disk, a lost server):
+    the import stops; anything else a record raises is its folder's fault."""
+    import sqlite3
+
+    if isinstance(exc, sqlite3.OperationalError):
+        return True
+    return type(exc).__module__.startswith("psycopg") and type(exc).__name__ in (
+        "OperationalError", "InterfaceError")
+
+
+def import_logs(db: HistoryDB, logs: Path,
+                skipped: list[tuple[Path, str]] | None = None) -> dict[str, int]:
     """Record every result under ``logs`` not yet in ``db``: counts added and already
-    there, by kind."""
+    there, by kind. A folder whose files cannot be read as a result (hand-edited, cut) is
+    skipped, named in ``skipped`` with the reason, and the rest is recorded."""
     counts: dict[str, int] = {}
     for kind, folder in _walk(Path(logs)):
-        if kind == "suite":
-            recs = suite_records(folder, _read_json(folder / "results.json"))
-        elif kind == "calibrate":
-            recs = [calibration_record(folder, _read_json(folder / "results.json"))]
-        elif kind == "identify":
-            recs = [identify_record(folder, _read_json(folder / "identify.json") or {})]
-        else:
-            rec = verdict_record(folder)
-            recs = [rec] if rec else []
-        for r in recs:
-            added = db.add(r) is not None
-            k = f"{kind} {'added' if added else 'already recorded'}"
+        try:
+            recs = _records_of(kind, folder)
+            added = [db.add(r) is not None for r in recs]
+        except Exception as exc:  # noqa: BLE001 - a bad folder is skipped, named
+            if _database_failure(exc):
+                raise
+            if skipped is not None:
+                skipped.append((folder, f"{kind}: {type(exc).__name__}: {exc}"[:300]))
+            counts[f"{kind} skipped"] = counts.get(f"{kind} skipped", 0) + 1
+            continue
+        for was_added in added:
+            k = f"{kind} {'added' if was_added else 'already recorded'}"
             counts[k] = counts.get(k, 0) + 1
     return counts
 

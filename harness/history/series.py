@@ -15,23 +15,37 @@ from typing import Any
 
 from harness.history import drift
 from harness.history.db import Filters, HistoryDB
+from harness.testing.measures import unit_text
 
 LIMIT_KEYS = ("min", "max", "max_abs")
 
 
 @dataclass
 class Series:
+    """One test's criterion or mode on one rig (its name, real or virtual) under one run
+    configuration (``run_sha256``: the run file's data; "" for records from before it was
+    kept), oldest first."""
+
     what: str  # "criterion" | "mode"
     test: str
     name: str  # the criterion's name, or "mode N"
-    unit: str
+    unit: str  # as verdicts print it (N m, m/s^2)
     rows: list[dict[str, Any]]
     alarms: list[drift.Alarm] = field(default_factory=list)
     flaky: list[dict[str, Any]] = field(default_factory=list)
+    rig: str = ""
+    real_rig: bool = False
+    run_sha256: str = ""
+
+    @property
+    def where(self) -> str:
+        """``on sgsrt-canopen (real), run configuration 0123abcd``."""
+        rig = f"on {self.rig or 'an unnamed rig'}{' (real)' if self.real_rig else ''}"
+        return rig + (f", run configuration {self.run_sha256[:8]}" if self.run_sha256 else "")
 
     @property
     def label(self) -> str:
-        return f"{self.test} {self.name}"
+        return f"{self.test} {self.name} {self.where}"
 
     def points(self) -> list[drift.Point]:
         return [drift.Point(r["time_utc"], float(r["value"]), r.get("sigma"), r.get("source")
@@ -39,8 +53,9 @@ class Series:
 
     def to_dict(self) -> dict[str, Any]:
         return {"series": self.what, "test": self.test, "name": self.name, "unit": self.unit,
-                "runs": self.rows, "alarms": [a.to_dict() for a in self.alarms],
-                "flaky": self.flaky}
+                "rig": self.rig, "real_rig": self.real_rig, "run_sha256": self.run_sha256,
+                "label": self.label, "runs": self.rows,
+                "alarms": [a.to_dict() for a in self.alarms], "flaky": self.flaky}
 
 
 def _limits(raw: Any) -> dict[str, float]:
@@ -61,17 +76,23 @@ def _limits(raw: Any) -> dict[str, float]:
     return out
 
 
+def _identity(r: dict[str, Any]) -> dict[str, Any]:
+    return {"rig": r["rig"], "real_rig": bool(r["real_rig"]), "rig_sha256": r.get("rig_sha256"),
+            "run_sha256": r.get("run_sha256"), "bus": r.get("bus"),
+            "config_sha256": r["config_sha256"], "source": r["source"]}
+
+
 def criterion_series(db: HistoryDB, test: str, name: str, filters: Filters | None = None
                      ) -> Series:
+    """The criterion's rows the filters select, as one series (``split`` parts it by rig
+    and run configuration)."""
     rows = db.criterion_series(test, name, filters)
     out = []
     for r in rows:
         out.append({"time_utc": r["time_utc"], "value": r["value"], "margin": r["margin"],
-                    "verdict": r["verdict"], "limits": _limits(r["limits"]), "rig": r["rig"],
-                    "real_rig": bool(r["real_rig"]), "config_sha256": r["config_sha256"],
-                    "source": r["source"]})
+                    "verdict": r["verdict"], "limits": _limits(r["limits"]), **_identity(r)})
     unit = next((r["unit"] for r in rows if r.get("unit")), "")
-    return Series("criterion", test, name, unit or "", out)
+    return Series("criterion", test, name, unit_text(unit or ""), out)
 
 
 def mode_series(db: HistoryDB, test: str, mode: int, filters: Filters | None = None) -> Series:
@@ -79,9 +100,21 @@ def mode_series(db: HistoryDB, test: str, mode: int, filters: Filters | None = N
     out = [{"time_utc": r["time_utc"], "value": r["omega_rad_s"],
             "sigma": r["sigma_omega_rad_s"], "damping_ratio": r["damping_ratio"],
             "sigma_damping": r["sigma_damping"], "model_omega_rad_s": r["model_omega_rad_s"],
-            "rig": r["rig"], "real_rig": bool(r["real_rig"]), "source": r["source"]}
-           for r in rows]
+            **_identity(r)} for r in rows]
     return Series("mode", test, f"mode {mode}", "rad/s", out)
+
+
+def split(series: Series) -> list[Series]:
+    """``series``' rows parted into one series per rig (name, real or virtual) and run
+    configuration, in the order each first ran: one rig's alarms are never measured from
+    another rig's runs, nor a suite item's from a plain run with other criteria."""
+    parts: dict[tuple[str, bool, str], list[dict[str, Any]]] = {}
+    for r in series.rows:
+        key = (r.get("rig") or "", bool(r.get("real_rig")), r.get("run_sha256") or "")
+        parts.setdefault(key, []).append(r)
+    return [Series(series.what, series.test, series.name, series.unit, rows, rig=rig,
+                   real_rig=real, run_sha256=run)
+            for (rig, real, run), rows in parts.items()]
 
 
 def flaky(series: Series) -> list[dict[str, Any]]:
@@ -145,7 +178,7 @@ def analyse(series: Series, k: float = drift.DEFAULT_K, n_ref: int = drift.DEFAU
 
 # ------------------------------------------------------------------------ output
 def table(series: Series) -> str:
-    lines = [f"{series.label} ({series.unit}), {len(series.rows)} runs"]
+    lines = [f"{series.label} ({series.unit or 'no unit'}), {len(series.rows)} runs"]
     if series.what == "mode":
         lines.append(f"{'#':>3} {'time (UTC)':<20} {'omega':>10} {'1 sigma':>9} "
                      f"{'model':>9} {'zeta':>7}  rig")
@@ -176,15 +209,30 @@ def _f(v: Any, fmt: str) -> str:
     return f"{'-':>{width}}" if v is None else format(v, fmt)
 
 
-def plot_png(series: Series, path: Path | io.BytesIO) -> Path | io.BytesIO:
-    """Values over the runs: a mode with its 1-sigma error bars (the model's value
-    dashed); a criterion with its limits (red) and marginal band (shaded); alarms ringed."""
+def plot_png(series: Series | list[Series], path: Path | io.BytesIO) -> Path | io.BytesIO:
+    """Values over the runs, one panel a series (a rig, a run configuration): a mode with
+    its 1-sigma error bars (the model's value dashed); a criterion with its limits (red)
+    and marginal band (shaded); alarms ringed."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(8, 4), dpi=100)
+    many = series if isinstance(series, list) else [series]
+    fig, axes = plt.subplots(len(many), 1, figsize=(8, 4 * len(many)), dpi=100,
+                             squeeze=False)
+    for ax, one in zip(axes[:, 0], many, strict=True):
+        _draw(ax, one)
+    fig.tight_layout()
+    if not isinstance(path, io.BytesIO):
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, format="png")
+    plt.close(fig)
+    return path
+
+
+def _draw(ax: Any, series: Series) -> None:
     idx = list(range(len(series.rows)))
     vals = [math.nan if r["value"] is None else r["value"] for r in series.rows]
     if series.what == "mode":
@@ -236,28 +284,27 @@ def plot_png(series: Series, path: Path | io.BytesIO) -> Path | io.BytesIO:
     ax.set_title(series.label)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="best")
-    fig.tight_layout()
-    if not isinstance(path, io.BytesIO):
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, format="png")
-    plt.close(fig)
-    return path
 
 
-def page_html(series: Series, path: Path) -> Path:
-    """A self-contained page: the plot, the alarms and the table."""
-    png = io.BytesIO()
-    plot_png(series, png)
-    img = base64.b64encode(png.getvalue()).decode()
-    alarms = "".join(f"<li><b>{html.escape(a.kind)}</b>: {html.escape(a.message)}</li>"
-                     for a in series.alarms) or "<li>no alarm</li>"
-    alarms += "".join(f"<li><b>flaky</b>: {html.escape(f['message'])}</li>"
-                      for f in series.flaky)
+def page_html(series: Series | list[Series], path: Path) -> Path:
+    """A self-contained page: per series (a rig, a run configuration) the plot, the alarms
+    and the table."""
+    many = series if isinstance(series, list) else [series]
+    title = f"{many[0].test} {many[0].name}" if many else "history"
+    parts = []
+    for one in many:
+        png = io.BytesIO()
+        plot_png(one, png)
+        img = base64.b64encode(png.getvalue()).decode()
+        alarms = "".join(f"<li><b>{html.escape(a.kind)}</b>: {html.escape(a.message)}</li>"
+                         for a in one.alarms) or "<li>no alarm</li>"
+        alarms += "".join(f"<li><b>flaky</b>: {html.escape(f['message'])}</li>"
+                          for f in one.flaky)
+        parts.append(f"<h2>{html.escape(one.label)}</h2><img alt='series' "
+                     f"src='data:image/png;base64,{img}'><h3>Alarms</h3><ul>{alarms}</ul>"
+                     f"<h3>Runs</h3><pre>{html.escape(table(one))}</pre>")
     doc = (f"<!doctype html><html><head><meta charset='utf-8'><title>"
-           f"{html.escape(series.label)}</title></head><body style='font-family:sans-serif'>"
-           f"<h1>{html.escape(series.label)}</h1><img alt='series' "
-           f"src='data:image/png;base64,{img}'><h2>Alarms</h2><ul>{alarms}</ul>"
-           f"<h2>Runs</h2><pre>{html.escape(table(series))}</pre></body></html>")
+           f"{html.escape(title)}</title></head><body style='font-family:sans-serif'>"
+           f"<h1>{html.escape(title)}</h1>{''.join(parts)}</body></html>")
     Path(path).write_text(doc)
     return Path(path)

@@ -35,6 +35,7 @@ from harness.testing.evaluate import (
     worst_verdict,
 )
 from harness.testing.measures import unit_text
+from rig_models.rig_file import binding_text, rig_identity
 from rig_models.schema import ConfigError
 
 APPLICATION_ID = "sgsrt-harness"  # as harness.record.recording's (same recording in the viewer)
@@ -107,17 +108,36 @@ def harness_version() -> str:
         return "unknown"
 
 
+def run_rig_identity(cfg: Mapping[str, Any], summary: Mapping[str, Any]) -> dict[str, Any]:
+    """The rig identity of a run (``rig_models.rig_file.rig_identity``): summary.json's, as
+    the run computed it, else computed from config.yaml's resolved rig (a run that wrote no
+    summary, or one from before summaries named their rig)."""
+    run = cfg.get("run") if isinstance(cfg.get("run"), Mapping) else {}
+    rig = cfg.get("rig") if isinstance(cfg.get("rig"), Mapping) else None
+    bus = summary.get("bus") or run.get("bus")
+    bus = bus if isinstance(bus, str) else None
+    if isinstance(summary.get("rig_sha256"), str) and isinstance(summary.get("rig"), str):
+        binding = summary.get("binding")
+        return {"rig": summary["rig"], "rig_sha256": summary["rig_sha256"], "bus": bus,
+                "binding": binding if isinstance(binding, Mapping) else None}
+    if rig is None:
+        return {"rig": None, "rig_sha256": None, "bus": bus, "binding": None}
+    return rig_identity(rig, bus)
+
+
 def identity_of(run_dir: Path, cfg: Mapping[str, Any], summary: Mapping[str, Any],
                 expect_file: Path | None) -> dict[str, Any]:
     run = cfg.get("run") if isinstance(cfg.get("run"), Mapping) else {}
-    rig = cfg.get("rig") if isinstance(cfg.get("rig"), Mapping) else {}
+    rig = run_rig_identity(cfg, summary)
     return {
         "run": summary.get("run") or run.get("name"),
         "recording_id": run_dir.name,
         "harness_version": harness_version(),
         "commit": source_commit(),
-        "rig": rig.get("name"),
-        "bus": summary.get("bus") or run.get("bus"),
+        "rig": rig["rig"],
+        "rig_sha256": rig["rig_sha256"],
+        "bus": rig["bus"],
+        "binding": rig["binding"],
         "clock": summary.get("clock") or run.get("clock"),
         "config_sha256": sha256_of(run_dir / "config.yaml"),
         "summary_sha256": sha256_of(run_dir / "summary.json"),
@@ -483,7 +503,8 @@ def verdict_markdown(v: Verdict) -> str:
                      f"{'-' if c.margin is None else f'{c.margin:.4g}'} | {c.verdict} | "
                      f"{'-' if c.worst_time_s is None else f'{c.worst_time_s:.3f}'} |")
     lines += ["", *[f"- **{c.name}** ({c.verdict}): {c.message}" for c in v.criteria]]
-    ident = "\n".join(f"- {k}: {val}" for k, val in v.identity.items())
+    ident = "\n".join(f"- {k}: {binding_text(val) if k == 'binding' else val}"
+                      for k, val in v.identity.items())
     return "\n".join(lines) + "\n\n## Identity\n\n" + ident + "\n"
 
 

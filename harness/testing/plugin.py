@@ -73,6 +73,7 @@ class SuitePlugin:
         self.futures: dict[str, Any] = {}
         self.outputs: dict[str, dict[str, Any]] = {}  # case key -> run_case output
         self.records: list[dict[str, Any]] = []  # one per reported item, in report order
+        self.junit_rigs: set[tuple[Any, Any]] = set()  # rigs named in the JUnit testsuite
         self.selected: list[pytest.Item] = []
         self.total = 0
         self.done = 0
@@ -245,6 +246,9 @@ class SuitePlugin:
             "worker": out.get("worker") if out else None,
             "run_dir": out.get("run_dir") if out else None,
         }
+        rig = rig_of(res, out)
+        if rig is not None:
+            rec["rig"] = rig
         if "modes" in res:
             rec["modes"] = res["modes"]
         if "document" in res and item.item_kind in ("probe", "study"):
@@ -283,6 +287,15 @@ class SuitePlugin:
             preflight=self.preflight, refused=self.refused,
             wall_s=time.perf_counter() - self.t0,
             interrupted=exitstatus == pytest.ExitCode.INTERRUPTED)
+
+
+def rig_of(res: dict[str, Any], out: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The rig identity of a test's result (``rig_models.rig_file.rig_identity``): its
+    run's summary.json, or its probe's document."""
+    for doc in ((out or {}).get("summary"), res.get("document")):
+        if isinstance(doc, dict) and doc.get("rig_sha256"):
+            return {k: doc.get(k) for k in ("rig", "rig_sha256", "bus", "binding")}
+    return None
 
 
 def _preflight_case(case: Case, report: dict[str, Any]) -> dict[str, Any]:
@@ -338,6 +351,7 @@ class SuiteItem(pytest.Item):
         self.compare = compare
         self.item_kind = item_kind
         self.result: dict[str, Any] | None = None
+        self.rig: dict[str, Any] | None = None  # its result's rig (rig_of), once set up
         self.case_key = SuitePlugin.key(case) if case else ""
         if case is not None and case.virtual_only:
             self.add_marker("virtual_only")
@@ -381,6 +395,8 @@ class SuiteItem(pytest.Item):
                 "ERROR", "no result for this test (its job ended early)")
         self.result = res
         plugin.record(self, res, out)
+        self.rig = rig_of(res, out)
+        self._suite_rig_property()
         if self.compare is not None:
             plugin._count(f"{res['verdict']:<8} {self.suite.name}::{self.name}: {res['reason']}")
         if res["verdict"] == "ERROR":
@@ -400,10 +416,36 @@ class SuiteItem(pytest.Item):
         verdict, reason = combine(crit)
         return item_result(verdict, reason, crit)
 
+    def _rig_properties(self) -> list[tuple[str, str]]:
+        """The rig of this test's result as JUnit properties (none without a rig)."""
+        rig = self.rig
+        if rig is None:
+            return []
+        from rig_models.rig_file import binding_text
+
+        return [("rig", str(rig.get("rig"))), ("rig_sha256", str(rig.get("rig_sha256"))),
+                ("bus", str(rig.get("bus"))), ("binding", binding_text(rig.get("binding")))]
+
+    def _suite_rig_property(self) -> None:
+        """The rig in the JUnit testsuite's properties, once per rig (a suite run on one
+        rig names it once); not its bus: a suite's virtual runs each have their own."""
+        from _pytest.junitxml import xml_key
+
+        xml = self.config.stash.get(xml_key, None)
+        if xml is None or self.rig is None:
+            return
+        key = (self.rig.get("rig"), self.rig.get("rig_sha256"))
+        if key not in self.plugin.junit_rigs:
+            self.plugin.junit_rigs.add(key)
+            for name, value in self._rig_properties():
+                if name != "bus":
+                    xml.add_global_property(name, value)
+
     def runtest(self) -> None:
         res = self.result
         assert res is not None
         self.user_properties.append(("verdict", res["verdict"]))
+        self.user_properties.extend(self._rig_properties())  # after the verdict, the first
         if res["verdict"] == "FAIL":
             raise SuiteFailure(res["reason"])
 

@@ -319,7 +319,7 @@ def write_reports(out_dir: Path, records: list[dict[str, Any]], *, not_run: list
             exit_code(records) if records else (2 if refused else 0)),
         "interrupted": interrupted,
         "counts": _counts(records), "refused": refused, "preflight": preflight,
-        "not_run": not_run, "tests": records,
+        "rigs": rigs_of(records), "not_run": not_run, "tests": records,
     }
     from harness.history.record import record_suite  # the results database
 
@@ -328,6 +328,34 @@ def write_reports(out_dir: Path, records: list[dict[str, Any]], *, not_run: list
     (out_dir / "report.md").write_text(_markdown(doc, out_dir))
     (out_dir / "report.html").write_text(_html(doc, out_dir))
     return doc
+
+
+def rigs_of(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Every rig the suite's tests ran on (``rig_models.rig_file.rig_identity`` without the
+    bus: a suite's virtual runs each have their own), with its number of tests."""
+    out: dict[tuple[Any, Any], dict[str, Any]] = {}
+    for r in records:
+        rig = r.get("rig")
+        if not isinstance(rig, dict):
+            continue
+        key = (rig.get("rig"), rig.get("rig_sha256"))
+        entry = out.setdefault(key, {"rig": rig.get("rig"), "rig_sha256": rig.get("rig_sha256"),
+                                     "binding": rig.get("binding"), "tests": 0})
+        entry["tests"] += 1
+    return list(out.values())
+
+
+def _on_rigs(doc: dict[str, Any]) -> str:
+    """`` on sgsrt-canopen``: the title names the rig(s)."""
+    names = [str(r["rig"]) for r in doc.get("rigs") or [] if r.get("rig")]
+    return f" on {', '.join(dict.fromkeys(names))}" if names else ""
+
+
+def _rig_lines(doc: dict[str, Any]) -> list[str]:
+    from rig_models.rig_file import identity_text
+
+    rigs = doc.get("rigs") or []
+    return [identity_text(r) for r in rigs] or ["rig unknown (no test ran on a rig)"]
 
 
 def _json_default(v: Any) -> Any:
@@ -373,11 +401,12 @@ def _md_table(rows: list[list[str]], header: list[str]) -> str:
 
 
 def _markdown(doc: dict[str, Any], out_dir: Path) -> str:
-    names = ", ".join(s["name"] for s in doc["suites"])
+    names = ", ".join(s["name"] for s in doc["suites"]) + _on_rigs(doc)
     out = [f"# Suite {names}: {doc['verdict']}", "",
            f"{doc['created_utc']}, {doc['engine']}, bus {doc['bus']}, "
            f"{doc['wall_time_s']:.1f} s; " + ", ".join(f"{v} {n}" for v, n in
                                                        doc["counts"].items()), ""]
+    out += [f"- {line}" for line in _rig_lines(doc)] + [""]
     if doc["refused"]:
         out += [f"**Refused:** {doc['refused']}", ""]
     out += [_md_table([[r["item"], r["verdict"], _fmt(r["wall_s"]), r["reason"]]
@@ -439,7 +468,7 @@ def _anchor(item: str) -> str:
 
 
 def _html(doc: dict[str, Any], out_dir: Path) -> str:
-    names = ", ".join(s["name"] for s in doc["suites"])
+    names = ", ".join(s["name"] for s in doc["suites"]) + _on_rigs(doc)
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>Suite "
              f"{html.escape(names)}</title><style>{CSS}</style></head><body>",
              f"<h1>Suite {html.escape(names)} {_badge(doc['verdict'])}</h1>",
@@ -447,6 +476,8 @@ def _html(doc: dict[str, Any], out_dir: Path) -> str:
              f"&middot; bus {html.escape(doc['bus'])} &middot; {doc['wall_time_s']:.1f} s "
              f"&middot; exit code {doc['exit_code']} &middot; "
              + ", ".join(f"{html.escape(v)} {n}" for v, n in doc["counts"].items()) + "</p>"]
+    parts.append("<ul class='rigs'>" + "".join(f"<li>{html.escape(line)}</li>"
+                                               for line in _rig_lines(doc)) + "</ul>")
     if doc["refused"]:
         parts.append(f"<p><b>Refused:</b> {html.escape(doc['refused'])}</p>")
     rows = [[f"<a href='#{_anchor(r['item'])}'>{html.escape(r['item'])}</a>",

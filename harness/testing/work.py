@@ -58,11 +58,14 @@ def _judge(run_dir: Path) -> dict[str, Any]:
     return {**v.to_dict(), "exit_code": v.exit_code}
 
 
-def private_channel() -> str:
-    """A virtual bus of this job's own. python-can's virtual channels are per process: a
-    worker running two jobs at once (a Dask worker with several threads) must not join them
-    on one channel. (No trailing digits: the BLF writer reads them as a channel number.)"""
-    return f"virtual:job-{uuid.uuid4().hex[:12]}-sgsrt"
+def private_channel(rig: str = "sgsrt") -> str:
+    """A virtual bus of this job's own, named after its rig (``virtual:job-HEX-sgsrt-dbc2``).
+    python-can's virtual channels are per process: a worker running two jobs at once (a Dask
+    worker with several threads) must not join them on one channel. (The job's hex never
+    ends the name: the BLF writer reads trailing digits as a channel number.)"""
+    from harness.core.runs import virtual_bus
+
+    return f"virtual:job-{uuid.uuid4().hex[:12]}-{virtual_bus(rig).partition(':')[2]}"
 
 
 def _run(case: Case, out_dir: Path, bus: str | None,
@@ -77,7 +80,7 @@ def _run(case: Case, out_dir: Path, bus: str | None,
     try:
         run = load_run(case.run, case.overrides)
         if parse_bus(bus or run.data["bus"]).in_process:
-            bus = private_channel()
+            bus = private_channel(run.rig.name)
             clock = None
         else:  # a rig in its own process, or the real one: its own time, unless the rig is
             clock = clock or "realtime"  # a virtual one in lockstep (--clock lockstep)
@@ -145,10 +148,10 @@ def run_probe(opts: dict[str, Any], bus: str | None, rig: str = "sgsrt",
     from rig_models.rig_file import load_rig
     from rig_models.virtual_rig import VirtualRig
 
+    rig_cfg = load_rig(opts.get("rig", rig))
     spec = parse_bus(bus or "virtual:sgsrt")
     if spec.in_process:
-        spec = parse_bus(private_channel())
-    rig_cfg = load_rig(opts.get("rig", rig))
+        spec = parse_bus(private_channel(rig_cfg.name))
     rate = float(opts.get("rate_hz", 100.0))
     buses = [open_bus(spec)]
     try:
