@@ -8,6 +8,7 @@ log are closed on every exit path.
 from __future__ import annotations
 
 import contextlib
+import copy
 import datetime as dt
 import json
 import math
@@ -28,6 +29,7 @@ from harness.bus.load import binding_bus_load, compute_bus_load
 from harness.bus.rig_interface import RigInterface
 from harness.bus.rig_process import RigProcess, RigProcessError
 from harness.core.clock import LockstepClock, RealTimeClock, RealTimeSetup, choose_cpus
+from harness.core.limits import BeyondLimit, check_run
 from harness.core.loop import CHANNELS, HELD_FRACTION, RESERVE_FRACTION, LoopStats, run_loop
 from harness.core.monitor import FaultMonitor, MonitorWarning
 from harness.core.paths import safe_child, safe_name
@@ -94,6 +96,16 @@ def bus_load_of(run: RunConfig):  # noqa: ANN201 - BusLoad
         run.actuators, run.data["heartbeat_hz"], run.rig.data["bus"]["bitrate_bit_s"])
 
 
+def refuse_beyond_limits(run: RunConfig, controller: object) -> list[dict[str, Any]]:
+    """The run's planned motion against its limits and the rig's (``harness.core.limits``),
+    on a copy of its controller; RunRefused (a sentence naming the limit) before anything is
+    sent, the checked rows otherwise."""
+    try:
+        return check_run(run, copy.deepcopy(controller))
+    except BeyondLimit as exc:
+        raise RunRefused(str(exc)) from exc
+
+
 def make_run_dir(out: Path, name: str) -> Path:
     """``<out>/<UTC time>-<safe_name(name)>``: a run's name never leaves ``out``."""
     stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%S.%fZ")
@@ -136,6 +148,8 @@ def execute_run(
             f"({load.frames_per_s:.0f} frames/s; largest: {worst[0]} {worst[2] / 1e3:.0f} kbit/s)"
             "; lower rate_hz or raise the devices' sync_divider")
     controller = build_controller(run)
+    if not dry_run:  # a dry run sends no command: nothing moves
+        refuse_beyond_limits(run, controller)
     SpaceGuard(out_dir).check()  # a folder already (nearly) full: refused, nothing sent
     try:
         run_dir = make_run_dir(out_dir, run.name)
