@@ -132,7 +132,11 @@ def execute_run(
     faults: list[FaultSpec] | None = None,
     should_stop: Callable[[], str | None] | None = None,
     rig_process: bool = False,
+    device_rig: Any = None,
 ) -> RunResult:
+    """Run ``run`` and record it. ``device_rig``: the rig file whose devices and physics the
+    in-process virtual rig emulates instead of the run's own (a lab's devices as they are,
+    against a rig file under test: ``harness commission --devices-rig``)."""
     spec = parse_bus(bus or run.data["bus"])
     clock_name = clock or run.data["clock"]
     if rig_process and not (spec.in_process and clock_name == "realtime"):
@@ -160,6 +164,10 @@ def execute_run(
     write_text_atomic(run_dir / "config.yaml", yaml.safe_dump(run.resolved(), sort_keys=False))
     rig_mode = virtual_rig_mode(run, spec, clock_name, rig_process,
                                 run.faults + list(faults or []))
+    if device_rig is not None and rig_mode not in ("lockstep", "thread"):
+        shutil.rmtree(run_dir, ignore_errors=True)
+        raise RunRefused(f"{run.source}: the devices of another rig file are emulated by the "
+                         f"in-process virtual rig only (bus {spec}, {rig_mode})")
     with contextlib.ExitStack() as stack:
         rig_measures: dict[str, list[str]] = {}
         if rig_mode.startswith("process"):
@@ -182,7 +190,7 @@ def execute_run(
             faults = []
         try:
             result = _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
-                              show_progress, dry_run, faults, should_stop)
+                              show_progress, dry_run, faults, should_stop, device_rig)
         except RunRefused:
             # nothing was sent and the folder holds only config.yaml: left behind, it would
             # read as a run killed on the way ('harness logs --failed')
@@ -367,7 +375,8 @@ def make_monitor(run: RunConfig, interface: RigInterface, realtime: bool) -> Fau
 def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
              load: Any, run_dir: Path, live_view_url: str | None, show_progress: bool,
              dry_run: bool, faults: list[FaultSpec] | None,
-             should_stop: Callable[[], str | None] | None) -> RunResult:
+             should_stop: Callable[[], str | None] | None,
+             device_rig: Any = None) -> RunResult:
     dt_s = run.dt_s
     protocol = load_protocol()
     try:
@@ -400,7 +409,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
     try:
         if spec.in_process:
             rig_bus = open_bus(spec)
-            rig = VirtualRig(run.rig, rig_bus, dt_s, faults=run.faults + list(faults or []))
+            rig = VirtualRig(device_rig if device_rig is not None else run.rig, rig_bus, dt_s,
+                             faults=run.faults + list(faults or []))
             if clock_name == "lockstep":
                 pump = rig.service
             else:
@@ -421,8 +431,9 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                                  dry_run=dry_run)
         heartbeat_every = max(1, round(run.data["rate_hz"] / run.data["heartbeat_hz"]))
         monitor = make_monitor(run, interface, realtime=clock_name == "realtime")
+        co_nodes: list[Any] | None = None
         if interface.co is not None:
-            canopen_setup(interface, pump, can_log, dry_run, show_progress)
+            co_nodes = canopen_setup(interface, pump, can_log, dry_run, show_progress)
             interface.watch_heartbeats(dt_s, grace_ticks=monitor.realtime_grace)
         monitor.on_warning = _warning_logger(recorder, show_progress)
         reference = getattr(controller, "reference", None)
@@ -450,6 +461,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
             if callable(design_report):
                 summary["controller_design"] = design_report()
             summary["dry_run"] = dry_run
+            if co_nodes is not None:  # each node's identity, device type, scaling objects
+                summary["canopen_nodes"] = co_nodes
             summary["faults"] = [f.to_dict() for f in stats.faults]
             summary["injected_faults"] = [vars(f) for f in (rig.injector.faults if rig else [])]
             failure = recorder.space_stop or recorder.failed or can_log.failed
