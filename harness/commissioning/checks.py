@@ -80,23 +80,34 @@ class Check:
         return f"{self.device}.{self.quantity}"
 
 
-def likely_cause(ratio: float, tol: float) -> str:
-    """What a ratio far from 1 most likely says about the binding."""
+def likely_cause(ratio: float, tol: float, se: float = 0.0) -> str:
+    """What a ratio far from 1 most likely says about the binding (``tol``: how near a
+    factor it must be, relative; ``se``: its standard error, for telling it from 0)."""
     if not math.isfinite(ratio):
         return "no usable reading (NaN or infinite)"
-    if abs(ratio) <= max(tol, 0.05):
-        return ("no response: the quantity is bound to an object or signal that does not "
-                "carry it, or the sensor is pinned at a constant")
+    near = max(tol, 0.05)
     sign = ratio < 0
     mag = abs(ratio)
     for factor, text in FACTORS:
-        if abs(mag / factor - 1.0) <= max(tol, 0.05):
+        if abs(mag / factor - 1.0) <= near:
             return ("a sign and " if sign else "") + text
-    if sign and abs(mag - 1.0) <= max(tol, 0.05):
+    if mag <= max(SIGMAS * se, 0.02):
+        return ("no response: the quantity is bound to an object or signal that does not "
+                "carry it, or the sensor is pinned at a constant")
+    if sign and abs(mag - 1.0) <= near:
         return "a sign (the quantity's direction is reversed: a negative scale, or wired " \
                "the other way)"
     return (("a sign and " if sign else "") + f"a factor of {mag:.4g}: a wrong scale, a "
             "wrong object or signal, or the rig file's model (inertia, couple, gains) is off")
+
+
+def nearest_factor(ratio: float, spread: float) -> str:
+    """The factor of ``FACTORS`` nearest a ratio of noises (a scale error multiplies the
+    noise by it), when within ``spread`` (the noise's own, noise_factor) either way."""
+    if not ratio > 0:
+        return ""
+    best = min(FACTORS, key=lambda f: abs(math.log(ratio / f[0])))
+    return best[1] if abs(math.log(ratio / best[0])) <= math.log(max(spread, 1.0001)) else ""
 
 
 def ratio_check(device: str, quantity: str, check: str, meas: np.ndarray,
@@ -116,7 +127,7 @@ def ratio_check(device: str, quantity: str, check: str, meas: np.ndarray,
     margin = limit - abs(r - 1.0)
     verdict = "PASS" if margin >= 0 else "FAIL"
     return Check(device, quantity, check, r, 1.0, limit, "ratio", margin, verdict,
-                 "" if verdict == "PASS" else likely_cause(r, limit),
+                 "" if verdict == "PASS" else likely_cause(r, limit, se),
                  (why + "; " if why else "") + f"standard error {se:.2g}, tolerance {tol:g}",
                  None if t is None else (t[ok], m, p))
 
@@ -141,28 +152,34 @@ def mean_check(device: str, quantity: str, values: np.ndarray, unit: str, noise:
 
 
 def noise_check(device: str, quantity: str, values: np.ndarray, unit: str, noise: float,
-                res: float, factor: float, every: int = 1) -> Check:
+                lsb: float, factor: float, every: int = 1, res: float = 0.0) -> Check:
+    """The standard deviation at rest against the spec: the rig file's noise and its
+    resolution ``lsb`` (the sensor's reading as the rig file knows it); ``res``: the
+    binding's step, a quantisation allowed on top."""
     v = values[np.isfinite(values)][::max(every, 1)]
     if v.size < 3:
         return Check(device, quantity, "noise at rest", None, None, None, unit, None,
                      "NOT RUN", why="no samples")
     std = float(np.std(v - np.polyval(np.polyfit(np.arange(v.size), v, 1),
                                       np.arange(v.size))))
-    spec = math.sqrt(noise ** 2 + res ** 2 / 12)
-    hi = factor * spec + 0.5 * res
-    lo = spec / factor if noise >= res and noise > 0 else 0.0
+    spec = math.sqrt(noise ** 2 + lsb ** 2 / 12)
+    hi = factor * spec + 0.5 * max(res, lsb)
+    lo = spec / factor if noise >= lsb and noise > 0 else 0.0
     margin = min(std - lo, hi - std) if lo > 0 else hi - std
     verdict = "PASS" if margin >= 0 else "FAIL"
     cause = ""
     if verdict == "FAIL":
         cause = ("the reading does not move as its noise says it must: the sensor is "
                  "pinned at a constant, or the quantity is bound to an object or signal "
-                 "that does not carry it" if std < lo else
-                 "noisier than its spec: a wrong scale (too large), a loose or noisy "
-                 "connection, or the rig is not at rest")
+                 "that does not carry it (or far coarser than the rig file's resolution)"
+                 if std < lo else
+                 f"{std / spec:.3g} x noisier than its spec: "
+                 + (nearest_factor(std / spec, factor) or "a wrong scale (too large)")
+                 + ", or a loose or noisy connection, or the rig is not at rest")
     return Check(device, quantity, "noise at rest", std, spec, [lo, hi], unit, margin,
                  verdict, cause, f"standard deviation (trend removed) of {v.size} samples; "
-                 f"spec noise {noise:g} {unit}, resolution {res:g}, noise_factor {factor:g}")
+                 f"spec noise {noise:g} {unit}, resolution {lsb:g} (the binding's step "
+                 f"{res:g}), noise_factor {factor:g}")
 
 
 def fraction_check(device: str, quantity: str, check: str, fraction: float,

@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from drivers.binding.quantities import COMMANDS, TELEMETRY
 from harness.commissioning.checks import Check, likely_cause
 
 SCALE_REL = 1e-3
@@ -61,6 +62,7 @@ def scaling_checks(binding: Any, nodes: list[dict[str, Any]] | None) -> list[Che
                 continue
             v = scaling[label]
             expected = per_count(v)
+            unit_of = "N.m" if spec.profile == "cia402" else "rad"
             for device, qrefs in list(spec.telemetry.items()) + list(spec.commands.items()):
                 for q in qrefs:
                     if q.ref.index not in objects or q.conv.bit is not None or \
@@ -73,8 +75,15 @@ def scaling_checks(binding: Any, nodes: list[dict[str, Any]] | None) -> list[Che
                     cause = ""
                     if verdict == "FAIL":
                         cause = (f"the rig file converts a count of 0x{q.ref.index:04X} to "
-                                 f"{got:.6g}; " + text.format(v=v, x=expected) + "; "
-                                 + likely_cause(got / expected, SCALE_REL))
+                                 f"{got:.6g}; " + text.format(v=v, x=expected) + "; ")
+                        unit = {**TELEMETRY.get(device, {}), **COMMANDS.get(device, {})}.get(
+                            q.quantity, "")
+                        if unit.split("/")[0] != unit_of:
+                            cause += (f"{device}.{q.quantity} ({unit or 'a flag or count'}) "
+                                      f"is bound to 0x{q.ref.index:04X} ({q.ref.name}), an "
+                                      f"object in {unit_of}: a wrong object")
+                        else:
+                            cause += likely_cause(got / expected, SCALE_REL)
                     out.append(Check(device, q.quantity, f"conversion of 0x{q.ref.index:04X} "
                                      f"vs the device's scaling object {label}", got, expected,
                                      SCALE_REL, "SI per count (relative limit)",

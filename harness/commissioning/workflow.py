@@ -31,6 +31,7 @@ from harness.core.paths import safe_child, safe_name
 from harness.core.runs import build_controller, run_from_dict
 from harness.core.session import RunResult, execute_run, refuse_beyond_limits
 from rig_models.rig_file import RIGS_DIR, load_rig
+from rig_models.schema import ConfigError
 
 EXIT = {"PASS": 0, "FAIL": 1, "ERROR": 3}
 
@@ -110,6 +111,9 @@ def commission(opts: Options, progress: Callable[[str], None] = lambda m: None
     bus = opts.bus or "virtual:sgsrt"
     spec = parse_bus(bus)
     clock = opts.clock or ("lockstep" if spec.in_process else "realtime")
+    if device_rig is not None and not spec.in_process:
+        raise ConfigError(f"--devices-rig: the in-process virtual rig emulates another rig "
+                          f"file's devices; bus {spec} is not the virtual bus")
     plan = plan_commissioning(rig, _rig_ref(opts.rig))
     rest_run = run_from_dict(plan.rest_run(bus, clock), source="commission rest run")
     moving_run = run_from_dict(plan.moving_run(bus, clock), source="commission moving run")
@@ -141,13 +145,32 @@ def commission(opts: Options, progress: Callable[[str], None] = lambda m: None
     moving = execute_run(moving_run, out_dir=runs_dir, bus=opts.bus, clock=clock,
                          show_progress=False, device_rig=device_rig)
     c.runs["moving"] = str(moving.run_dir)
-    stop = _stopped(moving)
-    if stop is not None:
+    faults = moving.summary.get("faults") or []
+    if faults:
+        # the monitor stopped the run at a reading beyond a limit or implausible: on a rig
+        # being commissioned, most likely a quantity misread; what completed is judged too
+        c.checks += [fault_check(f) for f in faults[:1]]
+        c.notes.append(f"the monitor stopped the moving run: {_stopped(moving)}; the "
+                       "excitations that ended before it are judged, the others not run")
+    elif _stopped(moving) is not None:
         c.verdict = "ERROR"
-        c.notes.append(f"the moving run stopped: {stop}")
+        c.notes.append(f"the moving run stopped: {_stopped(moving)}")
         return _finish(c, start)
     c.checks += moving_checks(plan, moving.columns(), dt_s)
     return _finish(c, start)
+
+
+def fault_check(fault: dict[str, Any]) -> Check:
+    """The monitor's fault as a failed check of the quantity it names."""
+    device, kind = fault["device"], fault["kind"]
+    quantity = {"hub_sensor": "rate" if "rate" in kind else "angle",
+                "accelerometer": "accel",
+                "reaction_wheel": "speed" if "speed" in kind else "torque"}.get(device, kind)
+    return Check(device, quantity, "the monitor stopped the moving run", None, None, None, "",
+                 None, "FAIL", f"{kind}: {fault['message']} at t = {fault['time_s']:.3f} s: "
+                 "a reading beyond its limit or implausible (a misread quantity: its scale, "
+                 "unit or object), or the device's own fault",
+                 "the monitor's limits and plausibility (docs/faults.md)")
 
 
 def _finish(c: Commissioning, start: float) -> Commissioning:
