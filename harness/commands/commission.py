@@ -3,7 +3,8 @@
 Sensors at rest, then a short, bounded, scripted excitation of every bound device; a
 verdict per device and quantity (value, expected, limit, margin) in commission.json,
 report.html and commission.rrd. Exit codes as ``harness run``'s: 0 PASS, 1 FAIL, 2 bad
-input or refused (nothing sent), 3 a run stopped by a fault, 4 an error, 130 interrupted.
+input or refused (nothing sent), 4 an error, 130 interrupted (a fault the monitor raises
+is a failed check of the quantity it names: 1).
 """
 
 from __future__ import annotations
@@ -73,6 +74,11 @@ def cmd_commission(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print("harness commission: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:  # a run raised (a driver, the bus): one line, the runs kept
+        where = getattr(exc, "run_dir", None)
+        print(f"harness commission: error: {type(exc).__name__}: {exc}"
+              + (f" (recording in {where})" if where else ""), file=sys.stderr)
+        return 4
     if args.json:
         from harness.commissioning.report import _jsonable
 

@@ -16,6 +16,7 @@ each in its own folder under ``runs/``).
 from __future__ import annotations
 
 import datetime as dt
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -29,11 +30,11 @@ from harness.commissioning.plan import CommissionPlan, plan_commissioning
 from harness.commissioning.scaling import scaling_checks
 from harness.core.paths import safe_child, safe_name
 from harness.core.runs import build_controller, run_from_dict
-from harness.core.session import RunResult, execute_run, refuse_beyond_limits
+from harness.core.session import RunRefused, RunResult, execute_run, refuse_beyond_limits
 from rig_models.rig_file import RIGS_DIR, load_rig
 from rig_models.schema import ConfigError
 
-EXIT = {"PASS": 0, "FAIL": 1, "ERROR": 3}
+EXIT = {"PASS": 0, "FAIL": 1, "ERROR": 4}
 
 
 @dataclass
@@ -120,6 +121,22 @@ def commission(opts: Options, progress: Callable[[str], None] = lambda m: None
     refuse_beyond_limits(moving_run, build_controller(moving_run))
     c = Commissioning(opts, plan)
     c.folder = output_folder(opts.out, rig.name)
+    try:
+        return _runs(c, plan, rest_run, moving_run, device_rig, clock, start, progress)
+    except RunRefused:
+        # refused before anything was sent (a CANopen set-up that failed, a bus that does
+        # not open): no folder is left, as for a refused run, unless a run was recorded
+        if not c.runs:
+            shutil.rmtree(c.folder, ignore_errors=True)
+        raise
+
+
+def _runs(c: Commissioning, plan: CommissionPlan, rest_run: Any, moving_run: Any,
+          device_rig: Any, clock: str, start: float,
+          progress: Callable[[str], None]) -> Commissioning:
+    opts = c.options
+    rig = plan.rig
+    assert c.folder is not None
     runs_dir = c.folder / "runs"
     dt_s = rest_run.dt_s
 
