@@ -108,6 +108,20 @@ RIG_SCHEMA: dict[str, Any] = {
     "watchdog": {
         "heartbeat_timeout_s": Field("number", "s", default=0.25, **POSITIVE),
     },
+    # how well this rig file knows its rig: bounds of the model's errors, from which
+    # `harness commission` derives its limits (docs/commission.md)
+    "tolerances": {
+        "inertia_fraction": Field("number", "fraction", default=0.05, minimum=0.0,
+                                  maximum=1.0),
+        "torque_fraction": Field("number", "fraction", default=0.05, minimum=0.0, maximum=1.0),
+        "speed_fraction": Field("number", "fraction", default=0.05, minimum=0.0, maximum=1.0),
+        "couple_fraction": Field("number", "fraction", default=0.10, minimum=0.0, maximum=1.0),
+        "modal_fraction": Field("number", "fraction", default=0.25, minimum=0.0, maximum=1.0),
+        "noise_factor": Field("number", "x the noise spec", default=2.0, minimum=1.0),
+        "accel_bias_m_s2": Field("number", "m/s^2", default=0.05, minimum=0.0),
+        "rate_bias_rad_s": Field("number", "rad/s", default=1.0e-4, minimum=0.0),
+        "piezo_bias_v": Field("number", "V", default=0.01, minimum=0.0),
+    },
     # limits of a run's criteria that differ on this rig, by criterion name:
     # {final_error: {max_abs_deg: 0.2}}; applied by the harness's verdict layer
     "expect_overrides": Field("any", default=None),

@@ -81,8 +81,17 @@ def test_fault_exit_code_and_message_from_the_cli(tmp_path):
     assert "FAULT accelerometer: silent" in out.stderr
 
 
-def test_limits_abort_the_run(tmp_path):
+def test_limits_abort_the_run(tmp_path, monkeypatch):
+    """The monitor's own limit check, for a rig that moves beyond what its plan said (the
+    plan's check, harness.core.limits, refuses this run before its first frame: bypassed
+    here to reach the monitor)."""
+    from harness.core import session
+    from harness.core.session import RunRefused
+
     run = load_run("slew-rw", {"duration_s": 30.0, "limits": {"max_angle_deg": 5.0}})
+    with pytest.raises(RunRefused, match=r"limits\.max_angle_deg of 5 deg"):
+        execute_run(run, out_dir=tmp_path / "refused", show_progress=False)
+    monkeypatch.setattr(session, "refuse_beyond_limits", lambda run, controller: [])
     res = execute_run(run, out_dir=tmp_path, show_progress=False)
     (event,) = res.summary["faults"]
     assert event["kind"] == "angle limit" and "> 5 deg" in event["message"]

@@ -6,7 +6,8 @@ how each device speaks:
 
 - ``sgsrt`` (the default): this project's ``drivers/sgsrt.dbc``;
 - ``dbc``: any DBC file, with a map from each quantity to a message and signal and the
-  conversion to SI (``scale``/``offset``, or a sensor's ``sensitivity``), both byte orders,
+  conversion to SI (``scale``/``offset``: SI = value x scale + offset, or a sensor's
+  ``sensitivity``/``offset``: value = offset + sensitivity x SI), both byte orders,
   extended ids, multiplexed messages, optional alive counters;
 - ``canopen``: a node id, an EDS/DCF file and a CiA profile (``drivers.binding.canopen``);
 - ``none``: the rig has no such device (a run that needs it is refused).
@@ -34,7 +35,7 @@ from drivers.binding.frames import (
     SignalMap,
     SyncMap,
     TelemetryMap,
-    finite_number,
+    linear_conversion,
 )
 from drivers.binding.quantities import (
     COMMANDS,
@@ -216,14 +217,7 @@ def _signal_map(quantity: str, spec: Any, key: str, protocol: Protocol, path: Pa
                            f"{', '.join(sorted(_SIGNAL_KEYS))})")
     codec = _message(protocol, spec.get("message"), key, path)
     signal = _signal(codec, spec.get("signal"), key)
-    if "sensitivity" in spec and "scale" in spec:
-        raise BindingError(f"{key}: give scale (SI per DBC unit) or sensitivity (DBC unit per "
-                           "SI unit), not both")
-    if "sensitivity" in spec:
-        scale = 1.0 / finite_number(spec["sensitivity"], f"{key}.sensitivity", nonzero=True)
-    else:
-        scale = finite_number(spec.get("scale", 1.0), f"{key}.scale", nonzero=True)
-    offset = finite_number(spec.get("offset", 0.0), f"{key}.offset")
+    scale, offset = linear_conversion(spec, key, "DBC value")
     mux = spec.get("mux")
     mux_signal = getattr(codec, "multiplexer", None)
     if mux is not None:

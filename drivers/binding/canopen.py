@@ -18,7 +18,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any, cast
 
-from drivers.binding.frames import BindingError, finite_number
+from drivers.binding.frames import BindingError, linear_conversion
 from drivers.binding.quantities import COMMANDS, REQUIRED_COMMANDS, REQUIRED_TELEMETRY, TELEMETRY
 
 PROFILES = ("cia401", "cia402", "cia406")
@@ -182,7 +182,8 @@ class PdoCodec:
 
 @dataclass(frozen=True)
 class Conversion:
-    """Raw object value <-> one quantity. Linear (SI = raw * scale + offset), one bit of
+    """Raw object value <-> one quantity. Linear (SI = raw * scale + offset, from the rig
+    file's scale/offset or sensitivity/offset: ``frames.linear_conversion``), one bit of
     it, a masked comparison (a status word's state), or a table (a control word)."""
 
     scale: float = 1.0
@@ -508,13 +509,7 @@ def _quantity(q: str, spec: Any, key: str, od: Any, eds: str, command: bool) -> 
         pairs = tuple((_int(k, f"{key}.values", -2**31, 2**31), _int(
             v, f"{key}.values.{k}", -(2**63), 2**64 - 1)) for k, v in vals.items())
         return QuantityRef(q, ref, Conversion(values=pairs))
-    if "sensitivity" in spec and "scale" in spec:
-        raise BindingError(f"{key}: give scale or sensitivity, not both")
-    if "sensitivity" in spec:
-        scale = 1.0 / finite_number(spec["sensitivity"], f"{key}.sensitivity", nonzero=True)
-    else:
-        scale = finite_number(spec.get("scale", 1.0), f"{key}.scale", nonzero=True)
-    offset = finite_number(spec.get("offset", 0.0), f"{key}.offset")
+    scale, offset = linear_conversion(spec, key, "raw count")
     return QuantityRef(q, ref, Conversion(scale=scale, offset=offset))
 
 

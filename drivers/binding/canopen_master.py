@@ -35,6 +35,17 @@ from drivers.binding.canopen import (
 
 NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
 BOOT_TIMEOUT_S = 2.0
+# the objects by which a profile's device states its own units, read during set-up (where
+# the EDS has them) and reported, for commissioning to compare with the rig file's
+# conversions: CiA 402 rated current and torque, the position/velocity factors and SI
+# units; CiA 406 measuring units per revolution and total range; CiA 401 analog input
+# offset and scaling (float)
+SCALING_OBJECTS: dict[str, tuple[int, ...]] = {
+    "cia402": (0x6075, 0x6076, 0x608F, 0x6090, 0x6091, 0x6092, 0x6093, 0x6094, 0x6095,
+               0x6096, 0x60A8, 0x60A9),
+    "cia406": (0x6001, 0x6002),
+    "cia401": (0x642E, 0x642F),
+}
 SDO_TIMEOUT_S = 0.5
 
 
@@ -188,6 +199,20 @@ class CanopenMaster:
             if want is not None and v != want:
                 raise SetupError(f"{spec.label}: identity {name} 0x{v:08X}, expected "
                                  f"0x{want:08X} (0x1018.{sub})")
+        scaling: dict[str, Any] = {}
+        for index in SCALING_OBJECTS.get(spec.profile, ()):
+            if index not in spec.od:
+                continue
+            obj = spec.od[index]
+            subs = [0] if hasattr(obj, "data_type") else sorted(
+                s for s in obj.subindices if s > 0)
+            for sub in subs:
+                var = obj if sub == 0 else obj[sub]
+                raw = self._sdo(rn, spec, index, sub, f"scaling object {var.name}")
+                try:
+                    scaling[f"0x{index:04X}.{sub}"] = var.decode_raw(raw)
+                except Exception:  # noqa: BLE001 - reported raw: commissioning names it
+                    scaling[f"0x{index:04X}.{sub}"] = raw.hex()
         if spec.verify:
             self._verify_pdos(rn, spec)
         # PDOs: the binding's, every other one disabled (a DCF's: verified above instead)
@@ -250,6 +275,7 @@ class CanopenMaster:
         return {"node_id": spec.node_id, "devices": list(spec.devices),
                 "device_type": f"0x{device_type:08X}",
                 **{k: f"0x{v:08X}" for k, v in identity.items()},
+                "scaling": scaling,
                 "tpdos": {f"TPDO{p.number}": [e.label for e in p.codec.entries]
                           for p in spec.tpdos},
                 "rpdos": {f"RPDO{p.number}": [e.label for e in p.codec.entries]

@@ -3,13 +3,15 @@
 The same map serves both ends of the bus: the harness decodes telemetry and encodes
 commands with it, the virtual rig encodes telemetry and decodes commands with it, so CI runs
 exactly the frames a lab's devices speak. A quantity in SI is ``physical * scale + offset``
-of its DBC signal (``physical`` being the DBC's own scaled value, in the DBC's unit).
+of its DBC signal (``physical`` being the DBC's own scaled value, in the DBC's unit); a rig
+file gives that conversion as ``scale``/``offset`` or as a sensor's ``sensitivity``/``offset``
+(``linear_conversion``).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, cast
 
@@ -33,6 +35,33 @@ def finite_number(value: Any, key: str, nonzero: bool = False) -> float:
         raise BindingError(f"{key}: expected a finite{' non-zero' if nonzero else ''} number, "
                            f"got {value!r}")
     return v
+
+
+def linear_conversion(spec: Mapping[str, Any], key: str, unit: str = "value"
+                      ) -> tuple[float, float]:
+    """A rig file's linear conversion as ``(scale, offset)`` with SI = value x scale + offset
+    (``value``: a DBC signal's physical value or a CANopen object's raw count). Two forms,
+    each with one meaning, for telemetry and commands alike:
+
+    - ``scale`` (SI per unit of the value) and ``offset`` (the SI quantity at a value of
+      0): SI = value x scale + offset, a DBC's own factor/offset convention. A command is
+      sent as value = (SI - offset) / scale.
+    - ``sensitivity`` (units of the value per SI unit) and ``offset`` (the value at a
+      quantity of 0, in the value's unit): what a sensor's data sheet gives, the sensor
+      reading value = offset + sensitivity x SI, so SI = (value - offset) / sensitivity.
+      E.g. an accelerometer of 100 mV/g centred on 2.5 V, read in volts:
+      ``sensitivity: 0.0101972`` (0.1 V / 9.80665 m/s^2), ``offset: 2.5``.
+
+    Raises BindingError naming the key."""
+    if "sensitivity" in spec and "scale" in spec:
+        raise BindingError(f"{key}: give scale (SI per {unit}; SI = {unit} x scale + offset) "
+                           f"or sensitivity ({unit} per SI unit; {unit} = offset + "
+                           "sensitivity x SI), not both")
+    offset = finite_number(spec.get("offset", 0.0), f"{key}.offset")
+    if "sensitivity" in spec:
+        sens = finite_number(spec["sensitivity"], f"{key}.sensitivity", nonzero=True)
+        return 1.0 / sens, -offset / sens
+    return finite_number(spec.get("scale", 1.0), f"{key}.scale", nonzero=True), offset
 
 
 @dataclass(frozen=True)

@@ -56,8 +56,8 @@ from harness.calibration.plan import (
 from harness.calibration.residual import fit_modal_residual, true_residual
 from harness.controllers.shaped_wheel_slew import Mode
 from harness.core.paths import safe_child, safe_name
-from harness.core.runs import RunConfig, run_from_dict, virtual_bus
-from harness.core.session import RunResult, execute_run
+from harness.core.runs import RunConfig, build_controller, run_from_dict, virtual_bus
+from harness.core.session import RunResult, execute_run, refuse_beyond_limits
 from rig_models.rig_file import RigConfig, load_rig
 from rig_models.schema import ConfigError
 
@@ -168,9 +168,12 @@ def _run(run: RunConfig, runs_dir: Path, bus: str | None, clock: str) -> RunResu
     result = execute_run(run, out_dir=runs_dir, bus=bus, clock=clock, show_progress=False)
     s = result.summary
     if s["stopped_by"] != "completed":
-        code = 3 if s.get("faults") else 4
-        raise CalibrationError(f"{run.name}: stopped by {s['stopped_by']}: {s.get('error')} "
-                               f"{s.get('faults')} (recording in {result.run_dir})", code)
+        faults = s.get("faults") or []
+        code = 3 if faults else 4
+        why = (f"{faults[0]['device']}: {faults[0]['kind']}: {faults[0]['message']} at t = "
+               f"{faults[0]['time_s']:.3f} s" if faults else s.get("error") or "no reason given")
+        raise CalibrationError(f"{run.name}: stopped by {s['stopped_by']}: {why} (recording "
+                               f"in {result.run_dir})", code)
     return result
 
 
@@ -401,8 +404,14 @@ def calibrate(opts: Options, progress: Callable[[str], None] = lambda m: None) -
     c = Calibration(opts, plan)
     angle = opts.angle_deg if opts.angle_deg is not None else DEFAULT_ANGLE_DEG[opts.actuator]
     excite_run = run_from_dict(plan.run_dict(bus, clock), source="calibrate excitation")
-    # the slew itself must be possible too (limits), before anything is sent
-    slew_spec(rig, opts.actuator, angle, opts.rate_hz, rig_ref, bus, clock, 1.0)
+    # the slew itself must be possible too (limits), before anything is sent: the
+    # excitation and the unshaped slew at the predicted modes, each against the run's and
+    # the rig's limits (the shaped slews stay within the unshaped one's angle)
+    spec = slew_spec(rig, opts.actuator, angle, opts.rate_hz, rig_ref, bus, clock, 1.0)
+    refuse_beyond_limits(excite_run, build_controller(excite_run))
+    predicted = [Mode(p.omega_rad_s, p.damping_ratio) for p in plan.predicted]
+    refuse_beyond_limits(*build(spec, "calibrate-unshaped", "",
+                                baseline_controller(spec, predicted)))
     if opts.dry_run:
         return c
     c.folder = output_folder(opts.out, rig.name, opts.actuator)

@@ -8,6 +8,7 @@ log are closed on every exit path.
 from __future__ import annotations
 
 import contextlib
+import copy
 import datetime as dt
 import json
 import math
@@ -28,6 +29,7 @@ from harness.bus.load import binding_bus_load, compute_bus_load
 from harness.bus.rig_interface import RigInterface
 from harness.bus.rig_process import RigProcess, RigProcessError
 from harness.core.clock import LockstepClock, RealTimeClock, RealTimeSetup, choose_cpus
+from harness.core.limits import BeyondLimit, check_run
 from harness.core.loop import CHANNELS, HELD_FRACTION, RESERVE_FRACTION, LoopStats, run_loop
 from harness.core.monitor import FaultMonitor, MonitorWarning
 from harness.core.paths import safe_child, safe_name
@@ -95,6 +97,16 @@ def bus_load_of(run: RunConfig):  # noqa: ANN201 - BusLoad
         run.actuators, run.data["heartbeat_hz"], run.rig.data["bus"]["bitrate_bit_s"])
 
 
+def refuse_beyond_limits(run: RunConfig, controller: object) -> list[dict[str, Any]]:
+    """The run's planned motion against its limits and the rig's (``harness.core.limits``),
+    on a copy of its controller; RunRefused (a sentence naming the limit) before anything is
+    sent, the checked rows otherwise."""
+    try:
+        return check_run(run, copy.deepcopy(controller))
+    except BeyondLimit as exc:
+        raise RunRefused(str(exc)) from exc
+
+
 def make_run_dir(out: Path, name: str) -> Path:
     """``<out>/<UTC time>-<safe_name(name)>``: a run's name never leaves ``out``."""
     stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%S.%fZ")
@@ -121,7 +133,11 @@ def execute_run(
     faults: list[FaultSpec] | None = None,
     should_stop: Callable[[], str | None] | None = None,
     rig_process: bool = False,
+    device_rig: Any = None,
 ) -> RunResult:
+    """Run ``run`` and record it. ``device_rig``: the rig file whose devices and physics the
+    in-process virtual rig emulates instead of the run's own (a lab's devices as they are,
+    against a rig file under test: ``harness commission --devices-rig``)."""
     spec = parse_bus(bus or run.data["bus"])
     clock_name = clock or run.data["clock"]
     if rig_process and not (spec.in_process and clock_name == "realtime"):
@@ -137,6 +153,8 @@ def execute_run(
             f"({load.frames_per_s:.0f} frames/s; largest: {worst[0]} {worst[2] / 1e3:.0f} kbit/s)"
             "; lower rate_hz or raise the devices' sync_divider")
     controller = build_controller(run)
+    if not dry_run:  # a dry run sends no command: nothing moves
+        refuse_beyond_limits(run, controller)
     SpaceGuard(out_dir).check()  # a folder already (nearly) full: refused, nothing sent
     try:
         run_dir = make_run_dir(out_dir, run.name)
@@ -147,6 +165,10 @@ def execute_run(
     write_text_atomic(run_dir / "config.yaml", yaml.safe_dump(run.resolved(), sort_keys=False))
     rig_mode = virtual_rig_mode(run, spec, clock_name, rig_process,
                                 run.faults + list(faults or []))
+    if device_rig is not None and rig_mode not in ("lockstep", "thread"):
+        shutil.rmtree(run_dir, ignore_errors=True)
+        raise RunRefused(f"{run.source}: the devices of another rig file are emulated by the "
+                         f"in-process virtual rig only (bus {spec}, {rig_mode})")
     with contextlib.ExitStack() as stack:
         rig_measures: dict[str, list[str]] = {}
         if rig_mode.startswith("process"):
@@ -169,7 +191,7 @@ def execute_run(
             faults = []
         try:
             result = _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
-                              show_progress, dry_run, faults, should_stop)
+                              show_progress, dry_run, faults, should_stop, device_rig)
         except RunRefused:
             # nothing was sent and the folder holds only config.yaml: left behind, it would
             # read as a run killed on the way ('harness logs --failed')
@@ -354,7 +376,8 @@ def make_monitor(run: RunConfig, interface: RigInterface, realtime: bool) -> Fau
 def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
              load: Any, run_dir: Path, live_view_url: str | None, show_progress: bool,
              dry_run: bool, faults: list[FaultSpec] | None,
-             should_stop: Callable[[], str | None] | None) -> RunResult:
+             should_stop: Callable[[], str | None] | None,
+             device_rig: Any = None) -> RunResult:
     dt_s = run.dt_s
     protocol = load_protocol()
     try:
@@ -387,7 +410,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
     try:
         if spec.in_process:
             rig_bus = open_bus(spec)
-            rig = VirtualRig(run.rig, rig_bus, dt_s, faults=run.faults + list(faults or []))
+            rig = VirtualRig(device_rig if device_rig is not None else run.rig, rig_bus, dt_s,
+                             faults=run.faults + list(faults or []))
             if clock_name == "lockstep":
                 pump = rig.service
             else:
@@ -408,8 +432,9 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                                  dry_run=dry_run)
         heartbeat_every = max(1, round(run.data["rate_hz"] / run.data["heartbeat_hz"]))
         monitor = make_monitor(run, interface, realtime=clock_name == "realtime")
+        co_nodes: list[Any] | None = None
         if interface.co is not None:
-            canopen_setup(interface, pump, can_log, dry_run, show_progress)
+            co_nodes = canopen_setup(interface, pump, can_log, dry_run, show_progress)
             interface.watch_heartbeats(dt_s, grace_ticks=monitor.realtime_grace)
         monitor.on_warning = _warning_logger(recorder, show_progress)
         reference = getattr(controller, "reference", None)
@@ -439,6 +464,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                 summary["controller_design"] = design_report()
             summary["dry_run"] = dry_run
             summary["controller"] = controller_summary(run, stats)
+            if co_nodes is not None:  # each node's identity, device type, scaling objects
+                summary["canopen_nodes"] = co_nodes
             summary["faults"] = [f.to_dict() for f in stats.faults]
             summary["injected_faults"] = [vars(f) for f in (rig.injector.faults if rig else [])]
             failure = recorder.space_stop or recorder.failed or can_log.failed

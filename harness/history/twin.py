@@ -65,6 +65,8 @@ class TwinModel:
         quiet["hub_sensor"]["rate_noise_rms_rad_s"] = 0.0
         quiet["piezo_amplifier"]["sensor_noise_rms_v"] = 0.0
         quiet["devices"] = None  # the physics only: no device speaks on a bus here
+        if isinstance(quiet.get("bus"), dict):  # nor the harness: a DBC's SYNC would need them
+            quiet["bus"] = dict(quiet["bus"], sync=None, heartbeat=None)
         self.rig = VirtualRig(rig_from_dict(quiet, source="twin rig"), bus=None,  # type: ignore[arg-type]
                               dt_s=dt_s)
         self.rig.armed, self.rig.safe = True, True  # no heartbeat: the watchdog stays out

@@ -1,0 +1,213 @@
+"""Each bound quantity against the physics, written as criteria (docs/commission.md).
+
+Every check is a row: the device and quantity, what was compared, the value, what the
+physics expects, the limit, the margin (limit minus the distance from the expected value;
+negative: a miss), the verdict, and for a miss the likely cause. The limits come from the
+rig file: its noise specs and resolutions (``hub_sensor``, ``accelerometer``,
+``piezo_amplifier``, the binding's counts) and its ``tolerances`` (how well it knows the
+inertias, the torque, the couple, the beam's response), never from what a run measured:
+
+- a ratio of a measured change to the one the physics predicts (expected 1) may differ
+  from 1 by the sum of the model tolerances it depends on plus ``SIGMAS`` times its own
+  standard error from the noise (``sigma / sqrt(sum of the prediction squared)``, each
+  sample counted once at the device's own rate);
+- a mean at rest may differ from 0 by the sensor's bias tolerance plus ``SIGMAS`` standard
+  errors of the mean plus half a resolution step;
+- a standard deviation at rest within [1 / noise_factor, noise_factor] x the spec (noise
+  and quantisation combined); the lower bound only where the noise is at least a
+  resolution step (a coarse sensor repeating its reading at rest is not stuck).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+
+SIGMAS = 4.0
+"""Standard errors a measurement may stray from the physics by noise alone (4: a false
+FAIL about once in 16 000 checks)."""
+INTEGRATION_FRACTION = 0.02
+"""An angle's change against its rate's integral: the trapezoid of a sampled rate differs
+from the sampled angle's change by the sensors' own filtering; 2 % bounds it at the
+rates these pulses make."""
+READBACK_MIN_FRACTION = 0.8
+"""A valve's read-back must show it open (and the other closed) over this fraction of the
+commanded on-time after its opening delay (the valves answer every few SYNCs)."""
+
+# a ratio this close to a factor (within its own limit) names it as the likely cause
+FACTORS: tuple[tuple[float, str], ...] = (
+    (1000.0, "a factor of 1000 (milli- against base units, e.g. mN.m as N.m, mg as g)"),
+    (1e-3, "a factor of 1/1000 (base units against milli-units)"),
+    (180 / math.pi, "a factor of 180/pi (degrees read as radians)"),
+    (math.pi / 180, "a factor of pi/180 (radians read as degrees)"),
+    (2 * math.pi, "a factor of 2 pi (revolutions or Hz read as radians)"),
+    (1 / (2 * math.pi), "a factor of 1/(2 pi) (radians read as revolutions)"),
+    (60 / (2 * math.pi), "a factor of 60/(2 pi) (rpm read as rad/s)"),
+    (2 * math.pi / 60, "a factor of 2 pi/60 (rad/s read as rpm)"),
+    (9.80665, "a factor of g (g read as m/s^2)"),
+    (1 / 9.80665, "a factor of 1/g (m/s^2 read as g)"),
+)
+
+
+@dataclass
+class Check:
+    device: str
+    quantity: str
+    check: str
+    value: float | None
+    expected: float | None
+    limit: float | list[float] | None
+    unit: str
+    margin: float | None
+    verdict: str  # PASS, FAIL, NOT RUN
+    cause: str = ""
+    why: str = ""
+    # (time s, measured, expected) of a ratio check, for commission.rrd; not in the JSON
+    series: tuple[np.ndarray, np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "series"}
+        for k in ("value", "expected", "margin"):
+            if isinstance(d[k], float) and not math.isfinite(d[k]):
+                d[k] = None
+        return d
+
+    @property
+    def name(self) -> str:
+        return f"{self.device}.{self.quantity}"
+
+
+def likely_cause(ratio: float, tol: float, se: float = 0.0) -> str:
+    """What a ratio far from 1 most likely says about the binding (``tol``: how near a
+    factor it must be, relative; ``se``: its standard error, for telling it from 0)."""
+    if not math.isfinite(ratio):
+        return "no usable reading (NaN or infinite)"
+    near = max(tol, 0.05)
+    sign = ratio < 0
+    mag = abs(ratio)
+    for factor, text in FACTORS:
+        if abs(mag / factor - 1.0) <= near:
+            return ("a sign and " if sign else "") + text
+    if mag <= max(SIGMAS * se, 0.02):
+        return ("no response: the quantity is bound to an object or signal that does not "
+                "carry it, or the sensor is pinned at a constant")
+    if sign and abs(mag - 1.0) <= near:
+        return "a sign (the quantity's direction is reversed: a negative scale, or wired " \
+               "the other way)"
+    return (("a sign and " if sign else "") + f"a factor of {mag:.4g}: a wrong scale, a "
+            "wrong object or signal, or the rig file's model (inertia, couple, gains) is off")
+
+
+def nearest_factor(ratio: float, spread: float) -> str:
+    """The factor of ``FACTORS`` nearest a ratio of noises (a scale error multiplies the
+    noise by it), when within ``spread`` (the noise's own, noise_factor) either way."""
+    if not ratio > 0:
+        return ""
+    best = min(FACTORS, key=lambda f: abs(math.log(ratio / f[0])))
+    return best[1] if abs(math.log(ratio / best[0])) <= math.log(max(spread, 1.0001)) else ""
+
+
+def ratio_check(device: str, quantity: str, check: str, meas: np.ndarray,
+                pred: np.ndarray, sigma: float, tol: float, every: int = 1,
+                why: str = "", t: np.ndarray | None = None) -> Check:
+    """``meas`` against ``pred`` (both changes from a baseline, same samples): the least-
+    squares ratio, expected 1 within ``tol`` + SIGMAS standard errors."""
+    ok = np.isfinite(meas) & np.isfinite(pred)
+    m, p = meas[ok], pred[ok]
+    power = float(np.sum(p * p)) / max(every, 1)
+    if power <= 0.0:
+        return Check(device, quantity, check, None, 1.0, None, "", None, "NOT RUN",
+                     why="the model predicts no response here")
+    r = float(np.sum(m * p) / np.sum(p * p))
+    se = sigma / math.sqrt(power)
+    limit = tol + SIGMAS * se
+    margin = limit - abs(r - 1.0)
+    verdict = "PASS" if margin >= 0 else "FAIL"
+    return Check(device, quantity, check, r, 1.0, limit, "ratio", margin, verdict,
+                 "" if verdict == "PASS" else likely_cause(r, limit, se),
+                 (why + "; " if why else "") + f"standard error {se:.2g}, tolerance {tol:g}",
+                 None if t is None else (t[ok], m, p))
+
+
+def mean_check(device: str, quantity: str, values: np.ndarray, unit: str, noise: float,
+               res: float, bias: float, every: int = 1) -> Check:
+    v = values[np.isfinite(values)][::max(every, 1)]
+    if v.size < 2:
+        return Check(device, quantity, "offset at rest", None, 0.0, None, unit, None,
+                     "NOT RUN", why="no samples")
+    mean = float(np.mean(v))
+    sigma = math.sqrt(noise ** 2 + res ** 2 / 12)
+    limit = bias + SIGMAS * sigma / math.sqrt(v.size) + 0.5 * res
+    margin = limit - abs(mean)
+    verdict = "PASS" if margin >= 0 else "FAIL"
+    return Check(device, quantity, "offset at rest", mean, 0.0, limit, unit, margin, verdict,
+                 "" if verdict == "PASS" else "an offset: a sensor's offset applied twice "
+                 "or not at all, an offset in the wrong unit (the reading's, not SI), or the "
+                 "device is not at rest",
+                 f"mean of {v.size} samples; bias tolerance {bias:g} {unit}, noise "
+                 f"{noise:g}, resolution {res:g}")
+
+
+def noise_check(device: str, quantity: str, values: np.ndarray, unit: str, noise: float,
+                lsb: float, factor: float, every: int = 1, res: float = 0.0) -> Check:
+    """The standard deviation at rest against the spec: the rig file's noise and its
+    resolution ``lsb`` (the sensor's reading as the rig file knows it); ``res``: the
+    binding's step, a quantisation allowed on top."""
+    v = values[np.isfinite(values)][::max(every, 1)]
+    if v.size < 3:
+        return Check(device, quantity, "noise at rest", None, None, None, unit, None,
+                     "NOT RUN", why="no samples")
+    std = float(np.std(v - np.polyval(np.polyfit(np.arange(v.size), v, 1),
+                                      np.arange(v.size))))
+    spec = math.sqrt(noise ** 2 + lsb ** 2 / 12)
+    hi = factor * spec + 0.5 * max(res, lsb)
+    lo = spec / factor if noise >= lsb and noise > 0 else 0.0
+    margin = min(std - lo, hi - std) if lo > 0 else hi - std
+    verdict = "PASS" if margin >= 0 else "FAIL"
+    cause = ""
+    if verdict == "FAIL":
+        cause = ("the reading does not move as its noise says it must: the sensor is "
+                 "pinned at a constant, or the quantity is bound to an object or signal "
+                 "that does not carry it (or far coarser than the rig file's resolution)"
+                 if std < lo else
+                 f"{std / spec:.3g} x noisier than its spec: "
+                 + (nearest_factor(std / spec, factor) or "a wrong scale (too large)")
+                 + ", or a loose or noisy connection, or the rig is not at rest")
+    return Check(device, quantity, "noise at rest", std, spec, [lo, hi], unit, margin,
+                 verdict, cause, f"standard deviation (trend removed) of {v.size} samples; "
+                 f"spec noise {noise:g} {unit}, resolution {lsb:g} (the binding's step "
+                 f"{res:g}), noise_factor {factor:g}")
+
+
+def fraction_check(device: str, quantity: str, check: str, fraction: float,
+                   minimum: float, why: str, cause: str) -> Check:
+    margin = fraction - minimum
+    verdict = "PASS" if margin >= 0 else "FAIL"
+    return Check(device, quantity, check, fraction, 1.0, minimum, "fraction", margin, verdict,
+                 "" if verdict == "PASS" else cause, why)
+
+
+def resolution(binding: Any, device: str, quantity: str) -> float:
+    """One step of the quantity as the binding carries it (SI): the DBC signal's scale
+    times the rig file's conversion, or a CANopen count's; 0 for a float."""
+    kind = binding.kinds.get(device)
+    if kind == "canopen":
+        co = binding.canopen
+        spec = co.nodes.get(co.node_of.get(device, -1))
+        if spec is None:
+            return 0.0
+        for q in spec.telemetry.get(device, ()):
+            if q.quantity == quantity:
+                return 0.0 if q.ref.code in "fd" else abs(q.conv.scale)
+        return 0.0
+    for m in binding.telemetry.get(device, ()):
+        for f in m.fields:
+            if f.quantity == quantity:
+                sig = next((s for s in m.codec.signals if s.name == f.signal), None)
+                if sig is None or getattr(sig, "is_float", False):
+                    return 0.0
+                return abs(float(sig.scale) * f.scale)
+    return 0.0
