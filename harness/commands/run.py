@@ -50,6 +50,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration-s", type=float, help="override the run's duration (s)")
     p.add_argument("--rig", metavar="R", help="run on this rig file (built-in name or path) "
                    "instead of the run file's, e.g. sgsrt-canopen (the lab's CANopen devices)")
+    p.add_argument("--devices-rig", metavar="R2",
+                   help="on the in-process virtual bus, give the virtual rig the devices and "
+                   "physics of rig file R2 while the harness reads them through --rig's (a "
+                   "rig file checked against the rig it describes, e.g. a mis-bound copy)")
     p.add_argument("--variant", action="append", metavar="NAME",
                    help="run only this variant of a run file with variants (e.g. beta-0.8 of "
                    "case-a); repeatable. Default: every variant in turn")
@@ -84,6 +88,8 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
         overrides = {"duration_s": args.duration_s} if args.duration_s is not None else None
         if args.rig:
             overrides = {**(overrides or {}), "rig": args.rig}
+        if args.devices_rig:
+            overrides = {**(overrides or {}), "devices_rig": args.devices_rig}
         if args.view:
             check_viewer_listening(check_view_url(args.view))
         base = load_run(args.run, overrides)

@@ -66,6 +66,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "time; lockstep runs them as fast as the rig answers, only against "
                         "a virtual rig started with 'harness virtual-rig --lockstep' (CI over "
                         "vcan0), never the lab rig")
+    p.add_argument("--devices-rig", metavar="R2",
+                   help="on the virtual bus, every run's virtual rig has the devices and "
+                   "physics of rig file R2 while the harness reads them through --rig's")
     p.add_argument("--rig", metavar="R",
                    help="run every test on this rig file (built-in name or path) instead of "
                         "the run files' own, e.g. sgsrt-canopen: the same tests over the "
@@ -110,6 +113,14 @@ def cmd_test(args: argparse.Namespace) -> int:
                     replace(c, overrides={**c.overrides, "rig": args.rig}) if c.kind == "run"
                     else replace(c, probe={**c.probe, "rig": args.rig}) if c.kind == "probe"
                     else c for c in suite.cases]
+        if args.devices_rig:
+            from rig_models.rig_file import load_rig
+
+            load_rig(args.devices_rig)
+            for suite in suites:
+                suite.cases[:] = [
+                    replace(c, overrides={**c.overrides, "devices_rig": args.devices_rig})
+                    if c.kind == "run" else c for c in suite.cases]
         real_bus = False
         if args.bus:
             real_bus = not parse_bus(args.bus).in_process

@@ -29,6 +29,10 @@ RUN_SCHEMA: dict[str, Any] = {
     "description": Field("str", default=""),
     "rig": Field("str", default="sgsrt"),
     "rig_overrides": Field("any", default=None),
+    # on the in-process virtual bus: the rig file whose devices and physics the virtual rig
+    # has, where the run's own rig file is the one under test (a lab's file against the rig
+    # it describes); empty: the run's own
+    "devices_rig": Field("str", default=""),
     # default: the in-process virtual bus named after the rig (``virtual:sgsrt-canopen``)
     "bus": Field("str", default=None),
     "clock": Field("str", default="lockstep", choices=("lockstep", "realtime")),

@@ -51,7 +51,7 @@ from harness.review.bus import write_bus
 from harness.review.events import log_event
 from harness.review.layouts import PlotStats, layout_for_run, write_layout_file
 from rig_models.faults import FaultSpec
-from rig_models.rig_file import rig_identity
+from rig_models.rig_file import load_rig, rig_identity
 from rig_models.schema import ConfigError
 from rig_models.virtual_rig import VirtualRig
 
@@ -140,6 +140,11 @@ def execute_run(
     against a rig file under test: ``harness commission --devices-rig``)."""
     spec = parse_bus(bus or run.data["bus"])
     clock_name = clock or run.data["clock"]
+    if device_rig is None and run.data.get("devices_rig"):
+        try:
+            device_rig = load_rig(run.data["devices_rig"])
+        except ConfigError as exc:
+            raise RunRefused(f"{run.source}: devices_rig: {exc}") from None
     if rig_process and not (spec.in_process and clock_name == "realtime"):
         raise RunRefused(f"{run.source}: --rig-process runs the virtual rig as its own "
                          f"process for a real-time run on the virtual bus; got bus {spec} "
