@@ -45,6 +45,7 @@ from pathlib import Path
 import yaml
 
 from harness.bus import BusSpecError
+from harness.commands import examples
 from harness.core.session import RunRefused
 from rig_models.schema import ConfigError
 
@@ -75,6 +76,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dry-run", action="store_true",
                    help="print the excitation plan (and its run file) and send nothing")
     p.add_argument("--json", action="store_true", help="results as JSON on stdout")
+    p.epilog = examples(
+        "harness calibrate",
+        "harness calibrate --actuator valves --angle-deg 5 --json",
+        "harness calibrate --bus socketcan:can0 --dry-run")
     p.set_defaults(func=cmd_calibrate)
 
 

@@ -15,6 +15,7 @@ import json
 import math
 import sys
 
+from harness.commands import examples
 from harness.shaping.two_amplitude import (
     ModeConstraint,
     SequenceReport,
@@ -27,7 +28,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "design",
         help="design or evaluate a two-amplitude fuel-efficient shaper (LHHL / HLLH)",
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.epilog = examples(
+        "harness design lhhl --inertia-kg-m2 17731 --torque-n-m 8 --angle-deg 3 --mode"
+        " 0.3354:0.001 1.082:1",
+        "harness design evaluate --times 0 1 2 3 --amplitudes 1 -1 -1 1 --inertia-kg-m2 100"
+        " --torque-n-m 1")
     kinds = parser.add_subparsers(dest="design_kind", metavar="KIND")
     for kind in ("lhhl", "hllh"):
         p = kinds.add_parser(kind, help=f"shortest {kind.upper()} sequence meeting mode limits")

@@ -31,6 +31,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from harness.commands import examples
 from harness.history import drift
 
 
@@ -90,6 +91,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--seeds", type=int, default=5, help="noise seeds of the prediction (5)")
     q.add_argument("--k", type=float, default=drift.DEFAULT_K,
                    help="within the scatter: |value - mean| <= k x its std (3)")
+    p.epilog = examples(
+        "harness history list",
+        "harness history drift --json",
+        "harness history import --logs logs",
+        "harness history scatter logs/20260101T120000.000000Z-slew-rw")
     p.set_defaults(func=cmd_history)
 
 

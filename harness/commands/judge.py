@@ -23,6 +23,7 @@ import json
 import sys
 from pathlib import Path
 
+from harness.commands import examples
 from harness.testing import JudgeInputError, format_block, judge_run, write_verdict
 from rig_models.schema import ConfigError
 
@@ -37,6 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with --expect: make this the run's verdict (verdict.json, "
                    "verdict.rrd); without, a what-if judgement writes nothing")
     p.add_argument("--json", action="store_true", help="print verdict.json on stdout")
+    p.epilog = examples(
+        "harness judge logs/20260101T120000.000000Z-slew-rw",
+        "harness judge logs/20260101T120000.000000Z-slew-rw --expect criteria.yaml --json")
     p.set_defaults(func=cmd_judge)
 
 

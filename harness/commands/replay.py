@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.dbc import load_protocol
+from harness.commands import examples
 from harness.core.replay import (
     CheckResult,
     MonitorReplay,
@@ -65,6 +66,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rrd", type=Path, metavar="OUT.rrd",
                    help="write the replayed telemetry and commands to a Rerun recording")
     p.add_argument("--json", action="store_true", help="JSON on stdout")
+    p.epilog = examples(
+        "harness replay logs/20260101T120000.000000Z-slew-rw --check",
+        "harness replay capture.blf --rig sgsrt --rate-hz 500 --rrd replay.rrd")
     p.set_defaults(func=cmd_replay)
 
 

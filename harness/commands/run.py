@@ -12,6 +12,7 @@ import can
 
 from harness.bus import BusSpecError
 from harness.bus.rig_process import RigProcessError
+from harness.commands import examples
 from harness.core.interrupts import StopRequest, stop_on_signals
 from harness.core.runs import load_run
 from harness.core.session import RunRefused, execute_run
@@ -66,6 +67,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--view", nargs="?", const="rerun+http://127.0.0.1:9876/proxy",
                    metavar="URL", help="also stream to a Rerun viewer you started with "
                    "'rerun --bind 127.0.0.1' (default URL rerun+http://127.0.0.1:9876/proxy)")
+    p.epilog = examples(
+        "harness run slew-rw-zv",
+        "harness run case-a --variant beta-0.8 --json",
+        "harness run slew-rw --fault silent_sensor@5:hub_sensor",
+        "harness run slew-rw --bus socketcan:can0 --rig sgsrt-canopen")
     p.set_defaults(func=cmd_run)
 
 

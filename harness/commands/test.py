@@ -35,6 +35,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from harness.bus import BusSpecError, parse_bus
+from harness.commands import examples
 from harness.core.paths import safe_name
 from harness.core.session import make_run_dir
 from harness.engine import CLUSTER_ENV, EngineError, InlineEngine, make_engine
@@ -78,6 +79,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="list the tests that would run, run nothing")
     p.add_argument("-v", "--verbose", action="store_true", help="pytest's verbose output")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.epilog = examples(
+        "harness test --list",
+        "harness test acceptance",
+        "harness test paper003 -k identify --workers 2 --junit junit.xml",
+        "harness test acceptance --bus socketcan:can0")
     p.set_defaults(func=cmd_test)
 
 

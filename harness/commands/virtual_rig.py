@@ -18,6 +18,7 @@ import threading
 
 from harness.bus import BusSpecError, open_bus, parse_bus
 from harness.bus.rig_process import TIMING_PREFIX
+from harness.commands import examples
 from rig_models.faults import parse_fault
 from rig_models.rig_file import load_rig
 from rig_models.schema import ConfigError
@@ -49,6 +50,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "lockstep): the devices' timers (CANopen heartbeats) on the rig's "
                         "time, which advances one step per SYNC; the wall-clock watchdog "
                         "10 s later, as a backstop")
+    p.epilog = examples(
+        "harness virtual-rig --serve-socketcand 29536",
+        "harness virtual-rig --bus socketcan:vcan0 --lockstep",
+        "harness virtual-rig --serve-unix rig1 --realtime")
     p.set_defaults(func=cmd_virtual_rig)
 
 
