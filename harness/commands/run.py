@@ -1,4 +1,13 @@
-"""`harness run NAME|PATH`: run a test on the (virtual) rig and record it."""
+"""`harness run NAME|PATH`: run a test on the (virtual) rig and record it.
+
+Run a test on the virtual rig (default) or the lab rig. Writes logs/<UTC time>-<name>/ with
+run.rrd, can.blf, config.yaml and summary.json, then judges the run by its expect: criteria
+and writes verdict.json and verdict.rrd (docs/criteria.md). Progress goes to stderr; --json
+prints the summary. Exit codes: 0 PASS (or NO CRITERIA: nothing judged, with a warning),
+1 FAIL, 2 bad input or run refused before anything was sent, 3 ERROR by a fault the run did
+not expect, 4 ERROR otherwise (exception, missing data, real-time budget not held),
+5 MARGINAL, 130 interrupted; with variants, the most severe.
+"""
 
 from __future__ import annotations
 
@@ -30,16 +39,7 @@ from rig_models.schema import ConfigError
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run a test (built-in name or YAML path) and record it",
-                       description="Run a test on the virtual rig (default) or the lab rig. "
-                       "Writes logs/<UTC time>-<name>/ with run.rrd, can.blf, config.yaml and "
-                       "summary.json, then judges the run by its expect: criteria and writes "
-                       "verdict.json and verdict.rrd (docs/criteria.md). Progress goes to "
-                       "stderr; --json prints the summary. Exit codes: 0 PASS (or NO "
-                       "CRITERIA: nothing judged, with a warning), 1 FAIL, 2 bad input or run "
-                       "refused before anything was sent, 3 ERROR by a fault the run did "
-                       "not expect, 4 ERROR otherwise "
-                       "(exception, missing data, real-time budget not held), 5 MARGINAL, "
-                       "130 interrupted; with variants, the most severe.")
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run", help="built-in run name (see 'harness cases') or a run file path")
     p.add_argument("--bus", help="INTERFACE:CHANNEL, e.g. virtual:sgsrt (default), "
                    "socketcan:vcan0 / socketcan:can0 (the lab rig), or socketcand:127.0.0.1:PORT "

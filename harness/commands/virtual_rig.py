@@ -27,7 +27,7 @@ from rig_models.virtual_rig import SyncTiming, VirtualRig
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("virtual-rig", help="run the virtual rig as its own process",
-                       description=__doc__)
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--rig", default="sgsrt", help="rig name or YAML path (default sgsrt)")
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--bus", help="INTERFACE:CHANNEL to join, e.g. socketcan:vcan0")
