@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import shlex
 import subprocess
 import sys
 import textwrap
@@ -122,3 +123,21 @@ def test_every_command_help_shows_an_example(name, capsys):
     assert main([name, "--help"]) == 0
     text = capsys.readouterr().out
     assert "examples:\n  harness " in text, f"harness {name} --help: no example"
+
+
+def test_every_example_parses():
+    """Each example of every ``--help`` is a command line the parser accepts (it does not
+    run it: the examples name run directories of their own)."""
+    parser = build_parser()
+    seen = 0
+    for p in PARSERS:
+        text = p.format_help()
+        if "examples:\n" not in text:
+            continue
+        for line in text.split("examples:\n", 1)[1].splitlines():
+            argv = shlex.split(line)
+            if not argv or argv[0] != "harness" or "COMMAND" in argv or "--help" in argv:
+                continue
+            parser.parse_args(argv[1:])  # a bad example exits 2: the test fails
+            seen += 1
+    assert seen >= 30

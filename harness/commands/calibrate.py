@@ -42,11 +42,7 @@ import json
 import sys
 from pathlib import Path
 
-import yaml
-
-from harness.bus import BusSpecError
 from harness.commands import examples
-from harness.core.session import RunRefused
 from rig_models.schema import ConfigError
 
 
@@ -88,6 +84,10 @@ def _progress(msg: str) -> None:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
+    # the loop, python-can, numpy and scipy only when calibrating (start-up of `harness --help`)
+    import yaml
+
+    from harness.bus import BusSpecError
     from harness.calibration.workflow import (
         CalibrationError,
         Options,
@@ -95,6 +95,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         calibrate,
         plan_run_dict,
     )
+    from harness.core.session import RunRefused
 
     if args.max_verify is not None and args.max_verify < 1:
         print(f"harness calibrate: --max-verify: expected >= 1, got {args.max_verify}",
@@ -127,7 +128,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         return 0
     data = _jsonable(result.to_dict())
     if result.folder is not None:
-        from harness.history.record import record_calibration  # results database (issue 22)
+        from harness.history.record import record_calibration  # the database only once done
 
         record_calibration(result.folder, data)
     if args.json:

@@ -14,14 +14,12 @@ import argparse
 import json
 import math
 import sys
+from typing import TYPE_CHECKING
 
 from harness.commands import examples
-from harness.shaping.two_amplitude import (
-    ModeConstraint,
-    SequenceReport,
-    design_two_amplitude,
-    evaluate_sequence,
-)
+
+if TYPE_CHECKING:
+    from harness.shaping.two_amplitude import SequenceReport
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -84,6 +82,9 @@ def _add_plant_args(p: argparse.ArgumentParser) -> None:
 
 
 def _run_design(args: argparse.Namespace) -> int:
+    # numpy and scipy only when designing (start-up of `harness --help`)
+    from harness.shaping.two_amplitude import ModeConstraint, design_two_amplitude
+
     try:
         modes = [ModeConstraint.parse(m) for m in args.mode]
         print(f"searching {args.kind} ({args.starts} starts + dense scan) ...", file=sys.stderr)
@@ -125,6 +126,9 @@ def _run_design(args: argparse.Namespace) -> int:
 
 
 def _run_evaluate(args: argparse.Namespace) -> int:
+    # numpy and scipy only when evaluating (start-up of `harness --help`)
+    from harness.shaping.two_amplitude import ModeConstraint, evaluate_sequence
+
     try:
         freqs: list[float] = []
         limits: list[float] = []

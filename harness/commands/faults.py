@@ -11,8 +11,6 @@ from __future__ import annotations
 import argparse
 
 from harness.commands import examples
-from harness.core import monitor
-from rig_models.faults import DEVICE_FAULTS, FAULT_KINDS
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -25,6 +23,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_faults(args: argparse.Namespace) -> int:
+    # the monitor (numpy) only when listing (start-up of `harness --help`)
+    from harness.core import monitor
+    from rig_models.faults import DEVICE_FAULTS, FAULT_KINDS
+
     print("Inject with 'harness run NAME --fault KIND@AT_S[+DURATION_S][:DEVICE][=VALUE]' "
           "or a run file's 'faults:' list.\n")
     for kind, what in FAULT_KINDS.items():

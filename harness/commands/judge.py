@@ -24,7 +24,6 @@ import sys
 from pathlib import Path
 
 from harness.commands import examples
-from harness.testing import JudgeInputError, format_block, judge_run, write_verdict
 from rig_models.schema import ConfigError
 
 
@@ -45,6 +44,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_judge(args: argparse.Namespace) -> int:
+    # numpy, scipy and Rerun's reader only when judging (start-up of `harness --help`)
+    from harness.testing import JudgeInputError, format_block, judge_run, write_verdict
+
     try:
         verdict = judge_run(args.run_dir, args.expect)
     except (ConfigError, JudgeInputError) as exc:
@@ -53,7 +55,7 @@ def cmd_judge(args: argparse.Namespace) -> int:
     path = None
     if args.expect is None or args.write:
         path = write_verdict(verdict, args.run_dir)
-        from harness.history.record import record_verdict  # the results database (issue 22)
+        from harness.history.record import record_verdict  # the database only once judged
 
         record_verdict(args.run_dir, verdict.to_dict())
     else:  # a what-if: the run's own verdict (what 'harness logs' reads) stays as it is

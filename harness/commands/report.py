@@ -25,8 +25,9 @@ from harness.commands import examples
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("report", help="print our results beside a paper's table",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
-                       epilog=examples("harness report table2 --logs logs",
-                                       "harness report docs --from logs/<UTC time>-suites"))
+                       epilog=examples(
+                           "harness report table2 --logs logs",
+                           "harness report docs --from logs/20260101T120000.000000Z-paper003"))
     p.add_argument("table", choices=["table2", "docs"],
                    help="table2: paper 003 cases A/B/C; docs: regenerate docs/results/*.md "
                    "from the paper suites' results.json")

@@ -17,22 +17,8 @@ import sys
 import traceback
 from pathlib import Path
 
-import can
-
-from harness.bus import BusSpecError
-from harness.bus.rig_process import RigProcessError
 from harness.commands import examples
 from harness.core.interrupts import StopRequest, stop_on_signals
-from harness.core.runs import load_run
-from harness.core.session import RunRefused, execute_run
-from harness.record.output import OutputError
-from harness.testing import (
-    NO_CRITERIA,
-    JudgeInputError,
-    format_block,
-    judge_run,
-    write_verdict,
-)
 from rig_models.faults import parse_fault
 from rig_models.schema import ConfigError
 
@@ -82,6 +68,15 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> int:
+    # python-can, numpy, scipy and Rerun only when a run starts (start-up of `harness --help`)
+    import can
+
+    from harness.bus import BusSpecError
+    from harness.bus.rig_process import RigProcessError
+    from harness.core.runs import load_run
+    from harness.core.session import RunRefused, execute_run
+    from harness.record.output import OutputError
+
     codes: list[int] = []
     try:
         if args.duration_s is not None and not args.duration_s > 0:
@@ -234,6 +229,8 @@ def worst_exit(codes: list[int]) -> int:
 def _judge(run_dir: Path, summary: dict | None) -> int:
     """Judge the finished run (run.rrd and can.blf are closed), write verdict.json and
     verdict.rrd, print the verdict; its exit code."""
+    from harness.testing import NO_CRITERIA, JudgeInputError, format_block, judge_run, write_verdict
+
     try:
         verdict = judge_run(run_dir)
     except (ConfigError, JudgeInputError) as exc:
@@ -245,7 +242,7 @@ def _judge(run_dir: Path, summary: dict | None) -> int:
         print(f"harness: WARNING: NO CRITERIA: {run_dir.name} ran but nothing was judged (its "
               "run file has no expect:); exit 0 says it completed, not that it passed. Add "
               "criteria (docs/criteria.md)", file=sys.stderr)
-    from harness.history.record import record_verdict  # the results database (issue 22)
+    from harness.history.record import record_verdict  # the database only once judged
 
     record_verdict(run_dir, verdict.to_dict())
     if summary is not None:

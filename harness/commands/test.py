@@ -34,12 +34,8 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from harness.bus import BusSpecError, parse_bus
 from harness.commands import examples
-from harness.core.paths import safe_name
-from harness.core.session import make_run_dir
-from harness.engine import CLUSTER_ENV, EngineError, InlineEngine, make_engine
-from harness.testing.suite import list_suites, load_suite
+from harness.engine import CLUSTER_ENV
 from rig_models.schema import ConfigError
 
 
@@ -92,10 +88,16 @@ def _terminate(signum: int, frame: object) -> None:
 
 
 def cmd_test(args: argparse.Namespace) -> int:
+    # pytest, the loop, python-can and Rerun only when testing (start-up of `harness --help`)
     import pytest
 
+    from harness.bus import BusSpecError, parse_bus
+    from harness.core.paths import safe_name
+    from harness.core.session import make_run_dir
+    from harness.engine import EngineError, InlineEngine, make_engine
     from harness.testing.outcome import exit_code
     from harness.testing.plugin import SuitePlugin
+    from harness.testing.suite import list_suites, load_suite
 
     if args.list:
         for name, desc in list_suites():
