@@ -24,6 +24,14 @@ the command's module under harness/commands/ and regenerate -->
 Every command of `harness`, as `harness COMMAND --help` prints it: what it does, its usage,
 every option and examples. Sub-commands (`harness design lhhl`, `harness history show`,
 `harness study xu2018`, ...) follow their command.
+
+A new command is a module `harness/commands/NAME.py` whose `register(sub)` calls
+`sub.add_parser("NAME", help="one line", description=..., epilog=examples(...))` and
+`set_defaults(func=...)`; nothing else changes. `harness --help` reads each command's name
+and help line from its module's source without importing it (keep both plain strings: a
+computed one makes the module be imported at every start), and only the command chosen is
+imported, so a command module imports the package it calls inside its function. Then
+regenerate this page: `python tools/gen_cli_docs.py`.
 """
 
 

@@ -103,7 +103,7 @@ def _run(case: Case, out_dir: Path, bus: str | None,
             items[name] = _error(f"the run did not complete ({summary.get('stopped_by')})")
         else:
             try:
-                from harness.core.identify import identify_run
+                from harness.core.identify import identify_run  # an identify item only
 
                 ident = identify_run(run_dir, **case.identify)
                 (run_dir / "identify.json").write_text(json.dumps(ident, indent=2,
