@@ -100,6 +100,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _filters(args: argparse.Namespace) -> Any:
+    # imported when used: start-up of `harness --help`
     from harness.history.db import Filters
 
     for name in ("since", "until"):
@@ -124,6 +125,7 @@ def _is_time(text: str) -> bool:
 
 
 def cmd_history(args: argparse.Namespace) -> int:
+    # imported when used: start-up of `harness --help`
     from harness.history.db import HistoryError, open_db
 
     if args.history_command is None:
@@ -144,6 +146,7 @@ def cmd_history(args: argparse.Namespace) -> int:
                 and args.history_command != "import":
             import os
 
+            # imported when used: start-up of `harness --help`
             from harness.history.db import ENV_URL
 
             if not os.environ.get(ENV_URL):
@@ -154,6 +157,7 @@ def cmd_history(args: argparse.Namespace) -> int:
             if args.history_command == "import":
                 if not args.logs.is_dir():
                     raise ValueError(f"--logs {args.logs}: not a directory")
+                # imported when used: start-up of `harness --help`
                 from harness.history.record import import_logs
 
                 counts = import_logs(db, args.logs)
@@ -184,6 +188,7 @@ def cmd_history(args: argparse.Namespace) -> int:
 
 
 def _bands(db: Any, args: argparse.Namespace, filters: Any) -> tuple[list[dict[str, float]], str]:
+    # imported when used: start-up of `harness --help`
     from harness.history.db import Filters
     from harness.history.record import design_bands
 
@@ -205,6 +210,7 @@ def _bands(db: Any, args: argparse.Namespace, filters: Any) -> tuple[list[dict[s
 def _spread(args: argparse.Namespace, series: Any) -> float | None:
     """The predicted scatter's std of a criterion, from the cache, if one was made for
     the configuration of the series' newest run."""
+    # imported when used: start-up of `harness --help`
     from harness.history.scatter import cached_spread
 
     src = next((r["source"] for r in reversed(series.rows) if r.get("source")), None)
@@ -213,6 +219,7 @@ def _spread(args: argparse.Namespace, series: Any) -> float | None:
 
 def _analysed(db: Any, args: argparse.Namespace, filters: Any, what: str, test: str,
               name: str | int, reference: int = 0) -> Any:
+    # imported when used: start-up of `harness --help`
     from harness.history import series as hs
 
     if what == "mode":
@@ -228,6 +235,7 @@ def _analysed(db: Any, args: argparse.Namespace, filters: Any, what: str, test: 
 def _mark_scatter(args: argparse.Namespace, series: Any) -> None:
     """A failed or marginal run whose configuration's scatter was predicted (harness
     history scatter) is marked within or beyond it."""
+    # imported when used: start-up of `harness --help`
     from harness.history.scatter import cached_prediction, within
 
     for r in series.rows:
@@ -239,6 +247,7 @@ def _mark_scatter(args: argparse.Namespace, series: Any) -> None:
 
 
 def _show(db: Any, args: argparse.Namespace, filters: Any) -> int:
+    # imported when used: start-up of `harness --help`
     from harness.history import series as hs
 
     if args.mode is not None and args.mode < 1:
@@ -286,6 +295,7 @@ def _drift(db: Any, args: argparse.Namespace, filters: Any) -> int:
 
 
 def _scatter(args: argparse.Namespace) -> int:
+    # imported when used: start-up of `harness --help`
     from harness.history.scatter import ScatterError, classify, predict_for_run
 
     if not (args.run_dir / "verdict.json").is_file():

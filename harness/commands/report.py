@@ -41,6 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_docs(args: argparse.Namespace) -> int:
+    # imported when used: start-up of `harness --help`
     from harness.testing.paper_tables import (
         PAPER_SUITES,
         load_results,
@@ -70,6 +71,7 @@ def cmd_docs(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     if args.table == "docs":
         return cmd_docs(args)
+    # imported when used: start-up of `harness --help`
     from harness.testing.paper_tables import PAPER_TABLE2, collect, table2_rows
 
     found = collect(args.logs)

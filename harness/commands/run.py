@@ -229,6 +229,7 @@ def worst_exit(codes: list[int]) -> int:
 def _judge(run_dir: Path, summary: dict | None) -> int:
     """Judge the finished run (run.rrd and can.blf are closed), write verdict.json and
     verdict.rrd, print the verdict; its exit code."""
+    # imported when used: start-up of `harness --help`
     from harness.testing import NO_CRITERIA, JudgeInputError, format_block, judge_run, write_verdict
 
     try:

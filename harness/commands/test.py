@@ -98,6 +98,7 @@ def cmd_test(args: argparse.Namespace) -> int:
     from harness.testing.outcome import exit_code
     from harness.testing.plugin import SuitePlugin
     from harness.testing.suite import list_suites, load_suite
+    from rig_models.rig_file import load_rig
 
     if args.list:
         for name, desc in list_suites():
@@ -110,8 +111,6 @@ def cmd_test(args: argparse.Namespace) -> int:
     try:
         suites = [load_suite(s) for s in args.suites]
         if args.rig:
-            from rig_models.rig_file import load_rig
-
             load_rig(args.rig)  # a bad rig file is bad input, before anything runs
             for suite in suites:
                 suite.cases[:] = [

@@ -32,6 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_twin(args: argparse.Namespace) -> int:
+    # imported when used: start-up of `harness --help`
     from harness.history.twin import TwinError, twin_residual
 
     try:
