@@ -173,7 +173,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
             if register is not None:
                 register(sub)
         else:
-            for cmd, keywords in lines:  # listed, not importable by this parser: not chosen
+            for cmd, keywords in lines:  # not chosen: listed by its help line, not imported
                 sub.add_parser(cmd, **keywords)
     check_numbers(parser)
     describe(parser)
