@@ -122,7 +122,10 @@ def test_every_command_and_option_says_what_it_is(parser):
 def test_every_command_help_shows_an_example(name, capsys):
     assert main([name, "--help"]) == 0
     text = capsys.readouterr().out
-    assert "examples:\n  harness " in text, f"harness {name} --help: no example"
+    after_usage = text.split("\n\n", 1)[1]
+    # an example: a command line of its own, indented (an epilog's, or the description's)
+    assert re.search(rf"^\s+(\$ )?harness {re.escape(name)}\b", after_usage, re.M), \
+        f"harness {name} --help: no example"
 
 
 def test_every_example_parses():
