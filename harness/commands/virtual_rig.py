@@ -16,13 +16,9 @@ import signal
 import sys
 import threading
 
-from harness.bus import BusSpecError, open_bus, parse_bus
-from harness.bus.rig_process import TIMING_PREFIX
 from harness.commands import examples
 from rig_models.faults import parse_fault
-from rig_models.rig_file import load_rig
 from rig_models.schema import ConfigError
-from rig_models.virtual_rig import SyncTiming, VirtualRig
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -58,6 +54,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_virtual_rig(args: argparse.Namespace) -> int:
+    # python-can, numpy and scipy only when the rig runs (start-up of `harness --help`)
+    from harness.bus import BusSpecError, open_bus, parse_bus
+    from harness.bus.rig_process import TIMING_PREFIX
+    from rig_models.rig_file import load_rig
+    from rig_models.virtual_rig import SyncTiming, VirtualRig
+
     try:
         rig_cfg = load_rig(args.rig)
         faults = [parse_fault(f) for f in args.fault or []]
