@@ -388,7 +388,7 @@ def test_si_shaper_from_a_run_file_holds_its_band_on_the_ticks() -> None:
 
 
 def test_valve_bursts_fire_whole_cycles_and_give_identify_its_windows() -> None:
-    from harness.commands.identify import analysis_windows
+    from harness.core.identify import analysis_windows
     from harness.core.runs import build_controller, run_from_dict
     from harness.state import RigState
 

@@ -90,7 +90,7 @@ def cli(*args: str, process: bool = False) -> tuple[int, str]:
 
 # ----------------------------------------------------------------------------- drift
 def test_mode_drift_alarm_fires_on_the_first_run_beyond_the_combined_uncertainty(tmp_path):
-    from harness.commands.identify import identify_run
+    from harness.core.identify import identify_run
 
     logs = tmp_path / "logs"
     e0 = NOMINAL["beam"]["youngs_modulus_pa"]

@@ -318,7 +318,7 @@ def test_modes_view_compares_with_the_model():
 
 
 def test_sweep_rrd_has_its_layout(tmp_path):
-    from harness.commands.sweep import save_rrd
+    from harness.studies.sweep_report import save_rrd
 
     lambdas = np.linspace(0.5, 1.5, 4)
     betas = np.array([0.6, 1.0])
@@ -338,8 +338,8 @@ def test_sweep_rrd_has_its_layout(tmp_path):
 def test_sweep_rrd_shows_the_whole_range_one_colour_per_beta_and_scaled_maps(tmp_path):
     """The whole lambda range on screen (the resonance included), the maps with a colour
     scale, and each beta's colour the same in every plot."""
-    from harness.commands.sweep import save_plots, save_rrd, sweep_blueprint
     from harness.review.reader import read_series_styles
+    from harness.studies.sweep_report import save_plots, save_rrd, sweep_blueprint
 
     lambdas = np.linspace(0.3, 3.2, 30)
     betas = np.array([0.3, 0.6, 1.0])

@@ -55,9 +55,11 @@ from harness.calibration.plan import (
 )
 from harness.calibration.residual import fit_modal_residual, true_residual
 from harness.controllers.shaped_wheel_slew import Mode
+from harness.core.identify import analysis_windows, load_record, write_spectrum_rrd
 from harness.core.paths import safe_child, safe_name
 from harness.core.runs import RunConfig, build_controller, run_from_dict, virtual_bus
 from harness.core.session import RunResult, execute_run, refuse_beyond_limits
+from harness.identification.windows import identify_windows
 from rig_models.rig_file import RigConfig, load_rig
 from rig_models.schema import ConfigError
 
@@ -180,9 +182,6 @@ def _run(run: RunConfig, runs_dir: Path, bus: str | None, clock: str) -> RunResu
 def identify_run(run_dir: Path) -> Any:
     """The modes of an excitation run, as ``harness identify RUN_DIR`` finds them (and its
     identify.rrd beside run.rrd)."""
-    from harness.commands.identify import analysis_windows, load_record, write_spectrum_rrd
-    from harness.identification.windows import identify_windows
-
     t, a, cfg, _ = load_record(run_dir)
     windows = analysis_windows(cfg)
     if windows is None:

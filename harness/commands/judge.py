@@ -23,7 +23,7 @@ import json
 import sys
 from pathlib import Path
 
-from harness.testing import JudgeInputError, format_block, judge_run, write_verdict
+from harness.commands import examples
 from rig_models.schema import ConfigError
 
 
@@ -37,10 +37,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with --expect: make this the run's verdict (verdict.json, "
                    "verdict.rrd); without, a what-if judgement writes nothing")
     p.add_argument("--json", action="store_true", help="print verdict.json on stdout")
+    p.epilog = examples(
+        "harness judge logs/20260101T120000.000000Z-slew-rw",
+        "harness judge logs/20260101T120000.000000Z-slew-rw --expect criteria.yaml --json")
     p.set_defaults(func=cmd_judge)
 
 
 def cmd_judge(args: argparse.Namespace) -> int:
+    # numpy, scipy and Rerun's reader only when judging (start-up of `harness --help`)
+    from harness.testing import JudgeInputError, format_block, judge_run, write_verdict
+
     try:
         verdict = judge_run(args.run_dir, args.expect)
     except (ConfigError, JudgeInputError) as exc:

@@ -26,6 +26,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from harness.commands import examples
 from harness.record.summary_file import read_summary
 
 
@@ -37,6 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--failed", action="store_true", help="only runs judged FAIL or ERROR, and "
                    "unjudged runs that did not complete")
     p.add_argument("--json", action="store_true", help="the list as JSON on stdout")
+    p.epilog = examples(
+        "harness logs --last 10",
+        "harness logs --failed --json")
     p.set_defaults(func=cmd_logs)
 
 

@@ -32,23 +32,14 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from drivers.dbc import load_protocol
-from harness.core.replay import (
-    CheckResult,
-    MonitorReplay,
-    Replay,
-    ReplayChecker,
-    ReplayError,
-    ReplayRecording,
-    apply_monitor,
-    load_run_dir,
-    replay_log,
-    replay_recording_name,
-)
-from rig_models.rig_file import RigConfig, load_rig
+from harness.commands import examples
 from rig_models.schema import ConfigError
+
+if TYPE_CHECKING:
+    from harness.core.replay import CheckResult, ReplayRecording
+    from rig_models.rig_file import RigConfig
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -65,6 +56,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rrd", type=Path, metavar="OUT.rrd",
                    help="write the replayed telemetry and commands to a Rerun recording")
     p.add_argument("--json", action="store_true", help="JSON on stdout")
+    p.epilog = examples(
+        "harness replay logs/20260101T120000.000000Z-slew-rw --check",
+        "harness replay capture.blf --rig sgsrt --rate-hz 500 --rrd replay.rrd")
     p.set_defaults(func=cmd_replay)
 
 
@@ -73,6 +67,19 @@ def _stage(text: str) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    # python-can, the drivers, the loop and Rerun only when replaying (start-up of
+    # `harness --help`)
+    from harness.core.replay import (
+        MonitorReplay,
+        ReplayChecker,
+        ReplayError,
+        apply_monitor,
+        load_run_dir,
+        replay_log,
+        report_dict,
+    )
+    from rig_models.rig_file import load_rig
+
     path: Path = args.path
     result: CheckResult | None = None
     writer: ReplayRecording | None = None
@@ -127,7 +134,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     finally:
         if writer is not None:  # the replay stopped part way: what was written stays
             writer.close()
-    report = to_dict(replay, rig_name, result, rig_cfg)
+    report = report_dict(replay, rig_name, result, rig_cfg)
     if args.rrd is not None:
         report["rrd"] = str(args.rrd)
     if args.json:
@@ -138,6 +145,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _writer(rrd: Path | None, source: Path) -> ReplayRecording | None:
+    from harness.core.replay import ReplayRecording, replay_recording_name  # see cmd_replay
+
     return None if rrd is None else ReplayRecording(rrd, replay_recording_name(source))
 
 
@@ -151,75 +160,6 @@ def _each(*consumers: Any) -> Any:
         for consume in live:
             consume(iface, t)
     return on_tick
-
-
-def frame_names(rig: RigConfig | None) -> dict[int, tuple[str, str]]:
-    """id -> (name, who sends it) by the rig's binding: sgsrt's DBC, a vendor DBC's
-    messages, CANopen's PDOs and service frames (NMT, SYNC, EMCY, SDO, heartbeat) by node."""
-    if rig is None or rig.binding.is_sgsrt():
-        protocol = load_protocol()
-        return {c.frame_id: (c.name, "device") for c in protocol.by_id.values()}
-    b = rig.binding
-    out: dict[int, tuple[str, str]] = {}
-    for f in b.frames():
-        who = "harness" if f.kind in ("sync", "heartbeat", "cmd") else f.device
-        out[f.key[0]] = (f.name if f.kind != "tlm" else f"{f.name} ({f.device})", who)
-    if b.canopen is not None:
-        out[0x000] = ("NMT", "harness")
-        for nid in b.canopen.nodes:
-            dev = b.canopen.device_of_node(nid)
-            out[0x080 + nid] = (f"EMCY node {nid}", dev)
-            out[0x580 + nid] = (f"SDO response node {nid}", dev)
-            out[0x600 + nid] = (f"SDO request node {nid}", "harness")
-            out[0x700 + nid] = (f"heartbeat node {nid}", dev)
-    return out
-
-
-def to_dict(replay: Replay, rig_name: str, result: CheckResult | None,
-            rig: RigConfig | None = None) -> dict[str, Any]:
-    names = frame_names(rig)
-    frames = []
-    for fid, n in sorted(replay.frames_by_id.items()):
-        name, who = names.get(fid, ("?", "unknown"))
-        frames.append({"id": f"0x{fid:03X}", "name": name,
-                       "from": "harness" if fid in replay.harness_ids else who, "frames": n})
-    out: dict[str, Any] = {
-        "log": str(replay.source), "rig": rig_name, "rate_hz": 1.0 / replay.dt_s,
-        "ticks": replay.n_ticks, "first_tick": replay.first_tick,
-        "last_tick": replay.last_tick,
-        "duration_s": replay.last_time_s - replay.first_time_s, "frames": frames,
-        "total_frames": replay.total_frames, "malformed": sum(replay.malformed.values()),
-        "malformed_by_frame": {k: v for k, v in replay.malformed.items() if v},
-        "unknown_ids": replay.unknown, "error_frames": replay.error_frames,
-        "bus_off": replay.bus_off, "sync_gaps": replay.sync_gaps,
-        "sequence_errors": {k: v for k, v in replay.sequence_errors.items() if v},
-        "missing_telemetry": replay.missing_frames,
-        "before_first_sync": replay.before_first_sync,
-    }
-    if result is not None:
-        m = result.first_mismatch
-        out["check"] = {
-            "consistent": result.consistent, "ticks_compared": result.ticks_compared,
-            "ticks_matching": result.ticks_matching,
-            "ticks_identical": result.ticks_identical,
-            "first_mismatch": None if m is None else {
-                "tick": m.tick, "time_s": m.time_s, "frame": m.frame, "detail": m.detail,
-                "logged": _tidy(m.logged), "replayed": _tidy(m.replayed)},
-            "skipped": [{"tick": k, "reason": r} for k, r in result.skipped],
-            "safe_commands_tick": result.safe_tick, "stopped_by": result.stopped_by,
-            "summary_ticks": result.summary_ticks,
-            "monitor": {
-                "consistent": result.monitor_consistent,
-                "replayed_first_fault": None if result.monitor_event is None
-                else result.monitor_event.to_dict(),
-                "logged_first_fault": result.logged_fault},
-        }
-    return out
-
-
-def _tidy(v: Any) -> Any:
-    """Decoded values to 9 significant digits (0.00028, not 0.00028000000000000003)."""
-    return {k: float(f"{x:.9g}") for k, x in v.items()} if isinstance(v, dict) else v
 
 
 def print_report(r: dict[str, Any]) -> None:

@@ -34,11 +34,8 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from harness.bus import BusSpecError, parse_bus
-from harness.core.paths import safe_name
-from harness.core.session import make_run_dir
-from harness.engine import CLUSTER_ENV, EngineError, InlineEngine, make_engine
-from harness.testing.suite import list_suites, load_suite
+from harness.commands import examples
+from harness.engine import CLUSTER_ENV
 from rig_models.schema import ConfigError
 
 
@@ -81,6 +78,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="list the tests that would run, run nothing")
     p.add_argument("-v", "--verbose", action="store_true", help="pytest's verbose output")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.epilog = examples(
+        "harness test --list",
+        "harness test acceptance",
+        "harness test paper003 -k identify --workers 2 --junit junit.xml",
+        "harness test acceptance --bus socketcan:can0")
     p.set_defaults(func=cmd_test)
 
 
@@ -89,10 +91,17 @@ def _terminate(signum: int, frame: object) -> None:
 
 
 def cmd_test(args: argparse.Namespace) -> int:
+    # pytest, the loop, python-can and Rerun only when testing (start-up of `harness --help`)
     import pytest
 
+    from harness.bus import BusSpecError, parse_bus
+    from harness.core.paths import safe_name
+    from harness.core.session import make_run_dir
+    from harness.engine import EngineError, InlineEngine, make_engine
     from harness.testing.outcome import exit_code
     from harness.testing.plugin import SuitePlugin
+    from harness.testing.suite import list_suites, load_suite
+    from rig_models.rig_file import load_rig
 
     if args.list:
         for name, desc in list_suites():
@@ -105,8 +114,6 @@ def cmd_test(args: argparse.Namespace) -> int:
     try:
         suites = [load_suite(s) for s in args.suites]
         if args.rig:
-            from rig_models.rig_file import load_rig
-
             load_rig(args.rig)  # a bad rig file is bad input, before anything runs
             for suite in suites:
                 suite.cases[:] = [

@@ -16,6 +16,8 @@ import json
 import sys
 from pathlib import Path
 
+from harness.commands import examples
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("twin", help="a run's commands through the model: the twin's residual",
@@ -23,10 +25,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("run_dir", type=Path, help="a recorded run directory")
     p.add_argument("--rig", help="the rig file the twin is built from (default: the run's)")
     p.add_argument("--json", action="store_true", help="JSON on stdout")
+    p.epilog = examples(
+        "harness twin logs/20260101T120000.000000Z-slew-rw",
+        "harness twin logs/20260101T120000.000000Z-slew-rw --rig sgsrt --json")
     p.set_defaults(func=cmd_twin)
 
 
 def cmd_twin(args: argparse.Namespace) -> int:
+    # imported when used: start-up of `harness --help`
     from harness.history.twin import TwinError, twin_residual
 
     try:

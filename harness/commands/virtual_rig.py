@@ -16,17 +16,14 @@ import signal
 import sys
 import threading
 
-from harness.bus import BusSpecError, open_bus, parse_bus
-from harness.bus.rig_process import TIMING_PREFIX
+from harness.commands import examples
 from rig_models.faults import parse_fault
-from rig_models.rig_file import load_rig
 from rig_models.schema import ConfigError
-from rig_models.virtual_rig import SyncTiming, VirtualRig
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("virtual-rig", help="run the virtual rig as its own process",
-                       description=__doc__)
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--rig", default="sgsrt", help="rig name or YAML path (default sgsrt)")
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--bus", help="INTERFACE:CHANNEL to join, e.g. socketcan:vcan0")
@@ -49,10 +46,20 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "lockstep): the devices' timers (CANopen heartbeats) on the rig's "
                         "time, which advances one step per SYNC; the wall-clock watchdog "
                         "10 s later, as a backstop")
+    p.epilog = examples(
+        "harness virtual-rig --serve-socketcand 29536",
+        "harness virtual-rig --bus socketcan:vcan0 --lockstep",
+        "harness virtual-rig --serve-unix rig1 --realtime")
     p.set_defaults(func=cmd_virtual_rig)
 
 
 def cmd_virtual_rig(args: argparse.Namespace) -> int:
+    # python-can, numpy and scipy only when the rig runs (start-up of `harness --help`)
+    from harness.bus import BusSpecError, open_bus, parse_bus
+    from harness.bus.rig_process import TIMING_PREFIX
+    from rig_models.rig_file import load_rig
+    from rig_models.virtual_rig import SyncTiming, VirtualRig
+
     try:
         rig_cfg = load_rig(args.rig)
         faults = [parse_fault(f) for f in args.fault or []]

@@ -12,16 +12,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from harness.controllers.registry import controller_names, controller_type
+from harness.core.builtin_runs import RUNS_DIR as RUNS_DIR  # where the built-in runs are
+from harness.core.builtin_runs import list_runs, run_path
 from harness.core.monitor import LIMITS_SCHEMA, MONITOR_SCHEMA
 from rig_models.faults import FaultSpec, make_fault
 from rig_models.rig_file import RigConfig, load_rig, rig_from_dict
 from rig_models.schema import ConfigError, Field, validate
 from rig_models.yaml_file import load_yaml
 
-RUNS_DIR = Path(__file__).parent.parent / "runs"
 ACTUATORS = ("reaction_wheel", "thruster_valves", "piezo_amplifier", "disturbance_rotor")
 
 RUN_SCHEMA: dict[str, Any] = {
@@ -143,21 +142,6 @@ def _deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
         else:
             out[k] = v
     return out
-
-
-def list_runs() -> list[tuple[str, str]]:
-    out = []
-    for path in sorted(RUNS_DIR.glob("*.yaml")):
-        raw = yaml.safe_load(path.read_text()) or {}
-        out.append((path.stem, str(raw.get("description", ""))))
-    return out
-
-
-def run_path(name_or_path: str) -> Path:
-    p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") or p.exists():
-        return p
-    return RUNS_DIR / f"{name_or_path}.yaml"
 
 
 def load_run(name_or_path: str, overrides: dict[str, Any] | None = None) -> RunConfig:

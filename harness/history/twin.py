@@ -271,7 +271,8 @@ def _identified(run_dir: Path, cfg: dict[str, Any], model: list[dict[str, Any]]
         except ValueError:
             ident = None
     if ident is None:
-        from harness.commands.identify import analysis_windows, identify_record, load_record
+        # the identification (scipy, Rerun's reader) only when the run has no identify.json
+        from harness.core.identify import analysis_windows, identify_record, load_record
 
         if analysis_windows(cfg) is None:
             return []

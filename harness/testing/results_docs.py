@@ -12,6 +12,8 @@ import re
 from typing import Any
 
 from harness.testing.measures import unit_text
+from rig_models.paper003 import PAPER_TABLE1 as PAPER003_TABLE1
+from rig_models.paper003 import PAPER_TABLE2 as PAPER003_TABLE2
 
 PAPER_SUITES = ("paper001", "paper002", "paper003", "paper004")
 TITLES = {
@@ -19,13 +21,6 @@ TITLES = {
     "paper002": "Paper 002 (Parman 2022): LHHL / HLLH two-amplitude shapers",
     "paper003": "Paper 003 (Xu 2018): the SGSRT, square-wave compensation, modes, sweep",
     "paper004": "Paper 004 (Wang 2022): variable-amplitude ZV / ZVD shapers",
-}
-# Paper 003 (Xu 2018) Table 1 (rad/s) and Table 2 (m/s^2): comparison only.
-PAPER003_TABLE1 = {"measured_fft": [2.7382, 13.9487], "calculated": [2.8081, 13.643]}
-PAPER003_TABLE2 = {
-    "case-a": {0.6: 0.020, 0.8: 0.025, 1.0: 0.041},
-    "case-b": {0.6: 0.043, 0.8: 0.046, 1.0: 0.072},
-    "case-c": {0.6: 0.018, 0.8: 0.023, 1.0: 0.037},
 }
 _BETA = re.compile(r"beta-(\d+(?:\.\d+)?)")
 
