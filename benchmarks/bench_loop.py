@@ -1,6 +1,6 @@
 """Loop and plant benchmarks, measured in one run; prints a table.
 
-0. The floor tick against the harness's tick (issue 23), interleaved run by run: the floor
+0. The floor tick against the harness's tick, interleaved run by run: the floor
    does only what a lockstep tick must (SYNC and heartbeat out, the rig's one plant step and
    its output, every due telemetry frame encoded, sent, received and decoded, the run's
    command frames likewise, one recorded row), with the same codecs, the same bus

@@ -1,11 +1,11 @@
-"""Memory and threads over many runs in one process (issue 23, item 3): a suite worker or a
+"""Memory and threads over many runs in one process: a suite worker or a
 benchmark makes many runs; each must leave nothing behind. Prints one table row per run:
 resident memory (MB, from /proc/self/status) and the process's thread count after the run.
 
     .venv/bin/python benchmarks/bench_many_runs.py [--runs 50] [--case slew-rw]
         [--duration-s 0.2] [--json]
 
-The criterion (issue 23): after the 5th run, resident memory stays within 10 MB and the
+The criterion: after the 5th run, resident memory stays within 10 MB and the
 thread count within a few threads of the 5th run's.
 """
 

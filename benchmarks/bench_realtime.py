@@ -17,7 +17,7 @@ tick's SYNC in hand within half a period, by its own SYNC timing, and the CPU wa
 from its answer: preempted, its thread ran less than half the answer's time; or stalled, one
 fixed operation, a physics step or one frame's encode and send, took ten times its p99 with
 no page fault and no context switch, see harness.core.session.attribute_missing), how promptly
-the rig process woke to each SYNC and answered it, resident memory, and the issue's
+the rig process woke to each SYNC and answered it, resident memory, and the real-time
 criteria.
 
 The floor loop measures the loop's CPU; the rig process's wake-up after each SYNC is the

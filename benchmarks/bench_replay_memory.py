@@ -1,4 +1,4 @@
-"""Peak memory of `harness replay --check` against the capture's length (issue 24 item 7).
+"""Peak memory of `harness replay --check` against the capture's length.
 
 Records slew-rw in lockstep for each duration (default 10 s and 60 s), then replays each
 run's can.blf with ``--check`` in its own process, interleaved (short, long, short, long),

@@ -117,7 +117,7 @@ class PdoCodec:
     def packer(self) -> Callable[..., bytes]:
         """``packer()(v0, v1, ...)`` is ``encode([v0, v1, ...])`` byte for byte, the same
         errors included, without the list and the length check (the virtual nodes' TPDOs,
-        every SYNC: issue 20's tick)."""
+        every SYNC, in the tick)."""
         s = self._struct
         if s is None:
             encode = self.encode

@@ -344,8 +344,8 @@ class FrameCodec:
 
     def encoder(self, names: tuple[str, ...]) -> Callable[..., bytes]:
         """A positional encoder: ``encoder(names)(v0, v1, ...)`` is ``encode(dict(zip(names,
-        (v0, v1, ...))))``, byte for byte, without building the dict (a tick's frames:
-        issue 23). Generated once per ``names`` and kept."""
+        (v0, v1, ...))))``, byte for byte, without building the dict (a tick's frames).
+        Generated once per ``names`` and kept."""
         names = tuple(names)
         fn = self._encoders.get(names)
         if fn is None:

@@ -36,6 +36,8 @@ FAULT_KINDS: dict[str, str] = {
                  "(default 0x5000, device hardware)",
     "drive_fault": "the device's CiA 402 drive faults: EMCY 0x2310 (over-current), the status "
                    "word's fault bit, no torque",
+    "drive_disabled": "the device's CiA 402 drive drops to switch on disabled by itself, no "
+                      "EMCY (its safe-torque-off input, or another master's controlword)",
     "node_reboot": "the device's CANopen node resets by itself: boot-up frame, pre-operational",
     "node_stopped": "the device's CANopen node goes to NMT stopped by itself (no PDOs)",
     "sdo_abort": "during set-up the device's node aborts the SDO to object `value` (default "
@@ -43,9 +45,9 @@ FAULT_KINDS: dict[str, str] = {
 }
 DEVICE_FAULTS = {"drop_frames", "delay_frames", "corrupt_payload", "wrong_length",
                  "stuck_sensor", "silent_sensor", "node_heartbeat_lost", "node_emcy",
-                 "drive_fault", "node_reboot", "node_stopped", "sdo_abort"}
-CANOPEN_FAULTS = {"node_heartbeat_lost", "node_emcy", "drive_fault", "node_reboot",
-                  "node_stopped", "sdo_abort"}
+                 "drive_fault", "drive_disabled", "node_reboot", "node_stopped", "sdo_abort"}
+CANOPEN_FAULTS = {"node_heartbeat_lost", "node_emcy", "drive_fault", "drive_disabled",
+                  "node_reboot", "node_stopped", "sdo_abort"}
 
 
 @dataclass(frozen=True)

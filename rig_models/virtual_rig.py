@@ -470,7 +470,7 @@ class VirtualRig:
         """Each device's telemetry sender, called with its quantities positionally
         (``TELEMETRY_QUANTITIES`` order). A device of one frame, with no fault to inject
         and no operation to time (a lockstep run), gets a closure that encodes and sends
-        in one call (issue 23: the tick near its floor); the rest go through ``_send``."""
+        in one call (the lockstep tick near its floor); the rest go through ``_send``."""
         emit: dict[str, Callable[..., None]] = {}
         plain = not self.injector.faults and not self.time_ops and self.bus is not None
         for device, names in TELEMETRY_QUANTITIES.items():
@@ -580,6 +580,10 @@ class VirtualRig:
                 drive = co.drive(f.device)
                 if drive is not None:
                     drive.inject_fault(0x2310)
+            elif f.kind == "drive_disabled":
+                drive = co.drive(f.device)
+                if drive is not None:
+                    drive.disable_voltage()
             elif f.kind == "node_reboot":
                 node.reboot()
             elif f.kind == "node_stopped":

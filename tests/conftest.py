@@ -5,7 +5,7 @@ import os
 # Python's bytecode cache on for the tests and every process they start. This machine's
 # environment sets PYTHONDONTWRITEBYTECODE=1, and a fresh clone has no __pycache__: every
 # process the tests start (harness commands, suite workers, studies: a few hundred) compiled
-# the harness from source again, about 0.2 s of CPU each (issue 23). What is written is
+# the harness from source again, about 0.2 s of CPU each. What is written is
 # Python's own __pycache__ beside the sources (ignored by git); a read-only tree is skipped.
 os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 

@@ -1,4 +1,4 @@
-"""Every wait on a Rerun sink has a bound (issue 24): the recordings written after a run (the
+"""Every wait on a Rerun sink has a bound: the recordings written after a run (the
 sweep's sweep.rrd, the studies' recordings, identify.rrd, calibration.rrd, verdict.rrd, the
 verdict appended to run.rrd) flush through ``harness.record.recording.close_stream``, the
 recording's own bounded flush, and a sink that never answers ends in ``OutputError`` naming

@@ -1,4 +1,4 @@
-"""Every built-in criterion can fail (issue 24): for each criterion of the built-in run files
+"""Every built-in criterion can fail: for each criterion of the built-in run files
 (every variant's limits) and of the acceptance suite (its runs' added criteria, ``check:``
 and ``identify.check:``), a degradation it is meant to catch is judged and must FAIL that
 criterion by name.
@@ -253,7 +253,7 @@ REAL_STEADY = tuple(LIMITS_TOOL.DEGRADED)
 """The cases whose ``steady_amplitude`` is judged on a real degraded run (not by table)."""
 
 CANNOT_FAIL: dict[tuple[str, str], str] = {}
-"""Known built-in criteria that their degradation does not fail (issue 24: reported, not
+"""Known built-in criteria that their degradation does not fail (reported, not
 tuned away; strict xfail, so a fix shows)."""
 
 

@@ -305,7 +305,7 @@ def _check_wheel_result(code: int, data: dict) -> dict:
                 "predicted_ratio"} <= set(cand)
     rec = next(c for c in data["candidates"] if c["key"] == data["recommended"])
     m = rec["measured"]
-    # the Done-when claim: >= 10x less residual tip vibration than unshaped, noise-free truth
+    # the calibration's claim: >= 10x less residual tip vibration than unshaped, noise-free truth
     assert m["ratio_truth"] >= 10.0
     assert m["ratio_fitted"] >= 10.0
     for f in ("run_file", "baseline_run_file"):
@@ -320,7 +320,7 @@ def _check_wheel_result(code: int, data: dict) -> dict:
 
 @pytest.mark.slow
 def _check_calibration_rrd(path: Path, data: dict) -> None:
-    """calibration.rrd (issue 21): the identified modes, every candidate's predicted residual,
+    """calibration.rrd: the identified modes, every candidate's predicted residual,
     the measured ones and the verified unshaped/shaped pair, in one layout."""
     from harness.review.calibration import CANDIDATES_VIEW, SPECTRUM_VIEW, VERIFIED_VIEW
     from harness.review.reader import entities, read_blueprints, read_text

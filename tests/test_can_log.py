@@ -1,4 +1,4 @@
-"""The CAN log packs frames in bulk (issue 23): the file is byte for byte what python-can's
+"""The CAN log packs frames in bulk: the file is byte for byte what python-can's
 own BLF writer makes of the same frames."""
 
 from __future__ import annotations

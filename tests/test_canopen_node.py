@@ -276,7 +276,7 @@ def rig():
 
 
 def test_master_scans_every_node(rig):
-    """Done when (issue 20): reset communication, every boot-up, 0x1000, 0x1018 and the PDO
+    """The master's scan: reset communication, every boot-up, 0x1000, 0x1018 and the PDO
     mapping by SDO to an independent master."""
     mark = rig.rec.mark()
     rig.nmt(0x82)  # reset communication, all nodes

@@ -1,4 +1,4 @@
-"""Issue 20's tick: the CANopen path's compiled forms equal the plain forms they replace.
+"""The CANopen tick: the CANopen path's compiled forms equal the plain forms they replace.
 
 The virtual nodes pack TPDOs through `PdoCodec.packer`, the rig writes telemetry into the
 nodes' objects through `CanopenDevices.telemetry_writer`, the harness decodes TPDOs through

@@ -79,7 +79,7 @@ def test_safety_limit_that_is_not_a_finite_number_is_refused(key, bad):
 
 
 def test_nan_angle_limit_in_yaml_is_refused_and_a_finite_one_aborts(tmp_path):
-    """The issue's case: a 30 deg slew with limits.max_angle_deg .nan ran to 14 deg with the
+    """A NaN limit: a 30 deg slew with limits.max_angle_deg .nan ran to 14 deg with the
     abort off. Now the file is refused; the same run with the limit 10 is refused before
     its first frame (its plan passes the limit, harness.core.limits)."""
     text = ("name: nan-limit\nduration_s: 25.0\n"

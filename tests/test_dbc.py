@@ -138,7 +138,7 @@ def _draw_values(data: st.DataObject, msg: cantools.database.Message) -> dict[st
 
 def _check_positional(codec: FrameCodec, msg: cantools.database.Message,
                       values: dict[str, float], data: st.DataObject) -> None:
-    """The positional encoder (issue 23) gives cantools' bytes for the same values, taking
+    """The positional encoder gives cantools' bytes for the same values, taking
     the signals in any order, with a name that is no signal taken and ignored."""
     names = data.draw(st.permutations(list(values)))
     extra = data.draw(st.booleans())

@@ -63,7 +63,7 @@ def test_inertia_must_exceed_beam(plant):
 
 
 def test_fused_step_and_output_match_lsim(plant):
-    """The rig's one-product step (x and the outputs after it, issue 23) against lsim."""
+    """The rig's one-product step (x and the outputs after it) against lsim."""
     dt = 0.002
     d = plant.discretise(dt)
     t = np.arange(0, 4.0, dt)

@@ -1,4 +1,4 @@
-"""The rig's health over time (issue 22): the results database, `harness history` (series,
+"""The rig's health over time: the results database, `harness history` (series,
 drift alarms with uncertainty, flaky verdicts), the predicted scatter and `harness twin`.
 
 The drift test makes ten short free-decay runs (20 s at 50 Hz, one wheel pulse) on rig

@@ -305,7 +305,7 @@ def test_bad_input_raises_value_error(call, word: str) -> None:
 @pytest.mark.parametrize("rounding", ["nearest", "split"])
 @pytest.mark.parametrize("initial", [0.0, 0.3, np.array([0.2, -1.0, 0.0])])
 def test_process_is_step_on_every_sample_bit_for_bit(rounding, initial):
-    # issue 23: process() gathers the delayed samples at once; the plain path is step() per
+    # process() gathers the delayed samples at once; the plain path is step() per
     # sample. Same values exactly, and the same state afterwards (chunks continue alike).
     seq = multi_mode([zvdd(2.8827, 0.0686), ei(13.3588, 0.0513), zvd(36.9511, 0.0502)])
     shape = np.shape(initial)
@@ -328,7 +328,7 @@ def test_process_is_step_on_every_sample_bit_for_bit(rounding, initial):
 
 def test_si_designs_are_cached_by_their_inputs_and_equal_a_fresh_design() -> None:
     """A calibration builds each candidate's controller several times: the SI design (a few
-    linear programs) is computed once per input (issue 23), and the cached sequence is the
+    linear programs) is computed once per input, and the cached sequence is the
     one the design gives afresh; bad input still raises every time (never cached)."""
     from harness.shaping.impulse_shapers import _si_design, si
 

@@ -1,4 +1,4 @@
-"""Property tests (issue 24): a run file or suite file with one value replaced by something
+"""Property tests: a run file or suite file with one value replaced by something
 odd, or a CLI number that is not a sane number, ends in exit 2 naming the key (or option),
 or in a run that ends normally; never in a traceback. Inputs of tens of MB or aliases that
 expand without bound are refused with a clear error."""

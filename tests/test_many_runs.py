@@ -1,5 +1,5 @@
 """Many runs in one process (a suite worker, a benchmark) leave nothing behind: threads and
-resident memory stay flat after the first runs (issue 23; the 50-run measurement is
+resident memory stay flat after the first runs (the 50-run measurement is
 benchmarks/bench_many_runs.py)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The fault monitor's inline all-clear paths (issue 23: ``FaultMonitor.check`` runs each
+"""The fault monitor's inline all-clear paths (``FaultMonitor.check`` runs each
 check's usual tick inline and calls the check's own method only past it) decide exactly
 what the checks' methods decide: on random ticks of a rig whose drivers see healthy
 frames, missing frames, frozen and jumping counters, implausible values, flags, NaNs,

@@ -1,4 +1,4 @@
-"""A full, read-only or failing output folder (issue 24): the run leaves the rig safe at
+"""A full, read-only or failing output folder: the run leaves the rig safe at
 once, ends in bounded time with one line naming the folder and exit 4, never claims
 "completed", and what was already written stays readable; a recording cut at any byte reads
 back to its last complete message; nothing is written through a link in the run folder."""

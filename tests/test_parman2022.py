@@ -159,7 +159,7 @@ def test_thirty_degree_offset_misses_the_papers_frequencies(satellite):
     """As specified (30 deg offset, Table 1 masses) the first two roll/yaw-coupled frequencies
     are 0.3592 and 1.1189 rad/s, +7.1 % / +3.4 % from the paper's 0.3354 / 1.082; with the
     inertia matched to the paper's printed values (600 kg) still +5.2 % / +2.5 %. This is the
-    reported mismatch of issue 5, held as a regression value, not a pass against the paper."""
+    reported mismatch (docs/claims.md), held as a regression value, not a pass against the paper."""
     freqs = satellite.roll_yaw_frequencies()[:2]
     assert freqs == pytest.approx((0.3592, 1.1189), rel=2e-3)
     heavy = build_satellite(_with_z_masses(600.0)).roll_yaw_frequencies()[:2]
@@ -214,7 +214,7 @@ def test_simulation_conserves_angular_momentum(satellite):
 
 
 def _simulate_plain(model, schedule, *, duration_s, step_s, initial_attitude_rad=(0, 0, 0)):
-    # simulate() before issue 23: a fresh matrix exponential per sub-interval, the switches
+    # simulate()'s plain form: a fresh matrix exponential per sub-interval, the switches
     # inside each step and the torque found per step
     n = model.n_dof
     m_inv = np.linalg.inv(model.mass)
@@ -256,7 +256,7 @@ def _simulate_plain(model, schedule, *, duration_s, step_s, initial_attitude_rad
 
 
 def test_simulate_and_a_shared_discretisation_match_the_plain_simulation(satellite):
-    # issue 23: the switches and torques are looked up for all steps at once and a
+    # the switches and torques are looked up for all steps at once and a
     # Discretisation shares the matrix exponentials between runs: the same numbers exactly
     from rig_models.reference.parman2022_satellite import Discretisation
 

@@ -1,4 +1,4 @@
-"""report.html as a reviewer reads it (issue 21, point 7): units as people write them,
+"""report.html as a reviewer reads it: units as people write them,
 plots at the page's width with the axes on the data, a fault test's injection and detection
 marked, a link to each of the run's files and the one command that opens its recordings."""
 

@@ -76,7 +76,7 @@ def test_every_built_in_run_gets_a_layout():
 
 
 def test_no_plot_mixes_units_or_scales():
-    """The issue's complaints: error apart from the angle, torques apart from speeds,
+    """One quantity a plot: error apart from the angle, torques apart from speeds,
     milliseconds apart from counts."""
     def unit(channel: str) -> str:
         units = ("_deg_s", "_deg", "_n_m", "_rad_s", "_rad", "_m_s2", "_v", "_ms", "_s")
@@ -95,7 +95,7 @@ def test_no_plot_mixes_units_or_scales():
 
 
 def test_y_axis_is_the_data_with_a_small_margin_and_the_judged_band():
-    """A 5 deg slew is not drawn on +-10, nor a 0.02 deg error on +-100 (issue 21): the axis
+    """A 5 deg slew is not drawn on +-10, nor a 0.02 deg error on +-100: the axis
     is the data's span plus a margin, widened only to a criterion's band on that channel."""
     angle = L.axis_range(L.PLOTS["angle"], {"/attitude/angle_deg": [0.0, 5.0],
                                             "/attitude/reference_deg": [0.0, 5.0]})
@@ -158,7 +158,7 @@ def test_faulted_run_recording_holds_event_markers_summary_config_bus(faulted):
 
 
 def test_time_plots_keep_peaks_and_draw_discrete_signals_whole(faulted):
-    """Issue 21: zoomed out, the viewer averaged a 44 ms work peak to 22 ms and drew a
+    """Zoomed out, the viewer must not average a 44 ms work peak to 22 ms nor draw a
     -1/0/+1 valve at -0.5. Every continuous series is aggregated MinMax, every discrete one
     not at all (stepped), in the recording itself and as each plot's default in the layout
     run.rrd carries; the same quantity has one colour, distinct within each plot."""
@@ -336,8 +336,8 @@ def test_sweep_rrd_has_its_layout(tmp_path):
 
 
 def test_sweep_rrd_shows_the_whole_range_one_colour_per_beta_and_scaled_maps(tmp_path):
-    """Issue 21: half the lambda range (the resonance included) was off screen, the maps
-    had no colour scale and a beta's colour changed between plots."""
+    """The whole lambda range on screen (the resonance included), the maps with a colour
+    scale, and each beta's colour the same in every plot."""
     from harness.commands.sweep import save_plots, save_rrd, sweep_blueprint
     from harness.review.reader import read_series_styles
 
@@ -424,8 +424,8 @@ def test_judged_run_verdict_rrd_has_layout_events_and_markers(faulted, tmp_path)
 
 
 def test_verdict_lives_in_run_rrd_and_rejudging_replaces_it(faulted, tmp_path):
-    """Issue 21: the verdict panel was empty unless verdict.rrd was opened too, and a run
-    stopped by an unexpected fault was headlined by a consequence. Judged, run.rrd holds the
+    """The verdict panel filled from run.rrd alone (without verdict.rrd), and a run stopped
+    by an unexpected fault headlined by its cause, not a consequence. Judged, run.rrd holds the
     verdict (root cause first, failing criteria first, each with value, limit, margin and
     worst time), its violation as an event and marker, and the run's layout; re-judging
     replaces it, and every recorded sample stays."""
@@ -479,7 +479,7 @@ def test_verdict_lives_in_run_rrd_and_rejudging_replaces_it(faulted, tmp_path):
 
 
 def test_baseline_comparison_draws_the_baseline_on_the_same_plot(faulted, tmp_path):
-    """Issue 21: a baseline criterion's baseline channel is drawn on the judged channel's
+    """A baseline criterion's baseline channel is drawn on the judged channel's
     plot, on the run's time axis shifted as judged."""
     import shutil
 

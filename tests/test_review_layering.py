@@ -1,4 +1,4 @@
-"""The review layer's place in the house (issue 21, point 8): ``harness.record`` imports
+"""The review layer's place in the house: ``harness.record`` imports
 nothing of ``harness.review`` (the recorder takes the review's names, markers and summary text
 as an ``Annotator``), and ``harness.review`` imports nothing of ``harness.core`` or
 ``harness.testing``, so the dependency runs one way: core -> review -> record."""

@@ -1,4 +1,4 @@
-"""A virtual rig process that does not start refuses the run (issue 24): exit 2 with one line
+"""A virtual rig process that does not start refuses the run: exit 2 with one line
 carrying what the process said (rig.log's diagnosis), and no run folder left behind, which
 ``harness logs --failed`` would list as a run killed on the way."""
 

@@ -1,5 +1,5 @@
 """``scalar_values``: a recorded channel's list-per-row column as one float a row, the flat
-fast path and the row-by-row form giving the same values (issue 23)."""
+fast path and the row-by-row form giving the same values."""
 
 from __future__ import annotations
 

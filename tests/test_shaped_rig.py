@@ -1,5 +1,5 @@
-"""Shaped slews on the virtual rig (issues 5 and 6): the controllers, the residual readings and
-the Done-when claims, through the harness (CAN, drivers, virtual rig)."""
+"""Shaped slews on the virtual rig: the controllers, the residual readings and
+the 10x claims, through the harness (CAN, drivers, virtual rig)."""
 
 from __future__ import annotations
 
@@ -78,7 +78,7 @@ def test_shaped_wheel_command_stays_within_torque_and_reaches_the_angle(shaper):
 
 
 def test_schedule_reference_is_the_rigid_reference_row_of_the_tick():
-    # issue 23: reference() reads rows kept as Python floats; the plain path is the array's
+    # reference() reads rows kept as Python floats; the plain path is the array's
     from harness.controllers.shaped_wheel_slew import rigid_reference
 
     c = ShapedWheelSlew(math.radians(20), J, 0.06, 1.0, DT, design_shaper("zvd", MODES), "zvd")
@@ -281,7 +281,7 @@ def test_damped_design_meets_its_limits_and_the_paper_design_does_not_on_damped_
 
 
 def test_paper_design_is_computed_once_per_input_and_is_the_solvers():
-    # issue 23: the paper profile and the damped one's homotopy start need the same design
+    # the paper profile and the damped one's homotopy start need the same design
     from harness.controllers.thruster_two_level import _paper_design, _paper_design_cached
     from harness.shaping.two_amplitude import ModeConstraint, design_two_amplitude
 
@@ -379,7 +379,7 @@ def test_study_registers_its_command():
     assert args.json and args.only == "wheel" and args.out == Path("x") and callable(args.func)
 
 
-# --------------------------------------------------------------------------- Done when
+# --------------------------------------------------------------------------- the 10x claims
 
 
 # The slews' rows come from the paper suites' run of this study (paper004's

@@ -544,7 +544,7 @@ def test_shutdown_without_clients_frees_port_for_a_plain_bind() -> None:
         plain.close()
 
 
-# --------------------------------------------------------------------------- issue 24
+# --------------------------------------------------------------------------- hostile input
 
 
 def test_idle_connections_do_not_keep_every_slot() -> None:

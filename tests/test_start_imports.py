@@ -1,5 +1,5 @@
-"""A harness process's start stays cheap: every suite worker, study and command pays it
-(issue 23). scipy.stats (through scipy.signal's peak finding or qmc) was a quarter of it;
+"""A harness process's start stays cheap: every suite worker, study and command pays it.
+scipy.stats (through scipy.signal's peak finding or qmc) was a quarter of it;
 it is imported where it is used."""
 
 from __future__ import annotations

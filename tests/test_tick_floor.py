@@ -1,4 +1,4 @@
-"""The lockstep tick near its floor (issue 23): the positional frame maps give what their dict
+"""The lockstep tick near its floor: the positional frame maps give what their dict
 forms give, the rig's one fused product gives its outputs and patch volts, and the loop's
 table of the frames due is right at every tick."""
 

@@ -1,4 +1,4 @@
-"""Verdicts that cannot lie (issue 24, part A): ``--lf`` for bracketed test names, ``harness
+"""Verdicts that cannot lie: ``--lf`` for bracketed test names, ``harness
 logs`` inside suite and calibration folders, ``harness judge --expect`` leaving the run's own
 verdict alone, runs without criteria, ``harness test RUN.yaml``, and a refused run leaving
 no folder."""
@@ -184,7 +184,7 @@ def test_harness_test_runs_a_run_file_as_a_one_test_suite(tmp_path):
 # ------------------------------------------------------------------ calibrate's criteria
 @pytest.mark.slow
 def test_the_unshaped_calibration_run_fails_recommended_yaml(sgsrt_wheel_calibration, capsys):
-    """Issue 24's generated criterion that could not fail: judged by recommended.yaml, the
+    """The generated criterion must be able to fail: judged by recommended.yaml, the
     unshaped slew of the same calibration must FAIL (and the shaped one PASS); judged by
     baseline.yaml, the shaped slew must FAIL (the baseline no longer unshaped). The session's
     calibration (tests/conftest.py, shared with test_calibrate's end-to-end test)."""

@@ -213,8 +213,8 @@ def test_cli_design_and_evaluate_json(capsys):
 
 
 # --------------------------------------------------------------------------- fast == plain
-# issue 23: the dense scan evaluates only the tightest mode on the whole grid. The plain scan
-# below (the code before that change) evaluates every mode everywhere; both must give the
+# The dense scan evaluates only the tightest mode on the whole grid. The plain scan
+# below evaluates every mode everywhere; both must give the
 # same first level and the same candidates.
 
 
@@ -304,7 +304,7 @@ def test_grid_scan_matches_the_plain_scan(kind, axis, modes):
 
 
 def _residuals_plain(prob, x):
-    # _Problem.residuals before issue 23: a generator of the four terms, summed
+    # _Problem.residuals' plain form: a generator of the four terms, summed
     x = np.asarray(x)
     w = prob.omegas.reshape((-1,) + (1,) * (x.ndim - 1))
     weights = np.array([prob.p1, -prob.p1, prob.p2, -prob.p2])
@@ -312,7 +312,7 @@ def _residuals_plain(prob, x):
 
 
 def _local_solve_plain(prob, x0, h_max):
-    # _local_solve before issue 23: two inequality functions, R_k evaluated twice
+    # _local_solve's plain form: two inequality functions, R_k evaluated twice
     from scipy.optimize import minimize
 
     from harness.shaping.two_amplitude import _ORDER

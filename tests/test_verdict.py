@@ -93,8 +93,8 @@ def test_scalar_on_a_document_wildcards_lengths_equality_and_dotted_keys():
         return evaluate_scalar(c, doc)
 
     r = judge({"measure": "modes[*].err_percent", "max_abs_percent": 0.5,
-               "marginal_percent": 0.1, "why": "issue 3"})
-    assert (r.verdict, r.value, r.unit, r.why) == (MARGINAL, -0.42, "percent", "issue 3")
+               "marginal_percent": 0.1, "why": "the model's modes"})
+    assert (r.verdict, r.value, r.unit, r.why) == (MARGINAL, -0.42, "percent", "the model's modes")
     assert r.margin == pytest.approx(0.08) and "worst modes[1].err_percent" in r.message
     assert r.to_dict()["limit"] == {"max_abs_percent": 0.5, "marginal_percent": 0.1}
     r = judge({"measure": "modes[*].err_percent", "max_percent": 0.2})

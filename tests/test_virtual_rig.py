@@ -109,7 +109,7 @@ def test_valves_count_firings_and_on_time(pair):
 def test_physics_step_matches_the_plain_state_space_step(pair):
     """The rig's step (one fused product, piezo forces only while a voltage is applied,
     wheel and rotor at rest skipped) against x = Ad x + Bd u with every actuator's force
-    computed every step, through piezo on, piezo off, wheel and rotor on (issue 23)."""
+    computed every step, through piezo on, piezo off, wheel and rotor on."""
     import numpy as np
 
     _, rig = pair

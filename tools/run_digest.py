@@ -1,5 +1,5 @@
 """What a run recorded and checked, as one JSON file, to compare two versions of the code
-(issue 23: the tick made cheaper without changing what a run records or checks).
+(a tick made cheaper must not change what a run records or checks).
 
     PYTHONPATH=<checkout> python tools/run_digest.py OUT.json [--quick]
 

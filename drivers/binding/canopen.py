@@ -58,6 +58,22 @@ ERROR_REGISTER_BITS = ("generic", "current", "voltage", "temperature", "communic
                        "device profile specific", "reserved", "manufacturer specific")
 
 
+CIA402_STATES = (  # (mask, value, name) of the statusword, CiA 402's state table
+    (0x4F, 0x00, "not ready to switch on"), (0x4F, 0x40, "switch on disabled"),
+    (0x6F, 0x21, "ready to switch on"), (0x6F, 0x23, "switched on"),
+    (0x6F, 0x27, "operation enabled"), (0x6F, 0x07, "quick stop active"),
+    (0x4F, 0x0F, "fault reaction active"), (0x4F, 0x08, "fault"),
+)
+
+
+def cia402_state(statusword: int) -> str:
+    """The CiA 402 drive state a statusword reports, by name."""
+    for mask, value, name in CIA402_STATES:
+        if statusword & mask == value:
+            return name
+    return "an undefined state"
+
+
 def emcy_meaning(code: int, register: int) -> str:
     """An EMCY's error code and error register in words (CiA 301 / the profiles)."""
     text = EMCY_CODES.get(code) or EMCY_CLASSES.get(code >> 8) or EMCY_CLASSES.get(
@@ -272,7 +288,7 @@ class PdoTelemetryMap:
         pos = {e: i for i, e in enumerate(codec.entries)}
         self._f = tuple((f.quantity, pos[f.ref], f.conv.si_function()) for f in fields)
         #: payload -> {quantity: SI value}; FrameError on a wrong length. One compiled
-        #: function (every TPDO of every tick: issue 20's tick), equal to
+        #: function (every TPDO of every tick), equal to
         #: ``{q: conv(raw[i]) for q, i, conv in _f}`` over ``codec.decode_raw(data)``
         self.decode: Callable[[bytes | bytearray], dict[str, float] | None] = \
             self._compile_decode()
@@ -313,7 +329,7 @@ class PdoCommandMap:
     def encoder(self, quantities: tuple[str, ...]) -> Callable[..., bytes]:
         """A positional encoder: ``encoder(quantities)(v0, v1, ..., counter)`` is
         ``encode(dict(zip(quantities, (v0, v1, ...))), counter)`` (as ``CommandMap``'s)."""
-        # compiled once into one function (every tick: issue 20): each mapped object's raw
+        # compiled once into one function (every tick): each mapped object's raw
         # value as an expression, a bit-packed object OR-ed together, as encode() does
         arg = {q: f"p{k}" for k, q in enumerate(quantities)}  # a repeated name: the last
         namespace: dict[str, Any] = {"_encode_raw": self.codec.encode_raw}

@@ -117,7 +117,7 @@ class TelemetryMap:
     def encoder(self, quantities: tuple[str, ...]) -> Callable[..., bytes]:
         """A positional encoder: ``encoder(quantities)(v0, v1, ...)`` is ``encode(dict(zip(
         quantities, (v0, v1, ...))))`` byte for byte, without a dict per frame (the virtual
-        rig's telemetry, issue 23). A quantity the map does not carry is taken and
+        rig's telemetry, every tick). A quantity the map does not carry is taken and
         ignored; one it carries that is not given encodes as a missing key does."""
         quantities = tuple(quantities)
         if self.identity:
@@ -182,7 +182,7 @@ class CommandMap:
     def encoder(self, quantities: tuple[str, ...]) -> Callable[..., bytes]:
         """A positional encoder: ``encoder(quantities)(v0, v1, ..., counter)`` is
         ``encode(dict(zip(quantities, (v0, v1, ...))), counter)`` byte for byte, without a
-        dict per frame (the harness's commands, issue 23)."""
+        dict per frame (the harness's commands, every tick)."""
         quantities = tuple(quantities)
         arg = {q: f"p{k}" for k, q in enumerate(quantities)}  # a repeated name: the last
         signals: list[str] = []
@@ -219,7 +219,7 @@ class CommandMap:
                 ) -> Callable[[bytes | bytearray], tuple[float, ...] | None]:
         """A positional decoder: ``decoder(quantities, defaults)(data)`` is the tuple of
         ``decode(data).get(q, default)`` for each quantity (None for another mux page),
-        without a dict of quantities (the virtual rig's commands, issue 23)."""
+        without a dict of quantities (the virtual rig's commands, every tick)."""
         exprs = []
         for q, default in zip(quantities, defaults, strict=True):
             expr = repr(default)

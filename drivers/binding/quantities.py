@@ -16,14 +16,18 @@ TELEMETRY: dict[str, dict[str, str]] = {
     "hub_sensor": {"angle": "rad", "rate": "rad/s"},
     "accelerometer": {"accel": "m/s^2", "sample_counter": "", "saturated": "", "fault": ""},
     "reaction_wheel": {"speed": "rad/s", "torque": "N.m", "enabled": "", "fault": "",
-                       "speed_limited": "", "torque_limited": "", "counter": ""},
+                       "speed_limited": "", "torque_limited": "", "counter": "",
+                       "status": ""},
     "thruster_valves": {"valve_pos_open": "", "valve_neg_open": "", "fault": "",
                         "firings": "", "on_time": "s", "counter": ""},
     "piezo_amplifier": {"sensor_ch1": "V", "sensor_ch2": "V", "overcurrent": "", "fault": "",
                         "counter": ""},
     "disturbance_rotor": {"angle": "rad", "speed": "rad/s", "enabled": "", "fault": "",
-                          "counter": ""},
+                          "counter": "", "status": ""},
 }
+
+# ``status`` is a drive's own state word as it sends it (a CiA 402 statusword, 0x6041):
+# the fault monitor names the drive's state from it when the drive leaves operation enabled
 
 # device -> command quantity -> unit
 COMMANDS: dict[str, dict[str, str]] = {

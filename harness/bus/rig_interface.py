@@ -27,6 +27,30 @@ from harness.state import SAFE_COMMAND, RigCommand, RigState
 from rig_models.rig_file import RigConfig
 
 CAN_ERR_BUSOFF = 0x040  # SocketCAN error class (linux/can/error.h)
+DUPLICATE_HB_COUNT = 8
+DUPLICATE_HB_PERIODS = 5.0
+"""A node id used twice: this many heartbeats within this many of the node's periods (a
+healthy node needs 7 periods for 8 heartbeats; a late one followed by an on-time one bunches
+two, not four)."""
+
+
+def own_transmit_keys(b: RigBinding) -> dict[tuple[int, bool], str]:
+    """(id, extended) -> what it is, for every frame only the harness sends on this rig's
+    bus: SYNC, its heartbeat, every command frame (bound or not in this run), and on a
+    CANopen bus NMT commands and SDO requests to its nodes. Telemetry ids are never in it."""
+    out: dict[tuple[int, bool], str] = {b.sync.key: "SYNC"}
+    if b.heartbeat is not None:
+        out[b.heartbeat.key] = "master heartbeat"
+    for device, maps in b.commands.items():
+        for m in maps:
+            out[m.key] = f"{device} command"
+    if b.canopen is not None:
+        out[(0x000, False)] = "NMT command"
+        for nid in b.canopen.nodes:
+            out[(0x600 + nid, False)] = f"SDO request to node {nid}"
+    for key in b.telemetry_by_key():
+        out.pop(key, None)
+    return out
 
 
 @dataclass
@@ -38,6 +62,10 @@ class BusCounters:
     send_errors: int = 0
     bus_off: bool = False
     last_unknown_id: int = 0
+    # frames with an id only the harness sends (SYNC, NMT, heartbeat, commands, SDO
+    # requests): another master on the bus; the first one is described for the fault
+    foreign: int = 0
+    first_foreign: str = ""
 
 
 class RigInterface:
@@ -111,8 +139,11 @@ class RigInterface:
         else:
             self._sync_payload = sync.encode
         self._commands = b.commands
+        # the ids only a master sends: a frame with one of them that the harness did not
+        # send comes from another master (one SYNC producer, one NMT master per network)
+        self.own_ids = own_transmit_keys(b)
         # each actuator's command frames as positional encoders of its driver's
-        # ``command_args`` and the counter (no dict per frame: issue 23)
+        # ``command_args`` and the counter (no dict per frame: the tick's cost)
         self._command_encoders: dict[str, tuple[tuple[Callable[..., bytes],
                                                       tuple[int, bool]], ...]] = {
             device: tuple((cmap.encoder(every[device].command_quantities), cmap.key)
@@ -129,6 +160,11 @@ class RigInterface:
         self.has_protocol_faults = self.co is not None
         self.protocol_events: list[tuple[str, str, str]] = []
         self._hb_tick: dict[int, int] = {}
+        # the ticks of each node's last heartbeats (a second node with the same id doubles
+        # them: DUPLICATE_HB_COUNT within DUPLICATE_HB_PERIODS of its periods)
+        self._hb_recent: dict[int, list[float]] = {}
+        self._dt_s = 0.0
+        self._hb_wall = False
         self._hb_timeout_ticks: dict[int, int] = {}
         # no heartbeat can be missing up to this tick (None: look at every node)
         self._hb_quiet_until: int | None = None
@@ -306,6 +342,9 @@ class RigInterface:
                 return True
         maps = self._by_key.get((msg.arbitration_id, msg.is_extended_id))
         if maps is None:
+            if (msg.arbitration_id, msg.is_extended_id) in self.own_ids:
+                self._foreign(msg)
+                return False
             if self.co is not None and not msg.is_extended_id and self._canopen_service(
                     msg, tick):
                 return False
@@ -328,6 +367,16 @@ class RigInterface:
         self.counters.last_unknown_id = msg.arbitration_id
         return False
 
+    def _foreign(self, msg: can.Message) -> None:
+        """A frame with an id only the harness sends: another master on the bus."""
+        c = self.counters
+        c.foreign += 1
+        if not c.first_foreign:
+            what = self.own_ids[(msg.arbitration_id, msg.is_extended_id)]
+            c.first_foreign = (f"{what} (id 0x{msg.arbitration_id:03X}, "
+                               f"{bytes(msg.data).hex(' ') or 'no data'}) that the harness did "
+                               "not send: another master is on the bus")
+
     # ------------------------------------------------------------------ CANopen
     def watch_heartbeats(self, dt_s: float, start_tick: int = 0, grace_ticks: int = 0) -> None:
         """From ``start_tick`` on, each node must send its heartbeat within 3 of its periods
@@ -335,6 +384,10 @@ class RigInterface:
         slow host): a node silent for longer is a fault (``protocol_fault``)."""
         if self.co is None:
             return
+        self._dt_s = dt_s
+        # lockstep: the rig's time is the tick's; on the wall clock a stalled loop reads a
+        # node's heartbeats in a burst, so their spacing is the senders' time stamps'
+        self._hb_wall = grace_ticks > 0
         for nid, node in self.co.nodes.items():
             self._hb_tick.setdefault(nid, start_tick)
             self._hb_quiet_until = None
@@ -351,13 +404,16 @@ class RigInterface:
         co = self.co
         nid = cid & 0x7F
         if nid not in co.nodes:
-            return cid in (0x000, 0x080)  # NMT, SYNC: the master's own
+            return False  # (NMT and SYNC are the master's own: feed's foreign frames)
         fn = cid & 0x780
         device = co.device_of_node(nid)
         if fn == 0x700:
             self._hb_tick[nid] = tick
             self._hb_quiet_until = None
             state = data[0] & 0x7F if data else -1
+            if state != 0 and self._dt_s > 0.0:
+                self._duplicate_heartbeat(
+                    nid, msg.timestamp if self._hb_wall else tick * self._dt_s, device)
             if state == 0:
                 self.protocol_events.append((device, "node rebooted", (
                     f"node {nid} sent a boot-up frame: it reset mid-run (its outputs and "
@@ -368,6 +424,14 @@ class RigInterface:
                     "OPERATIONAL")))
             return True
         if fn == EMCY_BASE and cid != EMCY_BASE:
+            if len(data) != 8:  # CiA 301: an EMCY is always 8 bytes
+                drv = self.drivers.get(device.split("/")[0])
+                reason = (f"node {nid}: an EMCY of {len(data)} bytes "
+                          f"({data.hex(' ') or 'no data'}), not 8")
+                if drv is not None:
+                    drv.malformed(reason)
+                else:
+                    self.protocol_events.append((device, "malformed EMCY", reason))
             if len(data) >= 3:
                 code, reg = int.from_bytes(data[:2], "little"), data[2]
                 if code != 0:  # 0x0000: error reset
@@ -375,6 +439,22 @@ class RigInterface:
                         f"node {nid}: {emcy_meaning(code, reg)}")))
             return True
         return fn in (0x580, 0x600)
+
+    def _duplicate_heartbeat(self, nid: int, t_s: float, device: str) -> None:
+        """A node's heartbeats far more often than its period: a second node answers with
+        the same node id (its heartbeat would mask the real node's loss)."""
+        recent = self._hb_recent.setdefault(nid, [])
+        recent.append(t_s)
+        if len(recent) > DUPLICATE_HB_COUNT:
+            del recent[0]
+        period_s = self.co.nodes[nid].heartbeat_ms * 1e-3
+        if (len(recent) == DUPLICATE_HB_COUNT
+                and recent[-1] - recent[0] < DUPLICATE_HB_PERIODS * period_s):
+            self.protocol_events.append((device, "node id used twice", (
+                f"node {nid}: {DUPLICATE_HB_COUNT} heartbeats within "
+                f"{recent[-1] - recent[0]:.3g} s, its period is "
+                f"{self.co.nodes[nid].heartbeat_ms} ms: two nodes answer with id {nid}")))
+            recent.clear()
 
     def protocol_fault(self, tick: int) -> tuple[str, str, str] | None:
         """The first protocol fault so far (CANopen): an EMCY, a boot-up, a node not

@@ -122,7 +122,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         return 0
     data = _jsonable(result.to_dict())
     if result.folder is not None:
-        from harness.history.record import record_calibration  # results database (issue 22)
+        from harness.history.record import record_calibration  # results database
 
         record_calibration(result.folder, data)
     if args.json:

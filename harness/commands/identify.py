@@ -207,7 +207,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
         print(f"harness identify: {exc}", file=sys.stderr)
         return 2
     if run_dir is not None:
-        from harness.history.record import record_identify  # the results database (issue 22)
+        from harness.history.record import record_identify  # the results database
 
         record_identify(run_dir, out)
     if args.json:

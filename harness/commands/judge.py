@@ -49,7 +49,7 @@ def cmd_judge(args: argparse.Namespace) -> int:
     path = None
     if args.expect is None or args.write:
         path = write_verdict(verdict, args.run_dir)
-        from harness.history.record import record_verdict  # the results database (issue 22)
+        from harness.history.record import record_verdict  # the results database
 
         record_verdict(args.run_dir, verdict.to_dict())
     else:  # a what-if: the run's own verdict (what 'harness logs' reads) stays as it is

@@ -239,7 +239,7 @@ def _judge(run_dir: Path, summary: dict | None) -> int:
         print(f"harness: WARNING: NO CRITERIA: {run_dir.name} ran but nothing was judged (its "
               "run file has no expect:); exit 0 says it completed, not that it passed. Add "
               "criteria (docs/criteria.md)", file=sys.stderr)
-    from harness.history.record import record_verdict  # the results database (issue 22)
+    from harness.history.record import record_verdict  # the results database
 
     record_verdict(run_dir, verdict.to_dict())
     if summary is not None:

@@ -163,7 +163,7 @@ def save_rrd(path: Path, name: str, lambdas: np.ndarray, betas: np.ndarray,
         close_stream(rec, path)  # bounded: a full disk's stuck sink never hangs the sweep
     finally:
         del rec
-        sweep_orphans()  # the stream dropped: its threads end (issue 23)
+        sweep_orphans()  # the stream dropped: its threads end
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -147,7 +147,7 @@ class TickSchedule:
         # the command of the last non-zero tick acts until the next tick
         self.end_tick = self.start_tick + (int(nz[-1]) + 1 if len(nz) else 0)
         self._ref = rigid_reference(self.values * torque_scale_n_m, inertia_kg_m2, dt_s)
-        # the same rows as Python floats: ``reference`` is called every tick (issue 23)
+        # the same rows as Python floats: ``reference`` is called every tick
         self._ref_rows: list[tuple[float, float, float]] = [
             (a, r, acc) for a, r, acc in self._ref.tolist()]
 

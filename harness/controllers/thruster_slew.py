@@ -278,7 +278,7 @@ class ThrusterSlewController:
         self._min_pulse_ticks = max(1, math.ceil(self.min_pulse_s / self.dt_s - 1e-9))
         if self.csvs is not None:
             # the staircase as Python floats: the reference is looked up every tick (a bisect
-            # on a list, not numpy's searchsorted on a scalar: issue 23; the same index)
+            # on a list, cheaper than numpy's searchsorted on a scalar; the same index)
             self._times = self.csvs.times.tolist()
             self._cum = np.cumsum(self.csvs.amplitudes).tolist()
         self.reset()

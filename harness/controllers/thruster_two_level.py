@@ -175,7 +175,7 @@ def _paper_design(kind: str, angle: float, inertia: float, torque: float,
     """The paper's (undamped, symmetric) design: switch times and amplitudes (pure).
 
     Cached: a ``paper`` profile and the ``damped`` one of the same slew (whose homotopy
-    starts from it) need the same design; it is computed once per process (issue 23)."""
+    starts from it) need the same design; it is computed once per process."""
     return _paper_design_cached(kind.upper(), float(angle), float(inertia), float(torque),
                                 tuple(modes), float(vmax))
 
@@ -280,7 +280,7 @@ def _damped_search(kind: str, angle: float, inertia: float, torque: float,
     except ValueError:  # no undamped design: the Sobol starts remain
         pass
     base2 = max(0, math.ceil(math.log2(max(n_starts, 1))))
-    # imported here: scipy.stats is a quarter of a harness process's start (issue 23)
+    # imported here: scipy.stats is a quarter of a harness process's start
     from scipy.stats import qmc
 
     for r in qmc.Sobol(7, scramble=True, seed=seed).random_base2(base2)[:n_starts]:

@@ -48,7 +48,7 @@ CHANNELS = [
     "/timing/frames_rx",
 ]
 # one recorded row packed straight into the recorder's float64 row (one call, not numpy's
-# conversion of a tuple: issue 23)
+# conversion of a tuple)
 _ROW = struct.Struct(f"={len(CHANNELS)}d")
 
 

@@ -18,16 +18,26 @@ rotor in the default rig file):
 | flags | accelerometer saturated, wheel fault, piezo over-current | d |
 | overspeed | wheel speed beyond 1.02 x its limit | 1 |
 | valve stuck | open while commanded closed past closing delay + min on-time | that + 2 d + 1 |
-| EMCY (CANopen) | a node's emergency frame (code and register named), a drive fault | 1 |
+| EMCY (CANopen) | a node's emergency frame, a drive fault; an EMCY not 8 bytes long | 1 |
 | node rebooted (CANopen) | a node's boot-up frame mid-run | 1 |
 | NMT state (CANopen) | a node's heartbeat says it is not operational | its heartbeat period |
 | heartbeat lost (CANopen) | no heartbeat for 3 periods (or the real-time grace) | 3 periods + 1 |
+| second master | a SYNC, NMT, SDO request, command or heartbeat the harness did not send | 1 |
+| drive disabled | a drive commanded enabled reports otherwise (its CiA 402 state named) | d |
+| frames lost (wall clock) | frames older than the grace g not come (see below) | 2 (g+6) d |
+| duplicate frames | a device's frames beyond what the SYNCs asked for | 20 + s; s |
+| node id used twice | 8 heartbeats of one CANopen node within 5 of its periods | 8 heartbeats |
 | limits | hub angle, rate, wheel speed or tip acceleration beyond the run's `limits` | 1 |
 
 On the real-time clock, frames may arrive a few ticks late with nothing wrong (a busy
 machine): there "silent" and "late" wait at least `realtime_grace_s` (50 ms), and missing
-frames count only through the frame counters (sequence gaps), not per tick. A device never
-heard from is reported silent only after `startup_s` (0.5 s).
+frames count through the frame counters (sequence gaps) and against the SYNCs that asked for
+them (a CANopen PDO has no counter): frames asked for more than the grace g ago and not come,
+`lost_frames` more than their least count over the last 4 (g + 20 d) ticks, are lost (every
+other frame missing: within 2 (g + lost_frames + 1) d ticks). More frames than the SYNCs asked
+for (a second node with a device's id) are counted every 20 ticks in lockstep, every tick on
+the wall clock, past a slack s of (g / d + 2) frames + 2. A device never heard from is
+reported silent only after `startup_s` (0.5 s).
 
 The safe state is commanded in the tick the fault is detected, so the actuators are safe one
 tick after detection at the latest (the virtual rig applies commands at the next SYNC).
@@ -60,6 +70,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from drivers.binding.canopen import cia402_state
 from harness.bus.rig_interface import RigInterface
 from harness.state import RigCommand, RigState
 from rig_models.schema import Field
@@ -95,6 +106,60 @@ LOST_WINDOW = 20
 HUB_RATE_PLAUSIBLE_RAD_S = 5.0
 HUB_ANGLE_STEP_PLAUSIBLE_RAD = 0.05
 """A device's frames lost: ``lost_frames`` of its last this many due frames missing."""
+
+SURPLUS_EVERY = 20
+"""In lockstep, frames are counted against the SYNCs that asked for them every this many
+ticks (a second node with a device's id doubles its frames); on the wall clock every tick."""
+
+
+class DeviceWatch:
+    """What the monitor keeps of one device between ticks (its frames due and lost)."""
+
+    __slots__ = ("name", "driver", "divider", "stale_ticks", "misses", "due", "silent_after",
+                 "frames", "base_rx", "base_due", "window", "lost_at", "span", "slack")
+
+    def __init__(self, name: str, driver: Any, divider: int, stale_ticks: int,
+                 grace_ticks: int, frames: int) -> None:
+        self.name = name
+        self.driver = driver
+        self.divider = divider
+        self.stale_ticks = stale_ticks
+        # lockstep: the numbers of its due frames that were missing among its last
+        # LOST_WINDOW due frames, and how many of its frames were due so far
+        self.misses: deque[int] = deque()
+        self.due = 0
+        # silent past this age: its stale ticks, and on the wall clock at least the grace
+        self.silent_after = max(stale_ticks, grace_ticks)
+        # frames it sends per SYNC that asks (a device over several frames sends each)
+        self.frames = frames
+        # counted from the first tick it was heard from: its frames received then, and the
+        # frames due by then
+        self.base_rx: int | None = None
+        self.base_due = 0
+        # on the wall clock: (tick, frames not come) for the running minimum over the last
+        # ``span`` ticks, increasing values (a monotonic queue: amortised O(1) a tick); a
+        # loss beyond its limit is ``lost_at`` frames more than that minimum, the grace's
+        # frames in flight included
+        self.window: deque[tuple[int, int]] = deque()
+        self.lost_at = frames * (grace_ticks // divider + 1)
+        self.span = 4 * (grace_ticks + LOST_WINDOW * divider)
+        # frames beyond those asked for that a healthy device can show: its frames of the
+        # SYNCs before it was first counted that were still on their way (the grace)
+        self.slack = frames * (grace_ticks // divider + 2) + 2
+
+    def due_by(self, tick: int) -> int:
+        """Its frames due at ticks 0..tick."""
+        return self.frames * (tick // self.divider + 1) if tick >= 0 else 0
+
+
+def _frames_per_due(interface: Any) -> dict[str, int]:
+    """Each device's distinct telemetry frames (or multiplexed pages) per due SYNC."""
+    b = getattr(interface, "binding", None)
+    if b is None:
+        return {}
+    return {name: len({(m.key, m.mux) for m in maps}) or 1
+            for name, maps in b.telemetry.items()}
+
 
 LIMITS_SCHEMA = {
     "max_angle_deg": Field("number", "deg", default=180.0, exclusive_minimum=0.0),
@@ -174,13 +239,12 @@ class FaultMonitor:
         self.valve_close_ticks = math.ceil((valve_close_delay_s + valve_min_on_s) / dt_s)
         self.grace = max(2 * d + 2 for d in self.div.values())
         self.startup_ticks = math.ceil(monitor["startup_s"] / dt_s)
-        # per device, built once (the tick's checks then touch only what changed):
-        # [name, driver, divider, ticks after which it is stale, the numbers of its due
-        # frames that were missing among its last LOST_WINDOW due frames, how many of its
-        # frames were due so far]
-        self._lost: list[list[Any]] = [
-            [name, drv, self.div[name],
-             getattr(drv, "stale_after_ticks", 2 * self.div[name] + 1), deque(), 0]
+        # per device, built once (the tick's checks then touch only what changed)
+        frames_per_due = _frames_per_due(interface)
+        self._lost: list[DeviceWatch] = [
+            DeviceWatch(name, drv, self.div[name],
+                        getattr(drv, "stale_after_ticks", 2 * self.div[name] + 1),
+                        self.realtime_grace, frames_per_due.get(name, 1))
             for name, drv in interface.drivers.items()]
         self._drivers = list(interface.drivers.items())
         self._frame_counters = tuple(drv.counters for _, drv in self._drivers
@@ -188,12 +252,14 @@ class FaultMonitor:
         # _silent_and_lost: no device can be silent before this tick (from the last full
         # pass); the devices due at each tick modulo the dividers' least common multiple
         self._silent_from = 0
-        for entry in self._lost:  # [6]: silent past this age: its stale ticks and the grace
-            entry.append(max(entry[3], self.realtime_grace))
-        lost_period = math.lcm(*(e[2] for e in self._lost)) if self._lost else 1
+        lost_period = math.lcm(*(w.divider for w in self._lost)) if self._lost else 1
         self._lost_due_period = lost_period if lost_period <= 10_000 else 0
-        self._lost_due_at = [tuple(e for e in self._lost if k % e[2] == 0)
+        self._lost_due_at = [tuple(w for w in self._lost if k % w.divider == 0)
                              for k in range(self._lost_due_period)]
+        # frames counted against the SYNCs that asked for them (every tick on the wall
+        # clock, where no frame counter tells a missing frame; every SURPLUS_EVERY ticks in
+        # lockstep, for frames beyond what the SYNCs asked for)
+        self._count_every = 1 if self.realtime_grace else SURPLUS_EVERY
         self._max_error_frames = monitor["max_error_frames"]
         self._max_unknown_frames = monitor["max_unknown_frames"]
         self._lost_limit = int(monitor["lost_frames"])
@@ -230,6 +296,16 @@ class FaultMonitor:
         self._hub_same = 0
         self._hub_tick = -1
         self._wheel_tick = -1
+        # armed means enabled: a drive the harness commands enabled that reports otherwise
+        # (another master's controlword, its own quick stop) after the command's delay
+        acting = () if getattr(interface, "dry_run", False) else getattr(
+            interface, "actuators", ())
+        self._enable_lag = {name: 2 * d + 2 + self.realtime_grace
+                            for name, d in self.div.items()}
+        self._watch_wheel_enable = "reaction_wheel" in acting
+        self._rotor_drv = (interface.drivers.get("disturbance_rotor")
+                           if "disturbance_rotor" in acting else None)
+        self._rotor_enabled_since: int | None = None
         self._valve_closed_since = 0
         self._seen_tick: dict[str, int] = {}
         self.on_warning = on_warning
@@ -389,13 +465,15 @@ class FaultMonitor:
         # driven by what changed: a device's checks run only in a tick its telemetry came
         # (or, for the valves, a tick they were commanded open), the limits' messages only
         # past a limit; the order of the checks (the first event wins) is unchanged. Each
-        # check's all-clear path is inline here (one call a tick, issue 23); anything past
+        # check's all-clear path is inline here (one call a tick); anything past
         # it goes to the check's own method, which decides and words the event.
+        c = self._bus_counters
+        if c.foreign:  # another master first: what the nodes report next may be its doing
+            return self._bus(tick, state, sent)
         if self._protocol_fault is not None:
             event = self._protocol(tick, state, sent)
             if event is not None:
                 return event
-        c = self._bus_counters
         if (c.bus_off or c.error_frames > self._max_error_frames
                 or c.unknown > self._max_unknown_frames):
             return self._bus(tick, state, sent)
@@ -406,20 +484,24 @@ class FaultMonitor:
                 if event is not None:
                     return event
                 break
+        if tick % self._count_every == 0 and tick >= self.grace:
+            event = self._count_frames(tick)
+            if event is not None:
+                return event
         if tick >= self.grace:
             if tick < self._silent_from and self._lost_due_period:
                 # _silent_and_lost's usual tick: no device can be silent yet, only the
                 # windows of the devices due now (a due device that came, with no miss in
                 # its window, only counts its frame)
                 if not self.realtime_grace:
-                    for entry in self._lost_due_at[tick % self._lost_due_period]:
-                        last = entry[1].last_tick
-                        if last == tick and not entry[4]:
-                            entry[5] += 1
+                    for watch in self._lost_due_at[tick % self._lost_due_period]:
+                        last = watch.driver.last_tick
+                        if last == tick and not watch.misses:
+                            watch.due += 1
                             continue
-                        if tick - last > entry[6]:
+                        if tick - last > watch.silent_after:
                             continue  # not heard from yet, in the start-up time
-                        event = self._count_due(tick, entry, last)
+                        event = self._count_due(tick, watch, last)
                         if event is not None:
                             return event
             else:
@@ -469,7 +551,8 @@ class FaultMonitor:
                 self._hub_last = (angle, rate)
         if wheel is not None and wheel.last_tick == tick and tick != self._wheel_tick:
             v = wheel.values
-            if v.get("fault") or not abs(v.get("speed", 0.0)) <= self._wheel_overspeed:
+            if (v.get("fault") or not abs(v.get("speed", 0.0)) <= self._wheel_overspeed
+                    or (not v.get("enabled", 1.0) and self._watch_wheel_enable)):
                 event = self._wheel(tick, state, sent)
                 if event is not None:
                     return event
@@ -479,6 +562,15 @@ class FaultMonitor:
             event = self._valves(tick, state, sent)
             if event is not None:
                 return event
+        rotor = self._rotor_drv
+        if rotor is not None:
+            if not sent.rotor_enable:
+                self._rotor_enabled_since = None
+            elif self._rotor_enabled_since is None:
+                self._rotor_enabled_since = tick
+            elif rotor.last_tick == tick and not rotor.values.get("enabled", 1.0) and (
+                    tick - self._rotor_enabled_since > self._enable_lag["disturbance_rotor"]):
+                return self._disabled(tick, "disturbance_rotor", rotor.values)
         if piezo is not None and piezo.last_tick == tick and piezo.values.get("overcurrent"):
             event = self._piezo(tick, state, sent)
             if event is not None:
@@ -505,6 +597,8 @@ class FaultMonitor:
 
     def _bus(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
         c = self.iface.counters
+        if c.foreign:
+            return self._event(tick, "bus", "second master", c.first_foreign)
         if c.bus_off:
             return self._event(tick, "bus", "bus-off", "error frame with the bus-off class")
         if c.error_frames > self._max_error_frames:
@@ -538,54 +632,94 @@ class FaultMonitor:
             # the windows of the devices due now, in the same order as below
             if grace:
                 return None
-            for entry in self._lost_due_at[tick % self._lost_due_period]:
-                last = entry[1].last_tick
-                if last == tick and not entry[4]:
-                    entry[5] += 1  # came, no miss in its window: _count_due's whole work
+            for watch in self._lost_due_at[tick % self._lost_due_period]:
+                last = watch.driver.last_tick
+                if last == tick and not watch.misses:
+                    watch.due += 1  # came, no miss in its window: _count_due's whole work
                     continue
-                if tick - last > entry[6]:
+                if tick - last > watch.silent_after:
                     continue  # not heard from yet, in the start-up time (skipped below too)
-                event = self._count_due(tick, entry, last)
+                event = self._count_due(tick, watch, last)
                 if event is not None:
                     return event
             return None
         startup = tick < self.startup_ticks
         silent_from = 1 << 62
-        for entry in self._lost:
-            last = entry[1].last_tick
+        for watch in self._lost:
+            last = watch.driver.last_tick
             age = tick - last
-            limit = entry[6]
+            limit = watch.silent_after
             if age > limit:
                 if age > 10**8 and startup:
                     # not heard from yet: a device may take a moment to answer at first;
                     # silent from the end of the start-up time on
                     silent_from = min(silent_from, self.startup_ticks - 1)
                     continue
-                return self._event(tick, entry[0], "silent",
+                return self._event(tick, watch.name, "silent",
                                    f"no telemetry for {age if age < 10**8 else 'all'} ticks")
             if last + limit < silent_from:
                 silent_from = last + limit
-            if not grace and tick % entry[2] == 0:
-                event = self._count_due(tick, entry, last)
+            if not grace and tick % watch.divider == 0:
+                event = self._count_due(tick, watch, last)
                 if event is not None:
                     return event
         # the first tick a device could be silent at (its age past its limit)
         self._silent_from = silent_from + 1
         return None
 
-    def _count_due(self, tick: int, entry: list[Any], last: int) -> FaultEvent | None:
-        """One due frame of a device (``entry`` of ``_lost``): the missing ones among its
-        last LOST_WINDOW due frames, kept by number (a tick whose frame came touches no
+    def _count_frames(self, tick: int) -> FaultEvent | None:
+        """Each device's frames against the SYNCs that asked for them, from the first tick
+        it was heard from: more than asked is a second node answering with its id; on the
+        wall clock (no frame counter in a CANopen PDO tells a frame missing), frames not
+        come within the grace of their SYNC, ``lost_frames`` of them among its last
+        LOST_WINDOW due frames, are lost."""
+        grace = self.realtime_grace
+        for w in self._lost:
+            rx = w.driver.counters.received
+            if w.base_rx is None:
+                if rx:
+                    w.base_rx, w.base_due = rx, w.due_by(tick)
+                continue
+            got = rx - w.base_rx
+            surplus = got - (w.due_by(tick) - w.base_due)
+            if surplus > w.slack:
+                return self._event(tick, w.name, "duplicate frames", (
+                    f"{surplus} frames more than its SYNCs asked for since t = "
+                    f"{self._base_time(w):.3f} s: a second node answers with its id"))
+            if grace:
+                # frames asked for and not come, counted in order (a PDO carries no
+                # counter: a lost frame and a late one look alike until the grace is past)
+                window = w.window
+                deficit = w.due_by(tick) - w.base_due - got
+                while window and window[-1][1] >= deficit:
+                    window.pop()
+                window.append((tick, deficit))
+                if window[0][0] <= tick - w.span:
+                    window.popleft()
+                lost = deficit - window[0][1] - w.lost_at
+                if lost >= self._lost_limit * w.frames:
+                    return self._event(tick, w.name, "frames lost", (
+                        f"{lost} of its frames asked for more than "
+                        f"{grace * self.dt_s * 1e3:.0f} ms ago did not come (counted over "
+                        f"{w.span * self.dt_s:.2f} s)"))
+        return None
+
+    def _base_time(self, w: DeviceWatch) -> float:
+        return (w.base_due // w.frames - 1) * w.divider * self.dt_s
+
+    def _count_due(self, tick: int, watch: DeviceWatch, last: int) -> FaultEvent | None:
+        """One due frame of a device (lockstep): the missing ones among its last
+        LOST_WINDOW due frames, kept by number (a tick whose frame came touches no
         window)."""
-        n = entry[5] = entry[5] + 1
-        misses = entry[4]
+        n = watch.due = watch.due + 1
+        misses = watch.misses
         if last != tick:
             misses.append(n)
         if misses:
             while misses and misses[0] <= n - LOST_WINDOW:
                 misses.popleft()
             if len(misses) >= self._lost_limit:
-                return self._event(tick, entry[0], "frames lost",
+                return self._event(tick, watch.name, "frames lost",
                                    f"{len(misses)} of its last {min(n, LOST_WINDOW)} "
                                    "frames missing")
         return None
@@ -662,7 +796,22 @@ class FaultMonitor:
         if abs(speed) > self._wheel_overspeed_at:
             return self._event(tick, "reaction_wheel", "overspeed",
                                f"speed {speed:+.1f} rad/s beyond {self.wheel_max:g} rad/s")
+        if (self._watch_wheel_enable and not v.get("enabled", 1.0)
+                and tick > self._enable_lag["reaction_wheel"]):
+            return self._disabled(tick, "reaction_wheel", v)
         return None
+
+    def _disabled(self, tick: int, device: str, values: dict[str, float]) -> FaultEvent:
+        """A drive the harness commands enabled reports it is not (another master's
+        controlword, a quick stop, a drive that dropped its power stage)."""
+        status = values.get("status")
+        if status is None:
+            state = "its enabled flag is 0"
+        else:
+            state = f"statusword 0x{int(status):04X}: {cia402_state(int(status))}"
+        return self._event(tick, device, "drive disabled", (
+            f"left operation enabled while the rig is armed and the harness commands it "
+            f"enabled ({state})"))
 
     def _valves(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
         if sent.valve_direction != 0:

@@ -335,7 +335,7 @@ LOCKSTEP_FLUSH_EVERY_BLOCKS = 2
 """In lockstep a block holds 2500 rows and the file sink is waited for every 2 blocks: the
 same 5000 rows between waits as 10 blocks of 500 (what the output guard's reserve allows
 for), a fifth of Rerun's calls a row. Measured (slew-rw, interleaved): 9 us less CPU a tick
-of about 75, 12 %; 5000-row blocks gained nothing more (issue 23)."""
+of about 75, 12 %; 5000-row blocks gained nothing more."""
 
 
 REALTIME_RIG_DEFAULT = "process-unix"

@@ -1,4 +1,4 @@
-"""The rig's health over time (issue 22): a results database and what reads it.
+"""The rig's health over time: a results database and what reads it.
 
 ``db`` (the database: SQLite beside the logs by default, PostgreSQL by URL), ``record``
 (what a judged run, a suite, an identification or a calibration adds to it; the import of

@@ -73,7 +73,7 @@ def _write_stream(path: Path, application_id: str, recording_id: str, write: Wri
             close_stream(rec, path)
         finally:
             del rec
-            sweep_orphans()  # the stream dropped: its threads end (issue 23)
+            sweep_orphans()  # the stream dropped: its threads end
 
 
 def append_stream(path: Path, application_id: str, recording_id: str, write: Writer,

@@ -17,7 +17,7 @@ are not used), so only the frames since the last flush are lost (tested). Compre
 keeps a container's compression well under a tick's slack.
 
 Packed in bulk: python-can's writer packs each frame with three ``struct`` calls and three
-buffer appends (about 9 us of a lockstep tick's 100, issue 23). Every classic data or
+buffer appends (about 9 us of a lockstep tick's 100). Every classic data or
 remote frame (all the rig sends) is the same 48-byte BLF object, so ``drain()`` packs the
 queued frames into one buffer with a single precompiled struct and hands that to the
 writer's buffer in one piece, byte for byte what ``BLFWriter.on_message_received`` writes
@@ -68,7 +68,7 @@ class CanLog:
         self._blf_channel: dict[object, int] = {}
         self._pending: list[can.Message] = []
         # log(msg) queues a frame (the message must not be changed afterwards; ours never
-        # are): the queue's own append, no Python call per frame in the tick (issue 23); the
+        # are): the queue's own append, no Python call per frame in the tick; the
         # queue is emptied in place, never replaced
         self.log = self._pending.append
         self.failed: OutputError | None = None

@@ -84,7 +84,7 @@ def write_bus_binding(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime:
         return c
 
     # a map's decoded quantities -> their columns, resolved at the map's first frame (the
-    # entity's name and unit looked up once, not once a value: issue 23)
+    # entity's name and unit looked up once, not once a value)
     resolved: dict[tuple[str, str, str, tuple[str, ...]], list[tuple[str, _Column]]] = {}
 
     def values(kind: str, device: str, frame: str, t: float, decoded: dict[str, float]) -> None:

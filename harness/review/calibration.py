@@ -181,5 +181,5 @@ def write_calibration_rrd(c: Any, path: Path | None = None) -> Path:
             close_stream(rec, path)  # bounded: a full disk's stuck sink never hangs calibrate
         finally:
             del rec
-            sweep_orphans()  # the stream dropped: its threads end (issue 23)
+            sweep_orphans()  # the stream dropped: its threads end
     return Path(path)

@@ -180,5 +180,5 @@ def write_identify_rrd(path: Path, run_dir: Path, result: MultiWindowResult,
             close_stream(rec, path)  # bounded: a full disk's stuck sink never hangs identify
         finally:
             del rec
-            sweep_orphans()  # the stream dropped: its threads end (issue 23)
+            sweep_orphans()  # the stream dropped: its threads end
     return path

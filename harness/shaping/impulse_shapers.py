@@ -505,7 +505,7 @@ class ShapedCommand:
         The same as ``step`` on each sample in turn (the same values, bit for bit, and the
         same state afterwards): every output is the same ``np.dot`` of the weights with the
         delayed samples that ``step`` takes, gathered from the history and ``samples`` at once
-        instead of through the ring buffer one sample at a time (issue 23)."""
+        instead of through the ring buffer one sample at a time."""
         arr = np.asarray(samples, dtype=float)
         if arr.ndim == 0 or arr.shape[0] == 0 or arr.shape[1:] != self._initial.shape:
             return np.array([self.step(s) for s in arr])  # step's errors and empty output

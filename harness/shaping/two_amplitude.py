@@ -318,7 +318,7 @@ class _Problem:
         """R_k for x of shape (4, ...) -> (n_modes, ...)."""
         x = np.asarray(x)
         wts = self.weights
-        # the four terms summed left to right from 0 (as sum() over them did until issue 23)
+        # the four terms summed left to right from 0, in the order sum() over them takes
         if x.ndim == 1:  # one point (the local solver's): the 4 x n_modes cosines in one call
             t = wts * np.cos(np.multiply.outer(self.omegas, x))
             return 2 * ((((0 + t[:, 0]) + t[:, 1]) + t[:, 2]) + t[:, 3])
@@ -443,8 +443,7 @@ def _grid_scan(
     the other modes only at the two ends of the crossings that passed b >= 0, with the same
     arithmetic as ``_Problem.residuals`` (x1 is one value per level, x2 one per row and x4 one
     per column, so their cosines are taken once per level and broadcast): the same points and
-    candidates as evaluating everything everywhere (issue 23; tests/test_two_amplitude.py
-    compares).
+    candidates as evaluating everything everywhere (tests/test_two_amplitude.py compares).
     """
     k_star = int(np.argmin(prob.tols))
     others = [k for k in range(len(prob.tols)) if k != k_star]
@@ -555,7 +554,7 @@ def design_two_amplitude(
 
     # multi-start: Sobol points in the ordered box h_max >= x1 >= x2 >= x3 >= x4 >= 0
     base2 = max(0, math.ceil(math.log2(n_starts)))
-    # imported here: scipy.stats is a quarter of a harness process's start (issue 23)
+    # imported here: scipy.stats is a quarter of a harness process's start
     from scipy.stats import qmc
 
     raw = qmc.Sobol(4, scramble=True, seed=seed).random_base2(base2)[:n_starts]

@@ -1,4 +1,4 @@
-"""`harness study shaped-rig`: shaped slews on the virtual SGSRT over CAN (issues 5 and 6).
+"""`harness study shaped-rig`: shaped slews on the virtual SGSRT over CAN.
 
 Every slew is a built-in run file (``harness/runs/slew-rw-*.yaml``,
 ``slew-thruster-*.yaml``) executed through the harness (``execute_run``: CAN bus, drivers,
@@ -24,7 +24,7 @@ duration is set so the run ends at the window's end, so the summary's
   signal over the window; the peak of the fitted vibration, and each mode's amplitude at the
   window's start. Noise averages out over the ~3000 samples (``sigma``: the
   fit's 1-sigma uncertainty of that signal at its worst point). This is what the lab rig
-  would measure; the Done-when ratios use it.
+  would measure; the study's 10x checks use it.
 * ``truth``: the noise-free tip acceleration of the virtual rig's own state (its final state
   propagated back over the window; the window is free motion), every mode included.
 """
@@ -298,21 +298,21 @@ def claim_measures(results: dict[str, Any]) -> dict[str, Any]:
 
 
 def checks(results: dict[str, Any]) -> dict[str, bool]:
-    """The issues' Done-when claims, on the fitted residual and on the truth."""
+    """The study's claims (the 10x targets), on the fitted residual and on the truth."""
     out: dict[str, bool] = {}
     w = results.get("wheel")
     if w:
         for src in ("fitted", "truth"):
-            out[f"issue6: ZVD (exact modes) >= 10x below unshaped [{src}]"] = (
+            out[f"wheel: ZVD (exact modes) >= 10x below unshaped [{src}]"] = (
                 w["zvd-exact"][f"ratio_{src}"] >= 10)
             for v in ("minus-10", "plus-10"):
-                out[f"issue6: ZVD below ZV, modes {v} [{src}]"] = (
+                out[f"wheel: ZVD below ZV, modes {v} [{src}]"] = (
                     w[f"zvd-{v}"][src]["peak_m_s2"] < w[f"zv-{v}"][src]["peak_m_s2"])
     th = results.get("thruster")
     if th:
         for src in ("fitted", "truth"):
             best = max((k for k in th if k != "bang-bang"), key=lambda k: th[k][f"ratio_{src}"])
-            out[f"issue5: best two-level ({best}) >= 10x below bang-bang [{src}]"] = (
+            out[f"thrusters: best two-level ({best}) >= 10x below bang-bang [{src}]"] = (
                 th[best][f"ratio_{src}"] >= 10)
     return out
 
@@ -351,13 +351,13 @@ def format_tables(results: dict[str, Any]) -> str:
 
     w = results.get("wheel")
     if w:
-        residual_table("Reaction-wheel slews, 20 deg, bang-bang 0.06 N m (issue 6)", w)
+        residual_table("Reaction-wheel slews, 20 deg, bang-bang 0.06 N m", w)
         lines.append(f"Paper 004 (Wang 2022): {PAPER_WANG2022}.")
         lines.append("")
     th = results.get("thruster")
     if th:
-        residual_table("Thruster slews, 5 deg, couple 0.1 N m, fractional levels by PWM "
-                       "(issue 5)", th)
+        residual_table("Thruster slews, 5 deg, couple 0.1 N m, fractional levels by PWM",
+                       th)
         bb = th["bang-bang"]
         rel = results["paper_parman2022_relative"]
         n_modes = len(bb["analysis_residual_percent"])
@@ -384,7 +384,7 @@ def format_tables(results: dict[str, Any]) -> str:
                 f"{r['impulse_n_m_s']:.4f} | {r['impulse_n_m_s'] / bb['impulse_n_m_s']:.2f} | "
                 f"{r['manoeuvre_s'] / bb['manoeuvre_s']:.2f} | {pi} | {pd} |")
         lines.append("")
-    lines.append("Done-when checks (ratios on the fitted residual; the truth alongside):")
+    lines.append("Checks (ratios on the fitted residual; the truth alongside):")
     for name, ok in results["checks"].items():
         lines.append(f"  {'PASS' if ok else 'FAIL'}  {name}")
     return "\n".join(lines)
@@ -409,7 +409,7 @@ def register_study(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "shaped-rig",
         help="shaped slews on the virtual rig over CAN: wheel ZV/ZVD/EI vs unshaped, "
-        "thruster LHHL/HLLH vs bang-bang (issues 5, 6)")
+        "thruster LHHL/HLLH vs bang-bang")
     p.add_argument("--json", action="store_true", help="print results as JSON on stdout")
     p.add_argument("--out", type=Path, default=Path("logs"),
                    help="parent directory of the run directories (default: ./logs)")

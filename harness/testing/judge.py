@@ -516,7 +516,7 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
         close_stream(rec, run_dir / "verdict.rrd")
     finally:
         del rec
-        sweep_orphans()  # the stream dropped: its threads end (issue 23)
+        sweep_orphans()  # the stream dropped: its threads end
     _into_run_rrd(run_dir, v, [(t, "ERROR" if c.verdict == ERROR else "WARN",
                                 f"{c.name} {c.verdict}: {c.message}") for t, c in events])
     return out

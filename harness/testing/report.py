@@ -321,7 +321,7 @@ def write_reports(out_dir: Path, records: list[dict[str, Any]], *, not_run: list
         "counts": _counts(records), "refused": refused, "preflight": preflight,
         "not_run": not_run, "tests": records,
     }
-    from harness.history.record import record_suite  # the results database (issue 22)
+    from harness.history.record import record_suite  # the results database
 
     record_suite(out_dir, doc)  # adds each criterion's recent values ("trend") to doc
     (out_dir / "results.json").write_text(json.dumps(doc, indent=2, default=_json_default))

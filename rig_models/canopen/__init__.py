@@ -4,6 +4,6 @@ encoder) on top of it.
 
 May import: `canopen` (object dictionary parsing and types only), `drivers.canopen_pdo`,
 `drivers.dbc` (FrameError). Never `harness`, never the rig's physics: raw CANopen values in
-and out; the lead's virtual-rig glue maps them to SI with the rig file. No threads: the owner
-pumps `handle()` and `poll()`.
+and out; the virtual rig's glue (`rig_devices`) maps them to SI with the rig file. No
+threads: the owner pumps `handle()` and `poll()`.
 """

@@ -128,7 +128,7 @@ class _Pdo:
 def _payload_function(codec: PdoCodec, keys: tuple[Key, ...]) -> Callable[[dict[Key, Any]], bytes]:
     """``f(values)`` = ``codec.encode([values[k] for k in keys])``, byte for byte and with the
     same errors, through one itemgetter and the codec's positional packer (every TPDO every
-    SYNC: issue 20's tick)."""
+    SYNC, in the tick)."""
     pack = codec.packer()
     if len(keys) == 1:
         key = keys[0]

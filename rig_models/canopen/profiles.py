@@ -1,6 +1,6 @@
 """Device profiles on a VirtualNode: CiA 402 drive, CiA 401 I/O module, CiA 406 encoder.
 
-Raw CANopen values in and out, no physics: the lead's virtual-rig glue calls these each
+Raw CANopen values in and out, no physics: the virtual rig's glue (``rig_devices``) calls these each
 physics step and maps raw values to SI with the rig file (per mille of 0x6076 rated torque,
 0.001 rad/s velocity counts, 10/32768 V analog counts, 1e-7 rad encoder counts: the EDS files
 and docs/canopen.md say which).
@@ -196,6 +196,14 @@ class Cia402Drive:
             elif self.state != DriveState.QUICK_STOP_ACTIVE:
                 self.state = DriveState.SWITCH_ON_DISABLED
         self._publish()
+
+    def disable_voltage(self) -> None:
+        """The power stage off by the drive's own input (safe torque off), as a controlword
+        with bit 1 clear would: switch on disabled, no EMCY; the master's enable operation
+        alone does not bring it back (it needs a shutdown first)."""
+        if self.state in _POWERED:
+            self.state = DriveState.SWITCH_ON_DISABLED
+            self._publish()
 
     def inject_fault(self, error_code: int = 0x2310) -> None:
         """A drive fault (default 0x2310 continuous overcurrent): fault bit, 0x603F, EMCY,

@@ -113,7 +113,7 @@ class CanopenDevices:
     def telemetry_writer(self, device: str, names: tuple[str, ...]) -> Callable[..., None]:
         """``telemetry_writer(device, names)(v0, v1, ...)`` is ``write_telemetry(device,
         dict(zip(names, (v0, v1, ...))))``, compiled once into one function of assignments
-        (no dict, no conversion calls: issue 20's tick)."""
+        (no dict, no conversion calls in the tick)."""
         entry = self._tlm.get(device)
         if entry is None:
             return _write_nothing
