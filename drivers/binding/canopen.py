@@ -422,6 +422,8 @@ class NodeSpec:
     od: Any
     mode_of_operation: int | None = None
     identity: dict[str, int] = field(default_factory=dict)
+    # where each expected identity value comes from (the rig file's key or the file's)
+    identity_source: dict[str, str] = field(default_factory=dict)
     device_type: int | None = None
     parameters: list[tuple[ObjRef, int]] = field(default_factory=list)
     heartbeat_ms: int = 50
@@ -574,8 +576,13 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
         if not isinstance(ident, Mapping) or set(ident) - {"vendor_id", "product_code",
                                                            "revision"}:
             raise BindingError(f"{key}.identity: expected vendor_id, product_code, revision")
-        node.identity.update({k: _int(v, f"{key}.identity.{k}", 0, 2**32 - 1)
-                              for k, v in ident.items()})
+        if not node.identity_source:
+            for name, (value, source) in file_identity(od, Path(eds).name).items():
+                node.identity[name] = value
+                node.identity_source[name] = source
+        for k, v in ident.items():
+            node.identity[k] = _int(v, f"{key}.identity.{k}", 0, 2**32 - 1)
+            node.identity_source[k] = f"the rig file's {key}.identity.{k}"
         if "device_type" in cfg:
             node.device_type = _int(cfg["device_type"], f"{key}.device_type", 0, 2**32 - 1)
         for i, p in enumerate(cfg.get("parameters") or []):
@@ -674,6 +681,37 @@ def _od_value(od: Any, index: int, sub: int) -> int | None:
         return None
     v = var.value if getattr(var, "value", None) is not None else var.default
     return int(v) if v is not None else None
+
+
+_IDENTITY = ((1, "vendor_id", "vendor_number", "VendorNumber"),
+             (2, "product_code", "product_number", "ProductNumber"),
+             (3, "revision", "revision_number", "RevisionNumber"))
+
+
+def file_identity(od: Any, name: str) -> dict[str, tuple[int, str]]:
+    """The identity (0x1018) the device file expects, with where each value comes from: a
+    DCF's configured value (ParameterValue), else 0x1018's default, else the file's
+    ``[DeviceInfo]`` VendorNumber / ProductNumber / RevisionNumber (vendor files often leave
+    0x1018's defaults empty or 0 and name the device there). The revision is checked only
+    when a DCF configures it or the rig file names it: a device of a newer firmware is still
+    the device. A value known nowhere (or 0 everywhere) is not checked."""
+    info = getattr(od, "device_information", None)
+    obj = od.get(0x1018) if hasattr(od, "get") else None
+    out: dict[str, tuple[int, str]] = {}
+    for sub, key, attr, ini in _IDENTITY:
+        var = getattr(obj, "subindices", {}).get(sub) if obj is not None else None
+        configured = getattr(var, "value", None) if var is not None else None
+        default = getattr(var, "default", None) if var is not None else None
+        from_info = getattr(info, attr, None) if info is not None else None
+        if isinstance(configured, int) and configured:
+            out[key] = (configured, f"{name}'s configured 0x1018.{sub} (ParameterValue)")
+        elif sub == 3:
+            continue
+        elif isinstance(default, int) and default:
+            out[key] = (default, f"{name}'s 0x1018.{sub} default")
+        elif isinstance(from_info, int) and from_info:
+            out[key] = (from_info, f"{name}'s [DeviceInfo] {ini}")
+    return out
 
 
 def dcf_pdos(od: Any, node_id: int, comm_base: int, map_base: int, name: str,

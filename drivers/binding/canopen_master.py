@@ -51,7 +51,10 @@ def _sdo_text(exc: Exception) -> str:
 
 
 def nmt_frame(command: int, node_id: int = 0) -> can.Message:
-    return can.Message(arbitration_id=0, data=bytes((command, node_id)), is_extended_id=False)
+    """An NMT command from the harness: transmitted (``is_rx`` False), so the run's CAN log
+    records it as the harness's own frame, not as one it received."""
+    return can.Message(arbitration_id=0, data=bytes((command, node_id)), is_extended_id=False,
+                       is_rx=False)
 
 
 class CanopenMaster:
@@ -183,11 +186,13 @@ class CanopenMaster:
             v = u32.unpack(self._sdo(rn, spec, 0x1018, sub, f"identity {name}"))[0]
             identity[name] = v
             want = spec.identity.get(name)
-            if want is None and name != "revision":
-                want = int(spec.od[0x1018][sub].default or 0)
             if want is not None and v != want:
-                raise SetupError(f"{spec.label}: identity {name} 0x{v:08X}, expected "
-                                 f"0x{want:08X} (0x1018.{sub})")
+                source = spec.identity_source.get(name, "the rig file")
+                raise SetupError(
+                    f"{spec.label}: identity {name} (0x1018.{sub}) is 0x{v:08X} on the device, "
+                    f"{source} expects 0x{want:08X}; another device at this node id? If it "
+                    f"is the right one, set devices.{spec.devices[0]}.identity.{name}: "
+                    f"0x{v:08X} in the rig file")
         if spec.verify:
             self._verify_pdos(rn, spec)
         # PDOs: the binding's, every other one disabled (a DCF's: verified above instead)

@@ -225,10 +225,23 @@ class VirtualNode:
         v = obj if isinstance(obj, ODVariable) else obj.subindices.get(sub)
         return None if v is None else (v.value if v.value is not None else v.default)
 
+    def _identity_default(self, sub: int, value: Any) -> Any:
+        """0x1018's value as such a device reports it: vendor files often leave 0x1018's
+        defaults empty (or 0) and name the device in ``[DeviceInfo]`` (VendorNumber,
+        ProductNumber, RevisionNumber); the device itself reports its real identity."""
+        if value:
+            return value
+        info = getattr(self.od, "device_information", None)
+        attr = {1: "vendor_number", 2: "product_number", 3: "revision_number"}.get(sub)
+        from_info = getattr(info, attr, None) if attr and info is not None else None
+        return from_info if isinstance(from_info, int) and from_info else value
+
     def _load_defaults(self, first: int, last: int) -> None:
         for key, var in self._vars.items():
             if first <= key[0] <= last:
                 value = var.value if var.value is not None else var.default
+                if key[0] == 0x1018 and key[1] in (1, 2, 3):
+                    value = self._identity_default(key[1], value)
                 if value is None:
                     if var.data_type in (dt.VISIBLE_STRING, dt.UNICODE_STRING):
                         value = ""
