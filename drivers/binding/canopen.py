@@ -12,6 +12,7 @@ is CiA 301 itself (COB-IDs, the SYNC counter, NMT, EMCY meanings).
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cache
@@ -78,12 +79,50 @@ _TYPES = {  # CiA 301 data type -> (bits, signed, struct code)
 @cache
 def load_eds(path: str, node_id: int) -> Any:
     """The node's object dictionary (the ``canopen`` library's EDS/DCF parser)."""
+    return parse_od(path, node_id, BindingError)
+
+
+_SECTION = re.compile(r"^\s*\[([^\]]*)\]", re.M)
+_EMPTY_KEY = re.compile(r"^[ \t]*[A-Za-z_0-9]+[ \t]*=[ \t]*\r?$\n?", re.M)
+
+
+def _without_empty_device_info(text: str) -> str:
+    """The file with the ``[DeviceInfo]`` keys that have no value left out: CiA 306 makes
+    most of them optional, editors write them empty (``VendorNumber=``), and the ``canopen``
+    library's parser fails on an empty number there."""
+    for m in _SECTION.finditer(text):
+        if m.group(1).strip().lower() != "deviceinfo":
+            continue
+        nxt = _SECTION.search(text, m.end())
+        end = nxt.start() if nxt else len(text)
+        return text[:m.end()] + _EMPTY_KEY.sub("", text[m.end():end]) + text[end:]
+    return text
+
+
+def parse_od(path: str | Path, node_id: int, error: type[Exception]) -> Any:
+    """``canopen.import_od`` of a bounded read of the file (``drivers.device_file``): a
+    special file, an oversized one or one the parser chokes on is ``error`` naming the file,
+    never a traceback or a hang."""
+    import io
+
     import canopen
 
+    from drivers.device_file import DeviceFileError, read_text
+
+    name = Path(path).name
     try:
-        return canopen.import_od(path, node_id)
+        text = read_text(path)
+    except DeviceFileError as exc:
+        raise error(str(exc)) from None
+    source = io.StringIO(_without_empty_device_info(text))
+    source.name = str(path)  # the parser tells an EDS from a DCF by the name
+    try:
+        return canopen.import_od(source, node_id)
+    except RecursionError:
+        raise error(f"{name}: not a loadable EDS/DCF file (nested too deeply)") from None
     except Exception as exc:  # the parser raises many kinds for a bad file
-        raise BindingError(f"{Path(path).name}: cannot read the EDS ({exc})") from exc
+        text = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
+        raise error(f"{name}: not a loadable EDS/DCF file ({text})") from None
 
 
 @dataclass(frozen=True)

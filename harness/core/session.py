@@ -136,6 +136,14 @@ def execute_run(
             f"({load.frames_per_s:.0f} frames/s; largest: {worst[0]} {worst[2] / 1e3:.0f} kbit/s)"
             "; lower rate_hz or raise the devices' sync_divider")
     controller = build_controller(run)
+    if spec.in_process:
+        from rig_models.schema import ConfigError
+        from rig_models.virtual_rig import check_virtual_rig
+
+        try:
+            check_virtual_rig(run.rig)  # a device it cannot be: refused, nothing sent
+        except ConfigError as exc:
+            raise RunRefused(str(exc)) from None
     SpaceGuard(out_dir).check()  # a folder already (nearly) full: refused, nothing sent
     try:
         run_dir = make_run_dir(out_dir, run.name)
