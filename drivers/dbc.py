@@ -413,9 +413,9 @@ def _parse_dbc(text: str, where: str) -> tuple[cantools.database.Database, dict[
         try:
             return cantools.database.load_string(text, database_format="dbc",
                                                  strict=False), notes
-        except ValueError as exc:
+        except Exception as exc:  # cantools wraps the parser's ValueError in its own
             entries = _UNUSED_ENTRY.findall(str(exc))
-            if not entries or not str(exc).startswith("unused "):
+            if not entries or "unused " not in str(exc):
                 raise
             for kind, frame_id, signal in entries:
                 notes[int(frame_id)] = f"{kind} entry for a signal it lacks ({signal})"

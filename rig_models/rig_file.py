@@ -242,7 +242,17 @@ def _read_rig_yaml(path: Path, seen: tuple[Path, ...]) -> Any:
         raise ConfigError(f"rig file {path.name}: extends: {base_name}: not found")
     if base.resolve() in seen or base.resolve() == path.resolve():
         raise ConfigError(f"rig file {path.name}: extends: {base_name}: a circle of extends")
-    return _merge(_read_rig_yaml(base, seen + (path.resolve(),)) or {}, raw)
+    base_data = _read_rig_yaml(base, seen + (path.resolve(),))
+    if base_data is None:
+        base_data = {}
+    if not isinstance(base_data, dict):
+        raise ConfigError(f"rig file {path.name}: extends: {base_name}: its top level is "
+                          f"{_kind(base_data)}, not a mapping of keys (a rig file)")
+    return _merge(base_data, raw)
+
+
+def _kind(value: Any) -> str:
+    return "a list" if isinstance(value, list) else f"a {type(value).__name__} ({value!r:.40})"
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any],

@@ -466,6 +466,9 @@ class NodeSpec:
     device_type: int | None = None
     parameters: list[tuple[ObjRef, int]] = field(default_factory=list)
     heartbeat_ms: int = 50
+    # False: the rig file says the node cannot consume the harness's heartbeat (0x1016 is
+    # not written); what replaces it for safety is the lab's (docs/lab.md)
+    heartbeat_consumer: bool = True
     verify: bool = False  # a DCF: its PDO mapping is verified on the device, not written
     tpdos: list[PdoSpec] = field(default_factory=list)
     rpdos: list[PdoSpec] = field(default_factory=list)
@@ -493,7 +496,14 @@ class CanopenBus:
 
 
 _DEVICE_KEYS = {"binding", "node_id", "eds", "profile", "mode_of_operation", "identity",
-                "device_type", "parameters", "telemetry", "commands", "heartbeat_ms"}
+                "device_type", "parameters", "telemetry", "commands", "heartbeat_ms",
+                "heartbeat_consumer"}
+# CiA 402 modes of operation (0x6060) and their bit in the supported drive modes (0x6502)
+MODE_NAMES = {1: "profile position", 2: "velocity", 3: "profile velocity",
+              4: "profile torque", 6: "homing", 7: "interpolated position",
+              8: "cyclic synchronous position", 9: "cyclic synchronous velocity",
+              10: "cyclic synchronous torque"}
+MODE_BITS = {1: 0, 2: 1, 3: 2, 4: 3, 6: 5, 7: 6, 8: 7, 9: 8, 10: 9}
 _QTY_KEYS = {"object", "sub", "scale", "offset", "sensitivity", "bit", "mask", "equals",
              "values"}
 
@@ -589,7 +599,10 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
         if profile not in PROFILES:
             raise BindingError(f"{key}.profile: expected one of {', '.join(PROFILES)}, got "
                                f"{profile!r}")
-        od = load_eds(eds, node_id)
+        try:
+            od = load_eds(eds, node_id)
+        except BindingError as exc:
+            raise BindingError(f"{key}.eds: {exc}") from None
         node = nodes.get(node_id)
         if node is None:
             node = nodes[node_id] = NodeSpec(node_id, eds, profile, [], od,
@@ -609,6 +622,22 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
         elif profile == "cia402":
             raise BindingError(f"{key}.mode_of_operation: missing (10 cyclic synchronous "
                                "torque, 9 velocity, 8 position)")
+        if node.mode_of_operation is not None:
+            supported = _od_value(od, 0x6502, 0)
+            bit = MODE_BITS.get(node.mode_of_operation)
+            if supported is not None and bit is not None and not supported >> bit & 1:
+                have = [f"{m} {MODE_NAMES[m]}" for m, b in MODE_BITS.items()
+                        if supported >> b & 1]
+                raise BindingError(
+                    f"{key}.mode_of_operation: {node.mode_of_operation} "
+                    f"({MODE_NAMES[node.mode_of_operation]}) is not among "
+                    f"{Path(eds).name}'s supported drive modes (0x6502 = 0x{supported:X}: "
+                    f"{', '.join(have) or 'none of the standard ones'})")
+        if "heartbeat_consumer" in cfg:
+            if not isinstance(cfg["heartbeat_consumer"], bool):
+                raise BindingError(f"{key}.heartbeat_consumer: expected true or false, got "
+                                   f"{cfg['heartbeat_consumer']!r}")
+            node.heartbeat_consumer = node.heartbeat_consumer and cfg["heartbeat_consumer"]
         if "heartbeat_ms" in cfg:
             node.heartbeat_ms = _int(cfg["heartbeat_ms"], f"{key}.heartbeat_ms", 1, 65535)
         ident = cfg.get("identity") or {}

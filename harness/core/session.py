@@ -144,6 +144,13 @@ def execute_run(
             check_virtual_rig(run.rig)  # a device it cannot be: refused, nothing sent
         except ConfigError as exc:
             raise RunRefused(str(exc)) from None
+    if show_progress:  # what is wrong in the device files but not in what the rig binds
+        notes = run.rig.binding.warnings
+        for line in notes[:5]:
+            print(f"harness: warning: {line}", file=sys.stderr)
+        if len(notes) > 5:
+            print(f"harness: warning: ... and {len(notes) - 5} more such messages",
+                  file=sys.stderr)
     SpaceGuard(out_dir).check()  # a folder already (nearly) full: refused, nothing sent
     try:
         run_dir = make_run_dir(out_dir, run.name)
