@@ -66,6 +66,9 @@ RIG_SCHEMA: dict[str, Any] = {
         "max_voltage_v": Field("number", "V", default=200.0, **POSITIVE, maximum=327.0),
         "max_current_a": Field("number", "A", default=0.1, **POSITIVE),
         "sensor_noise_rms_v": Field("number", "V", default=0.001, minimum=0.0),
+        # the sensor patches' reading step (the sgsrt DBC's 1 mV); the stuck rule of the
+        # monitor takes it with the noise (harness.core.plausibility)
+        "sensor_lsb_v": Field("number", "V", default=0.001, minimum=0.0),
     },
     # one entry per amplifier channel (1, 2): a PZT actuator pair with a sensor patch
     "piezo_patches": Field("any", default=[]),
