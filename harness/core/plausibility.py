@@ -26,6 +26,15 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+SIGMAS = 4.0
+"""Standard errors a measurement may stray from the physics by noise alone (4: a false
+alarm about once in 16 000 judgements)."""
+
+INTEGRATION_FRACTION = 0.02
+"""An angle's change against its rate's integral: the trapezoid of a sampled rate differs
+from the sampled angle's change by the sensors' own filtering; 2 % bounds it at the rates
+the rig's slews and pulses make."""
+
 FALSE_ALARM = 1e-6
 """The largest probability of a healthy sensor's repetition that is still judged a fault."""
 
@@ -89,7 +98,7 @@ def hub_is_stuck(n_same: int, rate_rad_s: float, dt_s: float, angle: ChannelQual
     return n_same > healthy_repeats((angle, rate), false_alarm)
 
 
-def _binding_step(binding: Any, device: str, quantity: str) -> float:
+def binding_step(binding: Any, device: str, quantity: str) -> float:
     """The step of ``quantity`` as the binding carries it (SI), 0 if unknown: a DBC
     signal's scale times the map's, a CANopen quantity's linear conversion."""
     for m in binding.telemetry.get(device, ()):
@@ -136,6 +145,40 @@ def sensor_quality(rig: Any) -> dict[str, ChannelQuality]:
             continue
         data = rig.data.get(section) or {}
         resolution = max(float(data.get(res_key) or 0.0),
-                         _binding_step(binding, device, quantity))
+                         binding_step(binding, device, quantity))
         out[channel] = ChannelQuality(resolution, float(data.get(noise_key) or 0.0))
     return out
+
+
+# a ratio this close to a factor (within its own limit) names it as the likely cause
+FACTORS: tuple[tuple[float, str], ...] = (
+    (1000.0, "a factor of 1000 (milli- against base units, e.g. mN.m as N.m, mg as g)"),
+    (1e-3, "a factor of 1/1000 (base units against milli-units)"),
+    (180 / math.pi, "a factor of 180/pi (degrees read as radians)"),
+    (math.pi / 180, "a factor of pi/180 (radians read as degrees)"),
+    (2 * math.pi, "a factor of 2 pi (revolutions or Hz read as radians)"),
+    (1 / (2 * math.pi), "a factor of 1/(2 pi) (radians read as revolutions)"),
+    (60 / (2 * math.pi), "a factor of 60/(2 pi) (rpm read as rad/s)"),
+    (2 * math.pi / 60, "a factor of 2 pi/60 (rad/s read as rpm)"),
+    (9.80665, "a factor of g (g read as m/s^2)"),
+    (1 / 9.80665, "a factor of 1/g (m/s^2 read as g)"),
+)
+
+
+def likely_cause(ratio: float, tol: float) -> str:
+    """What a ratio far from 1 most likely says about the binding."""
+    if not math.isfinite(ratio):
+        return "no usable reading (NaN or infinite)"
+    sign = ratio < 0
+    mag = abs(ratio)
+    for factor, text in FACTORS:
+        if abs(mag / factor - 1.0) <= max(tol, 0.05):
+            return ("a sign and " if sign else "") + text
+    if mag <= max(tol, 0.05):
+        return ("no response: the quantity is bound to an object or signal that does not "
+                "carry it, or the sensor is pinned at a constant")
+    if sign and abs(mag - 1.0) <= max(tol, 0.05):
+        return "a sign (the quantity's direction is reversed: a negative scale, or wired " \
+               "the other way)"
+    return (("a sign and " if sign else "") + f"a factor of {mag:.4g}: a wrong scale, a "
+            "wrong object or signal, or the rig file's model (inertia, couple, gains) is off")

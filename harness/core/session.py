@@ -384,7 +384,8 @@ def make_monitor(run: RunConfig, interface: RigInterface, realtime: bool) -> Fau
         run.rig.section("reaction_wheel")["max_speed_rad_s"], run.rig.accel_range_m_s2,
         run.rig.section("thruster_valves")["close_delay_s"], run.dt_s, realtime=realtime,
         valve_min_on_s=run.rig.section("thruster_valves")["min_on_time_s"],
-        wheel_max_torque_n_m=run.rig.section("reaction_wheel")["max_torque_n_m"])
+        wheel_max_torque_n_m=run.rig.section("reaction_wheel")["max_torque_n_m"],
+        rig=run.rig)
 
 
 def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
