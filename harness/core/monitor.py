@@ -205,6 +205,14 @@ class PlausibilityWindow:
         self.torque_int = self.torque_abs = self.torque_peak = 0.0
 
 
+def _cause(measured: float, predicted: float, band: float, still: str) -> str:
+    """The likely cause of a measured change against the physics' prediction."""
+    if abs(predicted) <= band:
+        return (f"a reading that moves where {still}: a wrong object or signal, an offset "
+                "that changes, or a torque the rig file does not know of")
+    return likely_cause(measured / predicted, band / abs(predicted))
+
+
 def _quantity_step(rig: Any, device: str, quantity: str) -> float:
     """The step of a telemetry quantity as the rig's binding carries it (SI; 0 unknown)."""
     return binding_step(rig.binding, device, quantity)
@@ -438,8 +446,7 @@ class FaultMonitor:
                     + pw.rate_bias * span_s + 2.0 * pw.angle.resolution
                     + pw.rate.resolution * span_s + self.realtime_grace * dt * pw.rate_tv)
             if abs(moved - integral) > band:
-                cause = likely_cause(moved / integral if integral else math.inf,
-                                     band / max(abs(integral), 1e-300))
+                cause = _cause(moved, integral, band, "the rate says the hub is still")
                 event = self._event(tick, "hub_sensor", "implausible", (
                     f"angle and rate disagree: the angle moved {math.degrees(moved):+.4g} deg "
                     f"in {span_s:.3g} s, the rate's integral says "
@@ -455,8 +462,7 @@ class FaultMonitor:
                     + 2.0 * pw.torque_peak * (pw.wheel_lag_s + (1 + self.realtime_grace) * dt)
                     ) / pw.wheel_inertia + 2.0 * pw.wheel_step
             if abs(changed - predicted) > band:
-                cause = likely_cause(changed / predicted if predicted else math.inf,
-                                     band / max(abs(predicted), 1e-300))
+                cause = _cause(changed, predicted, band, "no torque was commanded")
                 span_s = (pw.wheel_tick - pw.wheel_tick0) * dt
                 event = self._event(tick, "reaction_wheel", "implausible", (
                     f"speed against the commanded torque: it changed by {changed:+.4g} rad/s "
