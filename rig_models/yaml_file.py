@@ -10,6 +10,8 @@ exceed ``MAX_YAML_VALUES``, with a ``ConfigError`` naming the file.
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -80,18 +82,28 @@ def load_yaml(path: Path, what: str = "file") -> Any:
     too big, expands too far, is not valid YAML, or cannot be read."""
     path = Path(path)
     source = f"{what} {path}"
+    if len(source) > 300:  # a path of thousands of characters: its ends say which
+        source = f"{source[:150]}...{source[-150:]}"
     try:
-        size = path.stat().st_size
-        if size > MAX_YAML_BYTES:
-            raise ConfigError(f"{source}: {size / 2**20:.1f} MiB, more than the "
-                              f"{MAX_YAML_BYTES // 2**20} MiB a YAML input may have")
-        with open(path, encoding="utf-8", errors="strict") as f:
-            text = f.read(MAX_YAML_BYTES + 1)
+        # opened without blocking and checked to be a regular file: a FIFO (or a device)
+        # named as a file would block the open or the read for ever
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0)
+                     | getattr(os, "O_NOCTTY", 0))
+        with open(fd, "rb") as f:
+            st = os.fstat(f.fileno())
+            if not stat.S_ISREG(st.st_mode):
+                raise ConfigError(f"{source}: not a regular file (a FIFO, device, socket or "
+                                  "folder)")
+            if st.st_size > MAX_YAML_BYTES:
+                raise ConfigError(f"{source}: {st.st_size / 2**20:.1f} MiB, more than the "
+                                  f"{MAX_YAML_BYTES // 2**20} MiB a YAML input may have")
+            text = f.read(MAX_YAML_BYTES + 1).decode("utf-8", errors="strict")
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{source}: not UTF-8 text ({exc.reason} at byte {exc.start})"
                           ) from None
-    except OSError as exc:
-        raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    except (OSError, ValueError) as exc:
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise ConfigError(f"{source}: cannot read: {why}") from None
     if len(text) > MAX_YAML_BYTES:  # it grew since its size was read
         raise ConfigError(f"{source}: more than the {MAX_YAML_BYTES // 2**20} MiB a YAML "
                           "input may have")

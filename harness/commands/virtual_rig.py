@@ -58,10 +58,11 @@ def cmd_virtual_rig(args: argparse.Namespace) -> int:
     from harness.bus import BusSpecError, open_bus, parse_bus
     from harness.bus.rig_process import TIMING_PREFIX
     from rig_models.rig_file import load_rig
-    from rig_models.virtual_rig import SyncTiming, VirtualRig
+    from rig_models.virtual_rig import SyncTiming, VirtualRig, check_virtual_rig
 
     try:
         rig_cfg = load_rig(args.rig)
+        check_virtual_rig(rig_cfg)  # a device it cannot be: refused before any bus opens
         faults = [parse_fault(f) for f in args.fault or []]
         if args.serve_socketcand is not None:
             from drivers.socketcand_server import SocketcandServerBus

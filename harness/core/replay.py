@@ -611,6 +611,10 @@ class MonitorReplay:
         valve = next((c.values for c in logged if c.name == "VALVE_CMD" and c.values), None)
         if valve is not None and not self.dry_run:
             sent.valve_direction = int(valve["valve_pos"]) - int(valve["valve_neg"])
+        wheel = next((c.values for c in logged if c.name == "WHEEL_CMD" and c.values), None)
+        if wheel is not None and not self.dry_run and wheel.get("enable", 1):
+            # the torque the run sent: the monitor's physics checks integrate it
+            sent.wheel_torque_n_m = float(wheel["torque_cmd"])
         self.first = self.monitor.check(t.tick, t.state, sent)
 
 
