@@ -21,11 +21,15 @@ from rig_models.canopen.node import (
     error_register_bits,
 )
 
+MODE_PV = 3
 MODE_CSV = 9
 MODE_CST = 10
-_MODE_NAMES = {"csv": MODE_CSV, "cst": MODE_CST}
+_MODE_NAMES = {"pv": MODE_PV, "csv": MODE_CSV, "cst": MODE_CST}
 # 0x6502 bit of each mode (CiA 402 6.2.4)
-_MODE_BITS = {MODE_CSV: 1 << 8, MODE_CST: 1 << 9}
+_MODE_BITS = {MODE_PV: 1 << 2, MODE_CSV: 1 << 8, MODE_CST: 1 << 9}
+# the modes that follow the target velocity 0x60FF (profile velocity ramps to it by the
+# drive's own profile acceleration; the rig's physics has its own speed lag instead)
+_VELOCITY_MODES = (MODE_PV, MODE_CSV)
 
 
 class DriveState(Enum):
@@ -61,7 +65,8 @@ def _clamp(v: int, lo: int, hi: int) -> int:
 
 
 class Cia402Drive:
-    """CiA 402 drive in cyclic synchronous torque ('cst', 10) or velocity ('csv', 9) mode.
+    """CiA 402 drive in cyclic synchronous torque ('cst', 10), cyclic synchronous velocity
+    ('csv', 9) or profile velocity ('pv', 3) mode.
 
     The controlword state machine runs on every master write of 0x6040 (SDO or RPDO). A
     fault passes through 'fault reaction active' (drive already torque-free) to 'fault' at
@@ -80,11 +85,12 @@ class Cia402Drive:
         _require(node, [(0x6040, 0), (0x6041, 0)], "CiA 402")
         if isinstance(mode, str):
             if mode.lower() not in _MODE_NAMES:
-                raise ValueError(f"mode: {mode!r} is not 'cst' or 'csv'")
+                raise ValueError(f"mode: {mode!r} is not 'cst', 'csv' or 'pv'")
             mode = _MODE_NAMES[mode.lower()]
         if mode not in _MODE_BITS:
-            raise ValueError(f"mode: {mode}: the virtual drive emulates cyclic synchronous "
-                             f"velocity ({MODE_CSV}) and torque ({MODE_CST}) only")
+            raise ValueError(f"mode: {mode}: the virtual drive emulates profile velocity "
+                             f"({MODE_PV}), cyclic synchronous velocity ({MODE_CSV}) and "
+                             f"torque ({MODE_CST}) only")
         supported = node.get(0x6502) if node.has(0x6502) else None
         if supported is not None and not supported & _MODE_BITS[mode]:
             raise ValueError(f"mode: {mode} is not supported by {node.eds_path.name} "
@@ -244,8 +250,8 @@ class Cia402Drive:
         return _clamp(self.node.get(0x6071), -limit, limit)
 
     def target_velocity_raw(self) -> int:
-        """Target velocity 0x60FF, or 0 unless operation enabled in CSV."""
-        if self.mode != MODE_CSV or not self._commanding():
+        """Target velocity 0x60FF, or 0 unless operation enabled in CSV or PV."""
+        if self.mode not in _VELOCITY_MODES or not self._commanding():
             return 0
         return self.node.get(0x60FF)
 
