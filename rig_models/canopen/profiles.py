@@ -60,6 +60,21 @@ def _require(node: VirtualNode, objects: list[tuple[int, int]], profile: str) ->
                          + ", ".join(missing))
 
 
+# the profile objects the profiles compute with: an integer type each, or no emulation
+_PROFILE_OBJECTS = (0x6000, 0x6004, 0x6007, 0x6030, 0x603F, 0x6040, 0x6041, 0x6060, 0x6061,
+                    0x606C, 0x6071, 0x6072, 0x6077, 0x60FF, 0x6200, 0x6206, 0x6207, 0x6401,
+                    0x6411, 0x6443, 0x6444, 0x6502)
+
+
+def _integers(node: VirtualNode, profile: str) -> None:
+    for (index, sub), value in node.values.items():
+        if index in _PROFILE_OBJECTS and (isinstance(value, bool | float | str | bytes)):
+            var = node.variable(index, sub)
+            raise ValueError(f"{node.eds_path.name}: 0x{index:04X}:{sub:02X} ({var.name}) has "
+                             f"data type 0x{var.data_type or 0:X}, {profile} makes it an "
+                             "integer")
+
+
 def _clamp(v: int, lo: int, hi: int) -> int:
     return lo if v < lo else hi if v > hi else v
 
@@ -83,6 +98,7 @@ class Cia402Drive:
         # and the EMCY only; no 0x6007, CiA 402's default reaction (1: fault); no 0x6072,
         # no torque limit beyond the target's own range
         _require(node, [(0x6040, 0), (0x6041, 0)], "CiA 402")
+        _integers(node, "CiA 402")
         if isinstance(mode, str):
             if mode.lower() not in _MODE_NAMES:
                 raise ValueError(f"mode: {mode!r} is not 'cst', 'csv' or 'pv'")
@@ -276,6 +292,7 @@ class Cia401Io:
         # every CiA 401 object is optional: a module has the channels its EDS lists, and an
         # output without an error mode / value object (0x6206/0x6207, 0x6443/0x6444) keeps
         # its value on an error, as such a module does
+        _integers(node, "CiA 401")
         self.node = node
         self.n_digital_out = self._count(0x6200)
         self.n_analog_in = self._count(0x6401)
@@ -335,6 +352,7 @@ class Cia406Encoder:
 
     def __init__(self, node: VirtualNode) -> None:
         _require(node, [(0x6004, 0)], "CiA 406")  # the speed 0x6030 is optional
+        _integers(node, "CiA 406")
         self.node = node
         self._signed = node.variable(0x6004).data_type in (0x2, 0x3, 0x4)
 
