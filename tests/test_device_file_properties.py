@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from drivers.dbc import DbcError, load_protocol
@@ -174,3 +174,27 @@ def test_extends_bases_of_every_kind_are_refused_in_bounded_time(tmp_path, name)
     rig.write_text("extends: base.yaml\nname: x\n")
     with _bounded(5), pytest.raises(ConfigError, match=r"base\.yaml"):
         load_rig(rig)
+
+
+SECTIONS = re.findall(r"^\[([0-9A-Fa-f]{4}(?:sub[0-9A-Fa-f]+)?)\]", WHEEL_EDS, flags=re.M)
+DATA_TYPES = ["0x0001", "0x0002", "0x0007", "0x0008", "0x0009", "0x000F", "0x0011", "0x0040"]
+
+
+@settings(max_examples=80, **SETTINGS)
+@given(section=st.sampled_from(SECTIONS), data_type=st.sampled_from(DATA_TYPES))
+@example(section="6502", data_type="0x0009")  # a string of supported modes: was a ValueError
+@example(section="1005", data_type="0x000F")  # a domain COB-ID SYNC: was a TypeError
+def test_an_object_of_another_data_type_binds_or_is_refused(tmp_path, section, data_type):
+    """Any object of the EDS given another type (a string, a float, a domain): the binding,
+    the master's checks and the virtual node take it or refuse it naming the file."""
+    tmp_path = _fresh(tmp_path)
+    text = re.sub(rf"(\[{section}\][^\[]*?DataType=)0x[0-9A-Fa-f]+", rf"\g<1>{data_type}",
+                  WHEEL_EDS, count=1)
+    eds = tmp_path / "wheel.eds"
+    eds.write_text(text)
+    doc = copy.deepcopy(RIG_DATA)
+    doc["devices"]["reaction_wheel"]["eds"] = str(eds)
+    rig = tmp_path / "rig.yaml"
+    rig.write_text(yaml.safe_dump(doc))
+    with _bounded():
+        _load_or_refuse(rig)

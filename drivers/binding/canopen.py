@@ -757,7 +757,9 @@ def _od_value(od: Any, index: int, sub: int) -> int | None:
     if var is None:
         return None
     v = var.value if getattr(var, "value", None) is not None else var.default
-    return int(v) if v is not None else None
+    # a number; anything else (an object the file gives a string or domain type) is not
+    # a value the harness can use here
+    return int(v) if isinstance(v, int) else None
 
 
 _IDENTITY = ((1, "vendor_id", "vendor_number", "VendorNumber"),
