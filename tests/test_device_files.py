@@ -367,3 +367,13 @@ def test_a_node_without_a_heartbeat_consumer_by_the_rig_file(tmp_path):
               if m.arbitration_id == 0x602 and m.data[0] & 0xE0 == 0x20
               and m.data[1:3] == bytes((0x16, 0x10))]
     assert writes == []
+
+
+def test_the_unbound_problems_are_shown_before_the_run(tmp_path, capsys):
+    data = _dbc_rig(tmp_path, OVERLAP)
+    run = run_from_dict(dict(RUN, actuators=["reaction_wheel"], bus=f"virtual:{_channel()}",
+                             rig=str(_rig_file(tmp_path, data)), duration_s=0.1))
+    result = execute_run(run, out_dir=tmp_path / "logs", show_progress=True)
+    assert result.summary["stopped_by"] == "completed"
+    err = capsys.readouterr().err
+    assert "harness: warning: lab.dbc: message RADIO: " in err

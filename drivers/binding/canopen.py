@@ -103,16 +103,25 @@ _EMPTY_KEY = re.compile(r"^[ \t]*[A-Za-z_0-9]+[ \t]*=[ \t]*\r?$\n?", re.M)
 
 
 def _without_empty_device_info(text: str) -> str:
-    """The file with the ``[DeviceInfo]`` keys that have no value left out: CiA 306 makes
-    most of them optional, editors write them empty (``VendorNumber=``), and the ``canopen``
-    library's parser fails on an empty number there."""
+    """The file as the ``canopen`` library's parser can take it, its meaning unchanged: the
+    ``[DeviceInfo]`` keys with no value left out (CiA 306 makes most of them optional,
+    editors write them empty, ``VendorNumber=``, and the parser fails on an empty number),
+    and the ``[Comments]`` section left out (free text whose ``Lines=`` count editors get
+    wrong, which the parser checks)."""
+    out = []
+    pos = 0
     for m in _SECTION.finditer(text):
-        if m.group(1).strip().lower() != "deviceinfo":
+        name = m.group(1).strip().lower()
+        if name not in ("deviceinfo", "comments"):
             continue
         nxt = _SECTION.search(text, m.end())
         end = nxt.start() if nxt else len(text)
-        return text[:m.end()] + _EMPTY_KEY.sub("", text[m.end():end]) + text[end:]
-    return text
+        out.append(text[pos:m.start()])
+        if name == "deviceinfo":
+            out.append(text[m.start():m.end()] + _EMPTY_KEY.sub("", text[m.end():end]))
+        pos = end
+    out.append(text[pos:])
+    return "".join(out)
 
 
 def parse_od(path: str | Path, node_id: int, error: type[Exception]) -> Any:
@@ -759,7 +768,9 @@ def _od_value(od: Any, index: int, sub: int) -> int | None:
     if var is None:
         return None
     v = var.value if getattr(var, "value", None) is not None else var.default
-    return int(v) if v is not None else None
+    # a number; anything else (an object the file gives a string or domain type) is not
+    # a value the harness can use here
+    return int(v) if isinstance(v, int) else None
 
 
 _IDENTITY = ((1, "vendor_id", "vendor_number", "VendorNumber"),

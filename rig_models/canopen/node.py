@@ -74,6 +74,17 @@ MAX_STRING_BYTES = 255
 _EMCY = struct.Struct("<HB5s")
 
 
+_NUMBER_TYPES = frozenset(dt.INTEGER_TYPES) | {dt.BOOLEAN}
+
+
+def _interpreted(index: int) -> bool:
+    """The communication objects the node computes with (error register and history, SYNC,
+    EMCY, heartbeats, error behaviour, PDO parameters): an EDS giving one of them a type
+    that is not an integer cannot be emulated."""
+    return index in (0x1001, 0x1003, 0x1005, 0x1014, 0x1016, 0x1017, 0x1029) or \
+        0x1400 <= index <= 0x1BFF
+
+
 class NmtState(IntEnum):
     INITIALISING = 0
     STOPPED = 4
@@ -179,6 +190,11 @@ class VirtualNode:
             elif isinstance(obj, (ODRecord, ODArray)):
                 for sub, v in obj.subindices.items():
                     self._vars[(index, sub)] = v
+        for key, var in self._vars.items():
+            if _interpreted(key[0]) and var.data_type not in _NUMBER_TYPES:
+                raise ValueError(f"{path.name}: 0x{key[0]:04X}:{key[1]:02X} ({var.name}) has "
+                                 f"data type 0x{var.data_type or 0:X}, CiA 301 makes it an "
+                                 "integer")
         self.values: dict[Key, Any] = {}
         self.state = NmtState.INITIALISING
         # hooks: the owner (physics) and the profiles

@@ -21,11 +21,15 @@ from rig_models.canopen.node import (
     error_register_bits,
 )
 
+MODE_PV = 3
 MODE_CSV = 9
 MODE_CST = 10
-_MODE_NAMES = {"csv": MODE_CSV, "cst": MODE_CST}
+_MODE_NAMES = {"pv": MODE_PV, "csv": MODE_CSV, "cst": MODE_CST}
 # 0x6502 bit of each mode (CiA 402 6.2.4)
-_MODE_BITS = {MODE_CSV: 1 << 8, MODE_CST: 1 << 9}
+_MODE_BITS = {MODE_PV: 1 << 2, MODE_CSV: 1 << 8, MODE_CST: 1 << 9}
+# the modes that follow the target velocity 0x60FF (profile velocity ramps to it by the
+# drive's own profile acceleration; the rig's physics has its own speed lag instead)
+_VELOCITY_MODES = (MODE_PV, MODE_CSV)
 
 
 class DriveState(Enum):
@@ -56,12 +60,28 @@ def _require(node: VirtualNode, objects: list[tuple[int, int]], profile: str) ->
                          + ", ".join(missing))
 
 
+# the profile objects the profiles compute with: an integer type each, or no emulation
+_PROFILE_OBJECTS = (0x6000, 0x6004, 0x6007, 0x6030, 0x603F, 0x6040, 0x6041, 0x6060, 0x6061,
+                    0x606C, 0x6071, 0x6072, 0x6077, 0x60FF, 0x6200, 0x6206, 0x6207, 0x6401,
+                    0x6411, 0x6443, 0x6444, 0x6502)
+
+
+def _integers(node: VirtualNode, profile: str) -> None:
+    for (index, sub), value in node.values.items():
+        if index in _PROFILE_OBJECTS and (isinstance(value, bool | float | str | bytes)):
+            var = node.variable(index, sub)
+            raise ValueError(f"{node.eds_path.name}: 0x{index:04X}:{sub:02X} ({var.name}) has "
+                             f"data type 0x{var.data_type or 0:X}, {profile} makes it an "
+                             "integer")
+
+
 def _clamp(v: int, lo: int, hi: int) -> int:
     return lo if v < lo else hi if v > hi else v
 
 
 class Cia402Drive:
-    """CiA 402 drive in cyclic synchronous torque ('cst', 10) or velocity ('csv', 9) mode.
+    """CiA 402 drive in cyclic synchronous torque ('cst', 10), cyclic synchronous velocity
+    ('csv', 9) or profile velocity ('pv', 3) mode.
 
     The controlword state machine runs on every master write of 0x6040 (SDO or RPDO). A
     fault passes through 'fault reaction active' (drive already torque-free) to 'fault' at
@@ -78,13 +98,15 @@ class Cia402Drive:
         # and the EMCY only; no 0x6007, CiA 402's default reaction (1: fault); no 0x6072,
         # no torque limit beyond the target's own range
         _require(node, [(0x6040, 0), (0x6041, 0)], "CiA 402")
+        _integers(node, "CiA 402")
         if isinstance(mode, str):
             if mode.lower() not in _MODE_NAMES:
-                raise ValueError(f"mode: {mode!r} is not 'cst' or 'csv'")
+                raise ValueError(f"mode: {mode!r} is not 'cst', 'csv' or 'pv'")
             mode = _MODE_NAMES[mode.lower()]
         if mode not in _MODE_BITS:
-            raise ValueError(f"mode: {mode}: the virtual drive emulates cyclic synchronous "
-                             f"velocity ({MODE_CSV}) and torque ({MODE_CST}) only")
+            raise ValueError(f"mode: {mode}: the virtual drive emulates profile velocity "
+                             f"({MODE_PV}), cyclic synchronous velocity ({MODE_CSV}) and "
+                             f"torque ({MODE_CST}) only")
         supported = node.get(0x6502) if node.has(0x6502) else None
         if supported is not None and not supported & _MODE_BITS[mode]:
             raise ValueError(f"mode: {mode} is not supported by {node.eds_path.name} "
@@ -252,8 +274,8 @@ class Cia402Drive:
         return _clamp(self.node.get(0x6071), -limit, limit)
 
     def target_velocity_raw(self) -> int:
-        """Target velocity 0x60FF, or 0 unless operation enabled in CSV."""
-        if self.mode != MODE_CSV or not self._commanding():
+        """Target velocity 0x60FF, or 0 unless operation enabled in CSV or PV."""
+        if self.mode not in _VELOCITY_MODES or not self._commanding():
             return 0
         return self.node.get(0x60FF)
 
@@ -278,6 +300,7 @@ class Cia401Io:
         # every CiA 401 object is optional: a module has the channels its EDS lists, and an
         # output without an error mode / value object (0x6206/0x6207, 0x6443/0x6444) keeps
         # its value on an error, as such a module does
+        _integers(node, "CiA 401")
         self.node = node
         self.n_digital_out = self._count(0x6200)
         self.n_analog_in = self._count(0x6401)
@@ -337,6 +360,7 @@ class Cia406Encoder:
 
     def __init__(self, node: VirtualNode) -> None:
         _require(node, [(0x6004, 0)], "CiA 406")  # the speed 0x6030 is optional
+        _integers(node, "CiA 406")
         self.node = node
         self._signed = node.variable(0x6004).data_type in (0x2, 0x3, 0x4)
 
