@@ -6,12 +6,14 @@ a suite, a calibration or a study included, with the folder each belongs to in t
 column), oldest first (directory names start with the UTC time): run name, clock and bus,
 simulated time, how it stopped (completed, fault, interrupted, error), the first fault, the
 final angle error and residual tip acceleration where the run has them, the real-time
-factor, and the verdict of its ``verdict.json`` (PASS, MARGINAL, FAIL, ERROR, NO CRITERIA;
+factor, and the verdict of its ``verdict.json`` (PASS, MARGINAL, INCONCLUSIVE, FAIL, ERROR,
+NO CRITERIA;
 ``-`` if the run was never judged: see ``harness judge``). A directory without a readable
 ``summary.json`` (the harness was killed, or the file was damaged) is listed as such: its
 ``run.rrd`` and ``can.blf`` hold what was written.
 
-``--failed`` lists only the failures: runs judged FAIL or ERROR, and runs without a
+``--failed`` lists only the failures: runs judged FAIL, ERROR or INCONCLUSIVE, and runs
+without a
 verdict.json that did not complete (a fault, an exception, an interruption, no summary):
 judged, each of those would be ERROR. A completed run never judged is not listed.
 Exit 0, or 1 if there is no run.
@@ -33,8 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--logs", type=Path, default=Path("logs"), help="logs directory (./logs)")
     p.add_argument("--last", type=int, default=0, metavar="N", help="only the newest N runs")
-    p.add_argument("--failed", action="store_true", help="only runs judged FAIL or ERROR, and "
-                   "unjudged runs that did not complete")
+    p.add_argument("--failed", action="store_true", help="only runs judged FAIL, ERROR or "
+                   "INCONCLUSIVE, and unjudged runs that did not complete")
     p.add_argument("--json", action="store_true", help="the list as JSON on stdout")
     p.set_defaults(func=cmd_logs)
 
@@ -124,9 +126,9 @@ def _verdict(run_dir: Path) -> dict[str, Any]:
 
 
 def is_failure(row: dict[str, Any]) -> bool:
-    """Judged FAIL or ERROR, or not judged and not completed."""
+    """Judged FAIL, ERROR or INCONCLUSIVE, or not judged and not completed."""
     if row.get("verdict"):
-        return row["verdict"] in ("FAIL", "ERROR")
+        return row["verdict"] in ("FAIL", "ERROR", "INCONCLUSIVE")
     return row.get("status") != "completed"
 
 
