@@ -169,7 +169,7 @@ def cmd_logs(args: argparse.Namespace) -> int:
         return 0
     w = max(len("run directory"), *(len(Path(r["dir"]).name) for r in rows))
     g = max(len("in"), *(len(r.get("group") or "-") for r in rows))
-    print(f"{'run directory':<{w}} {'in':<{g}} {'verdict':<11} {'clock':<9} {'sim s':>7} "
+    print(f"{'run directory':<{w}} {'in':<{g}} {'verdict':<12} {'clock':<9} {'sim s':>7} "
           f"{'status':<12} {'final err deg':>13} {'resid m/s^2':>11} {'x real':>7}  "
           "first fault / error")
     for r in rows:
@@ -177,10 +177,10 @@ def cmd_logs(args: argparse.Namespace) -> int:
         group = r.get("group") or "-"
         verdict = r.get("verdict") or "-"
         if "run" not in r:
-            print(f"{name:<{w}} {group:<{g}} {verdict:<11} {r['status']}")
+            print(f"{name:<{w}} {group:<{g}} {verdict:<12} {r['status']}")
             continue
         status = r["status"] + (" (dry)" if r["dry_run"] else "")
-        print(f"{name:<{w}} {group:<{g}} {verdict:<11} {str(r['clock'] or '-'):<9} "
+        print(f"{name:<{w}} {group:<{g}} {verdict:<12} {str(r['clock'] or '-'):<9} "
               f"{_num(r['simulated_s'], '7.2f')} "
               f"{status:<12} {_num(r['final_angle_error_deg'], '13.2e')} "
               f"{_num(r['residual_tip_accel_m_s2'], '11.4f')} "

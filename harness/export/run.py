@@ -37,10 +37,10 @@ def check_extra(fmt: str) -> None:
 
 
 def _system_allocator() -> None:
-    """Arrow's allocations (the reader's casts, the Parquet and CSV writers) from the C
-    library's allocator: Arrow's default, jemalloc, kept freed blocks and made the peak of a
-    Parquet export grow with the run (+7 MB from a 200 s to a 600 s run; +1.9 MB with this,
-    the footer's row-group records), docs/benchmarks.md."""
+    """Arrow's allocations (the Parquet and CSV writers') from the C library's allocator:
+    with Arrow's default, jemalloc, which keeps freed blocks, a Parquet export's peak grew
+    from a 200 s run to a 600 s one (+6.4 MB, twice); with this it did not (three pairs:
+    253-255 MB and 249-251 MB). docs/benchmarks.md."""
     import pyarrow as pa  # rerun-sdk's dependency: always there
 
     pa.set_memory_pool(pa.system_memory_pool())

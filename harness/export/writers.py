@@ -160,10 +160,19 @@ class ParquetWriter(Writer):
         if self._n >= ROW_GROUP:
             self._flush()
 
-    def _flush(self) -> None:
-        if self._rows:
-            self._w.write_table(self.pa.concat_tables(self._rows), row_group_size=ROW_GROUP)
-        self._rows, self._n = [], 0
+    def _write_full(self, writer: Any, parts: list[Any], last: bool) -> tuple[list[Any], int]:
+        """Whole row groups of ``parts`` written (all of it when ``last``); the rest kept."""
+        if not parts:
+            return [], 0
+        table = self.pa.concat_tables(parts)
+        n = len(table) if last else (len(table) // ROW_GROUP) * ROW_GROUP
+        if n:
+            writer.write_table(table.slice(0, n), row_group_size=ROW_GROUP)
+        rest = table.slice(n)
+        return ([rest], len(rest)) if len(rest) else ([], 0)
+
+    def _flush(self, last: bool = False) -> None:
+        self._rows, self._n = self._write_full(self._w, self._rows, last)
 
     def frames(self, f: Frames) -> None:
         pa = self.pa
@@ -174,13 +183,11 @@ class ParquetWriter(Writer):
              pa.array(f.error), pa.array(f.length), data], schema=self._fr_schema))
         self._fn += len(f.time_s)
         if self._fn >= ROW_GROUP:
-            self._fw.write_table(pa.concat_tables(self._frows), row_group_size=ROW_GROUP)
-            self._frows, self._fn = [], 0
+            self._frows, self._fn = self._write_full(self._fw, self._frows, False)
 
     def finish(self) -> None:
-        self._flush()
-        if self._frows:
-            self._fw.write_table(self.pa.concat_tables(self._frows), row_group_size=ROW_GROUP)
+        self._flush(last=True)
+        self._frows, self._fn = self._write_full(self._fw, self._frows, True)
         text = _meta_text(self.meta, self.chs).encode()
         self._w.add_key_value_metadata({"sgsrt": text})
         self._fw.add_key_value_metadata({"sgsrt": text})
