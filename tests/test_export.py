@@ -180,6 +180,13 @@ def test_mf4_reads_back_with_asammdf(run_dir, recorded, tmp_path):
         assert bytes(d["CAN_DataFrame.DataBytes"][k][:n]) == ok[k][7]
         assert data.timestamps[k] == pytest.approx(ok[k][0] - frames[0][0], abs=1e-6)
     assert len(err.samples) == len(bad) > 0
+    # a bus-logging reader that knows only the ASAM layout: python-can's own MF4 reader
+    import can
+
+    back = [(m.arbitration_id, bytes(m.data), m.timestamp) for m in can.MF4Reader(str(path))
+            if not m.is_error_frame]
+    assert [(i, d) for i, d, _ in back] == [(f[1], f[7]) for f in ok]
+    assert back[-1][2] == pytest.approx(ok[-1][0], abs=1e-5)  # absolute time: the header's
 
 
 def test_csv_reads_back_with_the_csv_module(run_dir, recorded, tmp_path):
@@ -236,3 +243,23 @@ def test_a_missing_library_names_the_pip_command(run_dir, tmp_path, monkeypatch,
     err = capsys.readouterr().err
     assert "needs asammdf" in err and "pip install 'sgsrt-harness[export]'" in err
     assert not list(tmp_path.iterdir())  # nothing written
+
+
+def test_a_cut_recording_exports_what_it_holds_and_garbage_is_refused(run_dir, tmp_path,
+                                                                      capsys):
+    import shutil
+
+    import pyarrow.parquet as pq
+
+    cut = Path(shutil.copytree(run_dir, tmp_path / "cut"))
+    rrd = cut / "run.rrd"
+    with rrd.open("r+b") as f:  # a run killed mid-write: its recording ends mid-message
+        f.truncate(rrd.stat().st_size // 2)
+    assert main(["export", str(cut), "--to", "parquet", "--out", str(tmp_path / "a")]) == 0
+    rows = pq.read_table(tmp_path / "a" / "cut.parquet").num_rows
+    assert 0 < rows < 6001
+    rrd.write_bytes(bytes(range(256)) * 12)
+    assert main(["export", str(cut), "--to", "csv", "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err
+    assert "run.rrd: cannot read" in err and "Traceback" not in err
+    assert not list((tmp_path / "b").iterdir())  # no partial file left
