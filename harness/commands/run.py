@@ -5,8 +5,10 @@ run.rrd, can.blf, config.yaml and summary.json, then judges the run by its expec
 and writes verdict.json and verdict.rrd (docs/criteria.md). Progress goes to stderr; --json
 prints the summary. Exit codes: 0 PASS (or NO CRITERIA: nothing judged, with a warning),
 1 FAIL, 2 bad input or run refused before anything was sent, 3 ERROR by a fault the run did
-not expect, 4 ERROR otherwise (exception, missing data, real-time budget not held),
-5 MARGINAL, 130 interrupted; with variants, the most severe.
+not expect, 4 ERROR otherwise (exception, missing data), 5 MARGINAL, 6 INCONCLUSIVE (a
+real-time run the bench did not hold in time: overruns, lateness or telemetry missing
+beyond the run file's realtime limits; the verdict names whose the lost time was: host,
+harness or device), 130 interrupted; with variants, the most severe.
 """
 
 from __future__ import annotations
@@ -232,7 +234,7 @@ def check_viewer_listening(url: str, timeout_s: float = 2.0) -> None:
                           "or run without --view") from None
 
 
-EXIT_ORDER = (130, 3, 4, 1, 5, 0)
+EXIT_ORDER = (130, 3, 4, 1, 6, 5, 0)
 """Most severe first: the exit code of several runs (variants) is the most severe one's."""
 
 

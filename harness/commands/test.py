@@ -21,8 +21,9 @@ plots of the checked channels with their bands, links to run.rrd and can.blf).
 Exit status, the most severe test's (as ``harness run``'s variants): 130 interrupted, 2
 refused (bad suite file, no test selected, the pre-flight probe failed), 3 an ERROR by a
 fault nobody expected, 4 another ERROR, 1 a FAIL (a test without criteria FAILs unless the
-suite says ``require_criteria: false``), 5 the worst is MARGINAL, 0 all PASS (or NO
-CRITERIA allowed).
+suite says ``require_criteria: false``), 6 INCONCLUSIVE (a real-time run the bench did not
+hold in time; JUnit ``<skipped>`` with the reason), 5 the worst is MARGINAL, 0 all PASS (or
+NO CRITERIA allowed).
 """
 
 from __future__ import annotations
@@ -208,7 +209,8 @@ def cmd_test(args: argparse.Namespace) -> int:
         code = 4  # a failure outside any verdict (the plugin itself)
     verdicts = [r["verdict"] for r in plugin.records if r.get("reported", True)]
     counts = ", ".join(f"{v} {verdicts.count(v)}" for v in
-                       ("PASS", "MARGINAL", "FAIL", "ERROR", "SKIPPED") if v in verdicts)
+                       ("PASS", "MARGINAL", "INCONCLUSIVE", "FAIL", "ERROR", "SKIPPED")
+                       if v in verdicts)
     print(f"harness test: {names}: {counts or 'nothing run'}; exit {code}; report "
           f"{out_dir / 'report.html'}" + (f"; JUnit {args.junit}" if args.junit else ""),
           file=sys.stderr)

@@ -74,6 +74,15 @@ RUN_SCHEMA: dict[str, Any] = {
                              choices=("auto", "thread", "process-unix", "process-tcp")),
         "rig_priority": Field("int", default=49, minimum=0, maximum=98),
         "rig_cpu": Field("int", default=-1, minimum=-1),
+        # the bench's health: limits of the timing criteria every real-time run is judged by
+        # (harness.testing.bench; beyond one the run is INCONCLUSIVE). Defaults: the line
+        # 'harness rt-check' draws for a host that cannot hold its rate (docs/criteria.md)
+        "max_overruns_percent": Field("number", "% of ticks", default=1.0, minimum=0.0,
+                                      maximum=100.0),
+        "max_lateness_p99_period_percent": Field("number", "% of the period", default=50.0,
+                                                 minimum=0.0),
+        "max_missing_held_percent": Field("number", "% of the telemetry frames due",
+                                          default=1.0, minimum=0.0, maximum=100.0),
     },
 }
 

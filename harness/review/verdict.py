@@ -27,7 +27,7 @@ from harness.review.units import limit_text, quantity
 
 APPLICATION_ID = "sgsrt-harness"  # harness.record.recording's
 VERDICT_ENTITY = "/run/verdict"
-SEVERITY = {"ERROR": 0, "FAIL": 1, "MARGINAL": 2, "PASS": 3}
+SEVERITY = {"ERROR": 0, "INCONCLUSIVE": 0.5, "FAIL": 1, "MARGINAL": 2, "PASS": 3}
 
 def seconds(t: Any) -> str:
     """A time on the run's timeline, to the millisecond (a tick at 500 Hz is 2 ms)."""

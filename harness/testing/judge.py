@@ -21,9 +21,11 @@ from typing import Any
 import numpy as np
 
 from harness.record.streams import save_with_blueprint, sweep_orphans
+from harness.testing.bench import attribute, describe, is_realtime, timing_criteria
 from harness.testing.criteria import Criterion, apply_overrides, parse_criteria
 from harness.testing.evaluate import (
     ERROR,
+    INCONCLUSIVE,
     NO_CRITERIA,
     CriterionResult,
     Facts,
@@ -57,8 +59,11 @@ class Verdict:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"verdict": self.verdict, "reason": self.reason, "exit_code": self.exit_code,
-                "criteria": [c.to_dict() for c in self.criteria], "identity": self.identity}
+        d = {"verdict": self.verdict, "reason": self.reason, "exit_code": self.exit_code,
+             "criteria": [c.to_dict() for c in self.criteria], "identity": self.identity}
+        if "bench" in self.extra:  # an INCONCLUSIVE run: whose the lost time was
+            d["bench"] = self.extra["bench"]
+        return d
 
 
 def make_verdict(results: list[CriterionResult], identity: Mapping[str, Any] | None = None,
@@ -477,11 +482,18 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
         criteria = [c for c in criteria if c.kind in ("fault", "left_safe")]
         note = "fault test: only its fault expectations, left_safe and the run's own checks " \
                "judged"
+    if is_realtime(summary):  # the bench's own timing, in every real-time run
+        run = cfg.get("run") if isinstance(cfg.get("run"), Mapping) else {}
+        criteria = criteria + timing_criteria(run, {c.name for c in criteria})
     results = evaluate(criteria, facts) + results + (run_checks(criteria, summary)
                                                      if summary else [])
     verdict = make_verdict(results, identity_of(run_dir, cfg, summary, expect_file), run_dir)
     if note and verdict.verdict == "PASS":
         verdict.reason = f"{note}; {verdict.reason}"
+    if verdict.verdict == INCONCLUSIVE:
+        bench = attribute(summary, source.blocks if source.rrd.is_file() else None)
+        verdict.extra["bench"] = bench
+        verdict.reason = f"{verdict.reason}; {describe(bench)}"
     return verdict
 
 
@@ -600,6 +612,7 @@ def format_block(v: Verdict, path: Path | None = None) -> str:
     """The verdict as printed at the end of ``harness run`` and by ``harness judge``."""
     lines = [f"VERDICT {v.verdict} (exit {v.exit_code}): {v.reason}"]
     w = max([len(c.name) for c in v.criteria] + [9])
+    wv = max([len(c.verdict) for c in v.criteria] + [8])  # INCONCLUSIVE is 12 wide
     for c in v.criteria:
         val = "-" if c.value is None else (f"{c.value:.4g}" if isinstance(c.value, float)
                                            else str(c.value))
@@ -608,10 +621,10 @@ def format_block(v: Verdict, path: Path | None = None) -> str:
         margin = "" if c.margin is None else f"  margin {c.margin:.4g}"
         at = "" if c.worst_time_s is None else f"  worst at t = {c.worst_time_s:.3f} s"
         unit = unit_text(c.unit)
-        lines.append(f"  {c.verdict:<8} {c.name:<{w}}  {val} {unit}".rstrip()
+        lines.append(f"  {c.verdict:<{wv}} {c.name:<{w}}  {val} {unit}".rstrip()
                      + (f"  limit {lim}" if lim else "") + margin + at)
         if c.verdict != "PASS":
-            lines.append(f"  {'':<8} {'':<{w}}  {c.message}")
+            lines.append(f"  {'':<{wv}} {'':<{w}}  {c.message}")
     if path is not None:
         lines.append(f"  verdict in {path}")
     return "\n".join(lines)

@@ -26,7 +26,8 @@ from harness.testing.checks import worst
 from harness.testing.outcome import exit_code
 
 OVERVIEW = ("/attitude/angle_deg", "/tip/accel_m_s2")
-COLORS = {"PASS": "#1a7f37", "MARGINAL": "#9a6700", "FAIL": "#cf222e", "ERROR": "#8250df",
+COLORS = {"PASS": "#1a7f37", "MARGINAL": "#9a6700", "INCONCLUSIVE": "#0550ae",
+          "FAIL": "#cf222e", "ERROR": "#8250df",
           "SKIPPED": "#6e7781", "NO CRITERIA": "#bc4c00"}
 
 

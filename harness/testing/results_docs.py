@@ -173,7 +173,8 @@ def suite_markdown(doc: dict[str, Any], suite: str, source: str) -> str:
     counts: dict[str, int] = {}
     for r in records:
         counts[r["verdict"]] = counts.get(r["verdict"], 0) + 1
-    worst = next((v for v in ("ERROR", "FAIL", "MARGINAL", "PASS") if counts.get(v)), "-")
+    worst = next((v for v in ("ERROR", "FAIL", "INCONCLUSIVE", "MARGINAL", "PASS")
+                  if counts.get(v)), "-")
     title = TITLES.get(suite, suite)
     desc = next((s.get("description", "") for s in doc.get("suites", [])
                  if s.get("name") == suite), "")
@@ -197,7 +198,8 @@ def suite_markdown(doc: dict[str, Any], suite: str, source: str) -> str:
         by_test.setdefault(key, []).append(r)
     for test, recs in by_test.items():
         verdicts = {r["verdict"] for r in recs}
-        v = next((x for x in ("ERROR", "FAIL", "MARGINAL", "PASS") if x in verdicts), "-")
+        v = next((x for x in ("ERROR", "FAIL", "INCONCLUSIVE", "MARGINAL", "PASS")
+                  if x in verdicts), "-")
         desc = next((r.get("description") for r in recs if r.get("description")), "")
         lines += [f"## {test}: {v}", ""]
         if desc:
