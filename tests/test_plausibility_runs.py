@@ -101,3 +101,15 @@ def test_without_the_checks_the_mis_bound_wheel_completes(tmp_path):
     result = execute_run(run, out_dir=tmp_path / "logs", show_progress=False,
                          device_rig=load_rig("sgsrt-canopen"))
     assert result.summary["stopped_by"] == "completed"
+
+
+@pytest.mark.slow
+def test_the_acceptance_suite_does_not_pass_a_mis_bound_wheel(tmp_path):
+    """The lab's daily check with the wheel's speed bound to the drive's target torque:
+    probe is happy (the frames are right), every run that moves the wheel stops naming it."""
+    from in_process import harness_in_process
+
+    r = harness_in_process("test", "acceptance", "--rig", _wheel_speed_wrong_object(tmp_path),
+                           "--devices-rig", "sgsrt-canopen", "--out", str(tmp_path / "out"))
+    assert r.returncode not in (0, 5, 6), r.stdout[-2000:]
+    assert "reaction_wheel: implausible: speed against the commanded torque" in r.stdout
