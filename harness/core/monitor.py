@@ -27,6 +27,9 @@ rotor in the default rig file):
 | frames lost (wall clock) | frames older than the grace g not come (see below) | 2 (g+6) d |
 | duplicate frames | a device's frames beyond what the SYNCs asked for | 20 + s; s |
 | node id used twice | 8 heartbeats of one CANopen node within 5 of its periods | 8 heartbeats |
+| physics: hub | the angle's change against its rate's integral over a window | a window |
+| physics: wheel | the speed's change against -(torque sent) dt / rotor inertia | a window |
+| stuck (noise) | a channel equal for longer than its noise and resolution make likely | that |
 | limits | hub angle, rate, wheel speed or tip acceleration beyond the run's `limits` | 1 |
 
 On the real-time clock, frames may arrive a few ticks late with nothing wrong (a busy
