@@ -152,6 +152,8 @@ class _StallingController:
         return self._inner.step(state)
 
     def __getattr__(self, name):
+        if name.startswith("_"):  # copy's probes (__deepcopy__, ...) on a half-built copy
+            raise AttributeError(name)
         return getattr(self._inner, name)
 
 

@@ -23,7 +23,7 @@ rotor in the default rig file):
 | NMT state (CANopen) | a node's heartbeat says it is not operational | its heartbeat period |
 | heartbeat lost (CANopen) | no heartbeat for 3 periods (or the real-time grace) | 3 periods + 1 |
 | second master | a SYNC, NMT, SDO request, command or heartbeat the harness did not send | 1 |
-| drive disabled | a drive commanded enabled reports otherwise (its CiA 402 state named) | d |
+| drive disabled | a drive commanded enabled reports otherwise (its CiA 402 state named) | 2 d + 2 |
 | frames lost (wall clock) | frames older than the grace g not come (see below) | 2 (g+6) d |
 | duplicate frames | a device's frames beyond what the SYNCs asked for | 20 + s; s |
 | node id used twice | 8 heartbeats of one CANopen node within 5 of its periods | 8 heartbeats |
@@ -376,6 +376,11 @@ class FaultMonitor:
         self._rotor_drv = (interface.drivers.get("disturbance_rotor")
                            if "disturbance_rotor" in acting else None)
         self._rotor_enabled_since: int | None = None
+        # the tick since which each drive has reported itself disabled (None: enabled); a
+        # drive that stays off past the command's delay is a fault, one whose own watchdog
+        # blinked it off (a stalled host) and the next command brought back is not
+        self._wheel_off_since: int | None = None
+        self._rotor_off_since: int | None = None
         self._valve_closed_since = 0
         self._seen_tick: dict[str, int] = {}
         self.on_warning = on_warning
@@ -721,6 +726,7 @@ class FaultMonitor:
                     return event
             else:
                 self._wheel_tick = tick
+                self._wheel_off_since = None
         if sent.valve_direction != 0 or (valves is not None and valves.last_tick == tick):
             event = self._valves(tick, state, sent)
             if event is not None:
@@ -731,9 +737,15 @@ class FaultMonitor:
                 self._rotor_enabled_since = None
             elif self._rotor_enabled_since is None:
                 self._rotor_enabled_since = tick
-            elif rotor.last_tick == tick and not rotor.values.get("enabled", 1.0) and (
-                    tick - self._rotor_enabled_since > self._enable_lag["disturbance_rotor"]):
-                return self._disabled(tick, "disturbance_rotor", rotor.values)
+            elif rotor.last_tick == tick:
+                lag = self._enable_lag["disturbance_rotor"]
+                if rotor.values.get("enabled", 1.0):
+                    self._rotor_off_since = None
+                elif tick - self._rotor_enabled_since > lag:
+                    if self._rotor_off_since is None:
+                        self._rotor_off_since = tick
+                    if tick - self._rotor_off_since >= lag:
+                        return self._disabled(tick, "disturbance_rotor", rotor.values)
         if piezo is not None and piezo.last_tick == tick:
             pv = piezo.values
             if pv.get("overcurrent"):
@@ -1026,9 +1038,15 @@ class FaultMonitor:
         if abs(speed) > self._wheel_overspeed_at:
             return self._event(tick, "reaction_wheel", "overspeed",
                                f"speed {speed:+.1f} rad/s beyond {self.wheel_max:g} rad/s")
-        if (self._watch_wheel_enable and not v.get("enabled", 1.0)
-                and tick > self._enable_lag["reaction_wheel"]):
-            return self._disabled(tick, "reaction_wheel", v)
+        if not v.get("enabled", 1.0):
+            lag = self._enable_lag["reaction_wheel"]
+            if self._watch_wheel_enable and tick > lag:
+                if self._wheel_off_since is None:
+                    self._wheel_off_since = tick
+                if tick - self._wheel_off_since >= lag:
+                    return self._disabled(tick, "reaction_wheel", v)
+        else:
+            self._wheel_off_since = None
         return None
 
     def _disabled(self, tick: int, device: str, values: dict[str, float]) -> FaultEvent:
