@@ -123,3 +123,26 @@ def test_report_lists_failing_criteria_first_and_plots_scalar_ones():
     plot = scalar_plot(criteria)
     assert plot is not None and len(plot["png"]) > 1000
     assert scalar_plot([criteria[2]]) is None  # nothing numeric to draw
+
+
+def test_every_y_axis_gets_two_labels_at_the_viewers_step():
+    """The viewer labels a y axis at powers of ten and drops a step that would crowd the
+    plot: a wheel torque of -0.019..0.054 N m was labelled with a lone "0"."""
+    import math
+
+    from harness.review import layouts as L
+
+    def labels(lo: float, hi: float) -> int:
+        span = hi - lo
+        step = 10.0 ** math.floor(math.log10(span))
+        if span / step > L.MAX_LABELS:
+            step *= 10.0
+        return math.floor(hi / step + 1e-9) - math.ceil(lo / step - 1e-9) + 1
+
+    torque = L.axis_range(L.PLOTS["wheel_torque"], {"/wheel/torque_cmd_n_m": [-0.0194, 0.0538]})
+    assert labels(*torque) >= 2, torque
+    assert torque[1] - torque[0] < 0.2  # widened to the next label, not to +-0.1
+    for lo, hi in ((0.0, 0.0), (3.9, 6.1), (-261.2, 0.0), (0.0, 28.2), (-0.021, 0.027),
+                   (0.0, 5.0), (1e-4, 1.5e-4)):
+        r = L.axis_range(L.PLOTS["rate"], {"/attitude/rate_deg_s": [lo, hi]})
+        assert labels(*r) >= 2 and r[0] <= lo and r[1] >= hi, (lo, hi, r)
