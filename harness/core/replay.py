@@ -122,6 +122,19 @@ class Replay:
     def missing_frames(self) -> int:
         return self.missing_total
 
+    def strict_problems(self) -> list[str]:
+        """What a log of a healthy run has none of (``harness replay --strict``): unknown
+        ids, malformed frames, error frames, SYNC gaps, missing telemetry, sequence errors."""
+        out = []
+        for n, what in ((self.unknown, "frames of unknown ids"),
+                        (sum(self.malformed.values()), "malformed frames"),
+                        (self.error_frames, "error frames"), (self.sync_gaps, "SYNC gaps"),
+                        (self.missing_frames, "telemetry frames missing at their tick"),
+                        (sum(self.sequence_errors.values()), "sequence errors")):
+            if n:
+                out.append(f"{n} {what}")
+        return out
+
 
 @dataclass(frozen=True)
 class Mismatch:
