@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 COMMANDS = ("/wheel/torque_cmd_n_m", "/thrusters/valve_cmd", "/piezo/cmd_ch1_v",
             "/piezo/cmd_ch2_v", "/rotor/speed_rad_s")
@@ -166,20 +165,18 @@ def twin_residual(run_dir: Path, rig: str | None = None) -> dict[str, Any]:
     rrd = run_dir / "run.rrd"
     if not rrd.is_file():
         raise TwinError(f"{run_dir}: no run.rrd (not a run directory)")
-    try:
-        cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise TwinError(f"{run_dir}: config.yaml unreadable ({exc})") from exc
-    if not isinstance(cfg, dict) or not isinstance(cfg.get("run"), dict):
-        raise TwinError(f"{run_dir}: config.yaml has no run section")
+    from harness.record.run_folder import RunFolderError, load_run_folder
+
+    try:  # checked as every reader of a run folder checks it: rate, duration, sections
+        folder = load_run_folder(run_dir)
+    except RunFolderError as exc:
+        raise TwinError(str(exc)) from exc
+    cfg = folder.config
     from rig_models.rig_file import load_rig, rig_from_dict
     from rig_models.schema import ConfigError
 
-    try:
-        rate = float(cfg["run"]["rate_hz"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise TwinError(f"{run_dir}: config.yaml run.rate_hz missing") from exc
-    dt_s = 1.0 / rate
+    rate = folder.rate_hz
+    dt_s = folder.dt_s
     try:
         rig_cfg = load_rig(rig) if rig is not None else rig_from_dict(
             cfg.get("rig"), source=f"{run_dir / 'config.yaml'} rig")
@@ -215,14 +212,17 @@ def twin_residual(run_dir: Path, rig: str | None = None) -> dict[str, Any]:
     try:
         for entity, t, v in ChannelSource(rrd).blocks([*COMMANDS, *SENSORS]):
             seen.add(entity)
-            pending[entity].add(np.rint(t / dt_s).astype(np.int64), v)
+            ticks = np.rint(np.clip(t / dt_s, -1.0, folder.max_ticks + 1.0)).astype(np.int64)
+            if ticks.size:  # bounded before the twin sizes anything on it
+                folder.check_ticks(f"{rrd}: {entity}", int(ticks.max()))
+            pending[entity].add(ticks, v)
             # the loop writes every channel for the same rows: compare up to the tick all
             # have, once all were seen (a channel missing from the recording: once the
             # others have run WAIT_TICKS ahead, it is taken as absent)
             if len(seen) == len(pending) or \
                     max(pending[e].last for e in seen) - k_next > WAIT_TICKS:
                 advance(min(pending[e].last for e in seen))
-    except MissingData as exc:
+    except (MissingData, RunFolderError) as exc:
         raise TwinError(str(exc)) from exc
     if "/tip/accel_m_s2" not in seen:
         raise TwinError(f"{rrd}: no /tip/accel_m_s2 channel")
@@ -259,15 +259,13 @@ def _identified(run_dir: Path, cfg: dict[str, Any], model: list[dict[str, Any]]
                 ) -> list[dict[str, Any]]:
     """The run's identified modes (its identify.json, else an identification over its
     free-decay windows if it has any) beside the twin's model modes."""
-    import json
+    from harness.record.run_folder import RunFolderError, identified_modes
 
-    ident = None
-    path = run_dir / "identify.json"
-    if path.is_file():
-        try:
-            ident = json.loads(path.read_text())
-        except ValueError:
-            ident = None
+    try:
+        found = identified_modes(run_dir)
+    except RunFolderError as exc:
+        raise TwinError(str(exc)) from exc
+    ident = None if found is None else {"modes": found}
     if ident is None:
         from harness.commands.identify import analysis_windows, identify_record, load_record
 
