@@ -67,3 +67,38 @@ def test_samples_past_the_runs_end_are_refused_before_work_is_sized(run_dir, tmp
     err = capsys.readouterr().err
     assert "past the run's end" in err and "run.rrd" in err
     assert main(["twin", str(run_dir)]) == 0  # the untouched folder is read
+
+
+def _judged(run_dir: Path, tmp_path: Path, name: str) -> Path:
+    d = _copy(run_dir, tmp_path, name)
+    assert main(["judge", str(d)]) in (0, 1, 4, 5)  # 3 s: the settling is not reached
+    return d
+
+
+def test_an_edited_scatter_cache_is_refused_naming_the_field(run_dir, tmp_path, capsys):
+    from harness.history.scatter import CACHE_DIR, cache_key
+
+    d = _judged(run_dir, tmp_path, "cache")
+    cfg = yaml.safe_load((d / "config.yaml").read_text())
+    logs = tmp_path / "logs"
+    cache = logs / CACHE_DIR / f"{cache_key(cfg['run'], cfg['rig'], 3)}.json"
+    cache.parent.mkdir(parents=True)
+    cache.write_text(json.dumps({"seeds": 3, "criteria": {"final_error": {
+        "mean": "0.01", "std": 0.001, "n": 3}}}))
+    capsys.readouterr()
+    assert main(["history", "scatter", str(d), "--logs", str(logs), "--seeds", "3"]) == 2
+    err = capsys.readouterr().err
+    assert "criteria.final_error.mean" in err and str(cache.name) in err
+    assert "Traceback" not in err
+
+
+def test_a_30_day_run_is_refused_before_any_virtual_run(run_dir, tmp_path, capsys):
+    import time
+
+    d = _judged(run_dir, tmp_path, "long")
+    _edit_run(d, duration_s=30 * 24 * 3600.0)
+    capsys.readouterr()
+    start = time.monotonic()
+    assert main(["history", "scatter", str(d), "--logs", str(tmp_path / "logs")]) == 2
+    assert time.monotonic() - start < 5.0
+    assert "run.duration_s" in capsys.readouterr().err
