@@ -102,3 +102,12 @@ def test_a_30_day_run_is_refused_before_any_virtual_run(run_dir, tmp_path, capsy
     assert main(["history", "scatter", str(d), "--logs", str(tmp_path / "logs")]) == 2
     assert time.monotonic() - start < 5.0
     assert "run.duration_s" in capsys.readouterr().err
+
+
+def test_twin_table_gives_every_value_its_unit(run_dir, capsys):
+    assert main(["twin", str(run_dir)]) == 0
+    out = capsys.readouterr().out
+    angle = next(line for line in out.splitlines() if line.startswith("/attitude/angle_deg"))
+    assert angle.count(" deg") == 3 and " s " in angle  # rms, worst, recorded rms; time
+    tip = next(line for line in out.splitlines() if line.startswith("/tip/accel_m_s2"))
+    assert tip.count("m/s²") == 3

@@ -39,16 +39,26 @@ def cmd_twin(args: argparse.Namespace) -> int:
         return 0
     print(f"twin of {out['run_dir']} on {out['rig']} ({out['ticks']} ticks at "
           f"{out['rate_hz']:g} Hz)")
-    print(f"{'channel':<22} {'rms':>10} {'worst':>10} {'at (s)':>8} {'recorded rms':>12} "
+    from harness.review.units import split_unit, unit_text
+
+    def unit(channel: str) -> str:
+        return unit_text(split_unit(channel.rsplit("/", 1)[-1])[1])
+
+    # every value with its unit, as in verdicts (the channel's)
+    print(f"{'channel':<22} {'rms':>14} {'worst':>14} {'at':>9} {'recorded rms':>14} "
           f"{'rms / noise':>11}")
     for r in out["channels"]:
+        u = unit(r["channel"])
         ratio = "-" if r["rms_over_noise"] is None else f"{r['rms_over_noise']:.2f}"
-        print(f"{r['channel']:<22} {r['rms']:>10.3g} {r['worst']:>10.3g} "
-              f"{r['worst_time_s']:>8.3f} {r['recorded_rms']:>12.3g} {ratio:>11}")
+        rms, worst, rec = (f"{r[k]:.3g} {u}".rstrip() for k in ("rms", "worst",
+                                                                  "recorded_rms"))
+        at = f"{r['worst_time_s']:.3f} s"
+        print(f"{r['channel']:<22} {rms:>14} {worst:>14} {at:>9} {rec:>14} {ratio:>11}")
     if out["worst_channel"]:
         w = next(r for r in out["channels"] if r["channel"] == out["worst_channel"])
-        print(f"largest residual over its noise: {w['channel']}, worst {w['worst']:.3g} at "
-              f"t = {w['worst_time_s']:.3f} s ({w['rms_over_noise']:.2f} x the noise rms)")
+        print(f"largest residual over its noise: {w['channel']}, worst {w['worst']:.3g} "
+              f"{unit(w['channel'])} at t = {w['worst_time_s']:.3f} s "
+              f"({w['rms_over_noise']:.2f} x the noise rms)")
     if out["identified_modes"]:
         print("identified modes against the model's:")
         for m in out["identified_modes"]:

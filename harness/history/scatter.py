@@ -211,7 +211,8 @@ def classify(run_dir: Path, prediction: dict[str, Any], k: float = 3.0
         name = str(c.get("name"))
         value = _numbers([c]).get(name)
         p = pred.get(name)
-        row: dict[str, Any] = {"name": name, "value": value, "verdict": c.get("verdict"),
+        row: dict[str, Any] = {"name": name, "value": value, "unit": c.get("unit") or "",
+                               "verdict": c.get("verdict"),
                                "mean": None, "std": None, "z": None,
                                "scatter": "not predicted", "message": ""}
         if value is None or p is None:
