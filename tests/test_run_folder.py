@@ -111,3 +111,16 @@ def test_twin_table_gives_every_value_its_unit(run_dir, capsys):
     assert angle.count(" deg") == 3 and " s " in angle  # rms, worst, recorded rms; time
     tip = next(line for line in out.splitlines() if line.startswith("/tip/accel_m_s2"))
     assert tip.count("m/s²") == 3
+
+
+def test_replay_refuses_a_damaged_run_folder_naming_the_file(run_dir, tmp_path, capsys):
+    d = _copy(run_dir, tmp_path, "replay")
+    (d / "summary.json").write_text(json.dumps([1, 2]))
+    capsys.readouterr()
+    assert main(["replay", str(d), "--check"]) == 2
+    err = capsys.readouterr().err
+    assert "summary.json" in err and "expected a JSON object" in err
+    d = _copy(run_dir, tmp_path, "replay-rate")
+    _edit_run(d, rate_hz=float("nan"))
+    assert main(["replay", str(d)]) == 2
+    assert "run.rate_hz" in capsys.readouterr().err
