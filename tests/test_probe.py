@@ -127,3 +127,13 @@ def test_cli_exit_codes_and_json(capsys):
     assert main(["probe", "--bus", "socketcand:127.0.0.1:1", "--fault",
                  "silent_sensor@0:hub_sensor"]) == 2
     assert "--fault" in capsys.readouterr().err
+
+
+def test_last_values_carry_their_units(capsys):
+    assert main(["probe", "--duration-s", "0.2"]) == 0
+    out = capsys.readouterr().out
+    hub = next(line for line in out.splitlines() if line.strip().startswith("hub_sensor")
+               and "angle" in line)
+    assert " rad," in hub and hub.rstrip().endswith("rad/s")
+    wheel = next(line for line in out.splitlines() if "torque_limited" in line)
+    assert "rad/s" in wheel and "N m" in wheel
