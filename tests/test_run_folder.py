@@ -124,3 +124,14 @@ def test_replay_refuses_a_damaged_run_folder_naming_the_file(run_dir, tmp_path, 
     _edit_run(d, rate_hz=float("nan"))
     assert main(["replay", str(d)]) == 2
     assert "run.rate_hz" in capsys.readouterr().err
+
+
+def test_the_report_reads_a_run_folder_through_the_loader(run_dir, tmp_path):
+    from harness.testing.report import channel_specs, run_plots
+
+    d = _copy(run_dir, tmp_path, "report")
+    _edit_run(d, rate_hz=0)
+    with pytest.raises(RunFolderError, match="run.rate_hz"):
+        channel_specs(d, [])
+    plots = run_plots(d, [])  # the report notes it and draws the overview, no traceback
+    assert plots and plots[0]["title"] == "no channel criterion: overview"

@@ -43,13 +43,14 @@ def _fmt(v: Any) -> str:
 def channel_specs(run_dir: Path, criteria_results: list[dict[str, Any]]
                   ) -> list[dict[str, Any]]:
     """The run's channel criteria (verdict layer): channel, band (lo, hi) and window."""
-    import yaml
-
+    from harness.record.run_folder import load_run_folder
+    from harness.record.summary_file import read_summary
     from harness.testing.evaluate import window_mask
     from harness.testing.judge import criteria_of
 
-    cfg = yaml.safe_load((run_dir / "config.yaml").read_text()) or {}
-    summary = json.loads((run_dir / "summary.json").read_text())
+    # read as every reader of a run folder reads it: a damaged file is named (ValueError)
+    cfg = load_run_folder(run_dir).config
+    summary, _ = read_summary(run_dir / "summary.json")
     verdicts = {c["name"]: c for c in criteria_results}
     out = []
     for c in criteria_of(run_dir, cfg)[0]:
