@@ -354,11 +354,16 @@ def _scatter(args: argparse.Namespace) -> int:
     else:
         print(f"predicted from {pred['seeds']} noise seeds of the virtual rig "
               f"({pred['cache']})")
-        print(f"{'criterion':<28} {'value':>11} {'mean':>11} {'std':>10} {'z':>7} "
+        from harness.review.units import unit_text
+
+        # every value with its unit, as in verdicts (the criterion's)
+        print(f"{'criterion':<28} {'value':>15} {'mean':>15} {'std':>14} {'z':>7} "
               f"{'verdict':<8} scatter")
         for r in rows:
             z = "-" if r["z"] is None else f"{r['z']:.1f}"
-            print(f"{r['name']:<28} {_g(r['value'])} {_g(r['mean'])} {_g(r['std'], 10)} "
+            u = unit_text(r.get("unit"))
+            print(f"{r['name']:<28} {_g(r['value'], 15, u)} {_g(r['mean'], 15, u)} "
+                  f"{_g(r['std'], 14, u)} "
                   f"{z:>7} {r['verdict']:<8} {r['scatter']}")
         for r in rows:
             if r["message"]:
@@ -366,5 +371,5 @@ def _scatter(args: argparse.Namespace) -> int:
     return 1 if any(r["scatter"] == "beyond" for r in rows) else 0
 
 
-def _g(v: Any, width: int = 11) -> str:
-    return f"{'-':>{width}}" if v is None else f"{v:>{width}.4g}"
+def _g(v: Any, width: int = 11, unit: str = "") -> str:
+    return f"{'-':>{width}}" if v is None else f"{f'{v:.4g} {unit}'.rstrip():>{width}}"

@@ -115,8 +115,16 @@ def cmd_probe(args: argparse.Namespace) -> int:
     return 0 if result.ok else EXIT_PROBLEM
 
 
+VALUE_UNITS = {"angle": "rad", "rate": "rad/s", "accel": "m/s²", "speed": "rad/s",
+               "torque": "N m", "sensor_ch1": "V", "sensor_ch2": "V", "voltage_ch1": "V",
+               "voltage_ch2": "V", "on_time": "s"}
+"""The SI unit of each quantity the drivers decode (the rest are counters and flags)."""
+
+
 def _values(values: dict[str, float]) -> str:
-    return ", ".join(f"{k} {v:.6g}" for k, v in values.items()) or "-"
+    """Each last value with its unit, as in verdicts (``angle 1.2e-06 rad``)."""
+    return ", ".join(f"{k} {v:.6g}" + (f" {VALUE_UNITS[k]}" if k in VALUE_UNITS else "")
+                     for k, v in values.items()) or "-"
 
 
 def print_report(r: ProbeResult) -> None:

@@ -1,5 +1,5 @@
-"""`harness replay PATH [--rig R] [--rate-hz F] [--check] [--rrd OUT.rrd] [--json]`: replay a
-CAN log through the harness's own drivers.
+"""`harness replay PATH [--rig R] [--rate-hz F] [--check] [--strict] [--rrd OUT.rrd]
+[--json]`: replay a CAN log through the harness's own drivers.
 
 PATH is a run directory (its ``can.blf``, rig and rate from its ``config.yaml``) or a CAN log
 file python-can reads (``.blf``, ``.asc``, candump ``.log``: e.g. a capture of the real rig),
@@ -21,8 +21,12 @@ on the replayed ticks (the same checks on the same driver state) and its first f
 is compared with summary.json's (tick, device, kind). ``--rrd OUT.rrd`` writes the replayed
 telemetry and the logged commands as scalar channels on the ``time`` timeline (tick x dt).
 
+``--strict``: a capture to accept, not just to read: unknown ids, malformed or error frames,
+SYNC gaps, missing telemetry or sequence errors are named and exit 1.
+
 Exit status: 0 replayed (and, with --check, every compared tick matches and the monitor
-agrees), 1 the commands or the monitor's fault differ, 2 bad input (missing or unreadable
+agrees; with --strict, the log is clean), 1 the commands or the monitor's fault differ (or,
+with --strict, the log is not clean), 2 bad input (missing or unreadable
 file, --check without a run directory).
 """
 
@@ -55,6 +59,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "compare its commands with the logged ones (run directories only)")
     p.add_argument("--rrd", type=Path, metavar="OUT.rrd",
                    help="write the replayed telemetry and commands to a Rerun recording")
+    p.add_argument("--strict", action="store_true", help="exit 1 when the log has unknown "
+                   "ids, malformed or error frames, SYNC gaps, missing telemetry or sequence "
+                   "errors (a capture to accept, not just to read)")
     p.add_argument("--json", action="store_true", help="JSON on stdout")
     p.epilog = examples(
         "harness replay logs/20260101T120000.000000Z-slew-rw --check",
@@ -137,11 +144,16 @@ def cmd_replay(args: argparse.Namespace) -> int:
     report = report_dict(replay, rig_name, result, rig_cfg)
     if args.rrd is not None:
         report["rrd"] = str(args.rrd)
+    problems = replay.strict_problems() if args.strict else []
+    if args.strict:
+        report["strict_problems"] = problems
     if args.json:
         print(json.dumps(report, indent=2))
     else:
         print_report(report)
-    return 1 if result is not None and not result.consistent else 0
+    if problems:
+        print(f"harness replay --strict: {'; '.join(problems)}", file=sys.stderr)
+    return 1 if problems or (result is not None and not result.consistent) else 0
 
 
 def _writer(rrd: Path | None, source: Path) -> ReplayRecording | None:

@@ -31,7 +31,6 @@ fault (tick, device, kind).
 from __future__ import annotations
 
 import copy
-import json
 import math
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
@@ -121,6 +120,19 @@ class Replay:
     @property
     def missing_frames(self) -> int:
         return self.missing_total
+
+    def strict_problems(self) -> list[str]:
+        """What a log of a healthy run has none of (``harness replay --strict``): unknown
+        ids, malformed frames, error frames, SYNC gaps, missing telemetry, sequence errors."""
+        out = []
+        for n, what in ((self.unknown, "frames of unknown ids"),
+                        (sum(self.malformed.values()), "malformed frames"),
+                        (self.error_frames, "error frames"), (self.sync_gaps, "SYNC gaps"),
+                        (self.missing_frames, "telemetry frames missing at their tick"),
+                        (sum(self.sequence_errors.values()), "sequence errors")):
+            if n:
+                out.append(f"{n} {what}")
+        return out
 
 
 @dataclass(frozen=True)
@@ -424,7 +436,13 @@ def load_run_dir(run_dir: Path) -> tuple[RunConfig, dict[str, Any]]:
     cfg_path = run_dir / "config.yaml"
     if not cfg_path.is_file():
         raise ReplayError(f"{cfg_path}: no such file (not a run directory)")
+    from harness.record.run_folder import RunFolderError, load_run_folder
     from rig_models.yaml_file import load_yaml
+
+    try:  # checked as every reader of a run folder checks it (rate, duration, sections)
+        load_run_folder(run_dir)
+    except RunFolderError as exc:
+        raise ReplayError(str(exc)) from exc
 
     try:
         cfg = load_yaml(cfg_path, "config.yaml")  # bounded: a hand-edited copy may not be
@@ -447,9 +465,13 @@ def load_run_dir(run_dir: Path) -> tuple[RunConfig, dict[str, Any]]:
     summary: dict[str, Any] = {}
     sum_path = run_dir / "summary.json"
     if sum_path.is_file():
-        try:
-            summary = json.loads(sum_path.read_text())
-        except (OSError, ValueError):
+        from harness.record.summary_file import read_summary
+
+        try:  # as the judge reads it: a field of the wrong shape is left out
+            summary, _ = read_summary(sum_path)
+        except ValueError as exc:
+            raise ReplayError(f"{sum_path}: {exc}") from exc
+        except OSError:
             summary = {}
     return run, summary
 

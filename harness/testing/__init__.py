@@ -70,6 +70,7 @@ from harness.testing.evaluate import (
     INCONCLUSIVE,
     MARGINAL,
     NO_CRITERIA,
+    NOT_JUDGED,
     PASS,
     SEVERITY,
     CriterionResult,
@@ -94,8 +95,8 @@ EXIT_CODES = {"PASS": 0, "FAIL": 1, "BAD_INPUT": 2, "ERROR_FAULT": 3, "ERROR": 4
               "MARGINAL": 5, "INCONCLUSIVE": 6, "INTERRUPTED": 130}
 
 __all__ = [
-    "ERROR", "EXIT_CODES", "FAIL", "INCONCLUSIVE", "MARGINAL", "NO_CRITERIA", "PASS",
-    "SEVERITY", "Criterion",
+    "ERROR", "EXIT_CODES", "FAIL", "INCONCLUSIVE", "MARGINAL", "NO_CRITERIA", "NOT_JUDGED",
+    "PASS", "SEVERITY", "Criterion",
     "CriterionResult", "Facts", "JudgeInputError", "MissingData", "Verdict", "Window",
     "apply_overrides", "evaluate", "evaluate_scalar", "exit_code", "format_block",
     "judge_run", "make_verdict", "parse_criteria", "parse_criterion", "resolve_baselines",

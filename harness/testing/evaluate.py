@@ -40,6 +40,10 @@ SEVERITY = {PASS: 0, MARGINAL: 1, INCONCLUSIVE: 2, FAIL: 3, ERROR: 4}
 FAIL. Within one run ``run_verdict`` applies instead (a FAIL measured on a bench that lost
 its time is not trusted)."""
 INCONCLUSIVE_EXIT = 6
+NOT_JUDGED = "NOT JUDGED"
+"""A criterion's verdict on a run stopped early (a fault, an interruption, an error) when it
+does not say ``applies_to_stopped: true``: its value, measured against a run that never got
+where it was going, says nothing. It never decides the run's verdict (the stop does)."""
 NO_CRITERIA = "NO CRITERIA"
 """A run's verdict when nothing was judged: no criterion, and none of the run's own checks
 found a problem. Not PASS (a run whose ``expect:`` was lost must not read as a passing
@@ -895,8 +899,37 @@ def run_verdict(verdicts: Iterable[str]) -> str:
 
 
 def worst_verdict(results: Sequence[CriterionResult]) -> str:
-    """A run's verdict (``run_verdict``) from its criteria's results."""
-    return run_verdict(r.verdict for r in results)
+    """A run's verdict (``run_verdict``) from its criteria's judged results; nothing but
+    NOT JUDGED is an ERROR (the run stopped)."""
+    judged = [r.verdict for r in results if r.verdict != NOT_JUDGED]
+    if results and not judged:
+        return ERROR
+    return run_verdict(judged)
+
+def stopped_early(measures: Mapping[str, Any]) -> str | None:
+    """Why the run stopped before its end (a fault, an interruption, an error), or None."""
+    stopped = measures.get("stopped_by")
+    if stopped == "fault":
+        faults = [f for f in measures.get("faults") or [] if isinstance(f, Mapping)]
+        if faults:
+            f = faults[0]
+            t = f.get("time_s")
+            at = f" at t = {float(t):.3f} s" if isinstance(t, int | float) else ""
+            return f"a fault ({f.get('device')}: {f.get('kind')}){at} stopped the run"
+        return "a fault stopped the run"
+    if stopped == "interrupted":
+        return "the run was interrupted"
+    if stopped == "error":
+        return "the run raised an error"
+    return None
+
+
+def not_judged(c: Criterion, why: str) -> CriterionResult:
+    """A criterion left unjudged on a run stopped early (see NOT_JUDGED)."""
+    return CriterionResult(c.name, c.kind, None, c.unit, limit_dict(c), None, NOT_JUDGED,
+                           None, f"not judged: {why} before its end; this criterion does "
+                           "not apply to a stopped run (applies_to_stopped: true judges it)",
+                           c.why)
 
 
 def exit_code(verdict: str, results: Sequence[CriterionResult]) -> int:

@@ -26,14 +26,17 @@ from harness.testing.criteria import Criterion, apply_overrides, parse_criteria
 from harness.testing.evaluate import (
     ERROR,
     INCONCLUSIVE,
+    MAX_EVENTS,
     NO_CRITERIA,
     CriterionResult,
     Facts,
     MissingData,
     evaluate,
     exit_code,
+    not_judged,
     reason,
     run_checks,
+    stopped_early,
     worst_verdict,
 )
 from harness.testing.measures import unit_text
@@ -485,8 +488,12 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
     if is_realtime(summary):  # the bench's own timing, in every real-time run
         run = cfg.get("run") if isinstance(cfg.get("run"), Mapping) else {}
         criteria = criteria + timing_criteria(run, {c.name for c in criteria})
-    results = evaluate(criteria, facts) + results + (run_checks(criteria, summary)
-                                                     if summary else [])
+    why = stopped_early(summary) if not note else None
+    judged = [c for c in criteria if not why or c.applies_to_stopped]
+    done = dict(zip((id(c) for c in judged), evaluate(judged, facts), strict=True))
+    results = [done[id(c)] if id(c) in done else not_judged(c, str(why))
+               for c in criteria] + results + (run_checks(criteria, summary)
+                                               if summary else [])
     verdict = make_verdict(results, identity_of(run_dir, cfg, summary, expect_file), run_dir)
     if note and verdict.verdict == "PASS":
         verdict.reason = f"{note}; {verdict.reason}"
@@ -537,11 +544,10 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
     save_with_blueprint(rec, fresh_output_path(run_dir / "verdict.rrd"), _run_layout(run_dir))
     rec.log("/run/verdict", rr.TextDocument(_verdict_text(v, run_dir),
                                             media_type="text/markdown"), static=True)
-    # by time only: two criteria violated at the same instant must not be compared
-    events = sorted(((t, c) for c in v.criteria for t in c.violations_s), key=lambda e: e[0])
+    events = verdict_events(v)
     for t, c in events:
         rec.set_time("time", duration=t)
-        rec.log("/events/verdict", rr.TextLog(f"{c.name} {c.verdict}: {c.message}",
+        rec.log("/events/verdict", rr.TextLog(event_text(c),
                                               level="ERROR" if c.verdict == ERROR else "WARN"))
     _mark_on_plots(rec, run_dir, [(t, f"VERDICT {c.name} {c.verdict}") for t, c in events])
     try:
@@ -551,8 +557,29 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
         del rec
         sweep_orphans()  # the stream dropped: its threads end
     _into_run_rrd(run_dir, v, [(t, "ERROR" if c.verdict == ERROR else "WARN",
-                                f"{c.name} {c.verdict}: {c.message}") for t, c in events])
+                                event_text(c)) for t, c in events])
     return out
+
+
+def verdict_events(v: Verdict) -> list[tuple[float, CriterionResult]]:
+    """One event per criterion that failed, at its worst sample (else its first violation),
+    in time order (by time only: two criteria violated at one instant are not compared)."""
+    out = []
+    for c in v.criteria:
+        t = c.worst_time_s if c.worst_time_s is not None else (
+            c.violations_s[0] if c.violations_s else None)
+        if c.violations_s and t is not None:
+            out.append((float(t), c))
+    return sorted(out, key=lambda e: e[0])
+
+
+def event_text(c: CriterionResult) -> str:
+    """A failed criterion's event: its name, verdict and message, and how often it was
+    violated when more than once (each start is in ``violations_s``)."""
+    n = len(c.violations_s)
+    starts = "" if n < 2 else (f" ({n}{'+' if n >= MAX_EVENTS else ''} violations, from "
+                               f"t = {min(c.violations_s):.3f} s)")
+    return f"{c.name} {c.verdict}: {c.message}{starts}"
 
 
 def _into_run_rrd(run_dir: Path, v: Verdict, events: list[tuple[float, str, str]]) -> None:
