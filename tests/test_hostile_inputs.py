@@ -1,0 +1,153 @@
+"""Hostile inputs: each ends with one line naming the key or file and exit 2 (bad input),
+no traceback, in bounded time and memory, before any work starts; a signal always ends the
+process."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from in_process import harness_in_process
+
+ROOT = Path(__file__).resolve().parents[1]
+RUNS = ROOT / "harness" / "runs"
+
+
+def _one_line_refusal(res: subprocess.CompletedProcess[str], *names: str,
+                      code: int = 2) -> None:
+    assert res.returncode == code, res.stderr
+    assert "Traceback" not in res.stderr
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, res.stderr
+    for name in names:
+        assert name in lines[0], lines[0]
+
+
+# -- a FIFO, a device or a directory as a file -----------------------------------------------
+
+def _run_unblocked(args: list[str], fifo: Path) -> subprocess.CompletedProcess[str]:
+    """``harness ARGS``; should it block in open() on ``fifo`` for 10 s, a writer lets it
+    go and the test fails (instead of hanging)."""
+    done = threading.Event()
+    blocked = []
+
+    def release() -> None:
+        if done.wait(10):
+            return
+        while not done.is_set():
+            try:  # succeeds only while a reader waits in open()
+                fd = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)
+            except OSError:
+                time.sleep(0.05)
+                continue
+            blocked.append(True)
+            os.write(fd, b"{}\n")
+            os.close(fd)
+            return
+
+    t = threading.Thread(target=release, daemon=True)
+    t.start()
+    try:
+        res = harness_in_process(*args)
+    finally:
+        done.set()
+        t.join()
+    assert not blocked, f"harness {' '.join(args)} blocked opening the FIFO"
+    return res
+
+
+@pytest.fixture
+def fifo(tmp_path: Path) -> Path:
+    path = tmp_path / "fifo.yaml"
+    os.mkfifo(path)
+    return path
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs named pipes")
+def test_fifo_as_run_rig_or_base_file_is_refused(fifo: Path, tmp_path: Path):
+    run_text = (RUNS / "slew-rw.yaml").read_text()
+    on_rig = tmp_path / "on-fifo-rig.yaml"
+    on_rig.write_text(run_text.replace("\nrig: sgsrt\n", f"\nrig: {fifo}\n"))
+    rig = tmp_path / "extends-fifo.yaml"
+    rig.write_text(f"extends: {fifo}\n")
+    on_base = tmp_path / "on-fifo-base.yaml"
+    on_base.write_text(run_text.replace("\nrig: sgsrt\n", f"\nrig: {rig}\n"))
+    assert f"rig: {fifo}" in on_rig.read_text()
+    out = str(tmp_path / "logs")
+    for args, names in ((["run", str(fifo)], ("run file", str(fifo), "FIFO")),
+                        (["run", str(on_rig)], ("rig file", str(fifo), "FIFO")),
+                        (["run", "slew-rw", "--rig", str(fifo)], ("rig file", "FIFO")),
+                        (["run", str(on_base)], ("extends", str(fifo), "FIFO"))):
+        _one_line_refusal(_run_unblocked([*args, "--out", out], fifo), *names)
+    assert not (tmp_path / "logs").exists()
+
+
+@pytest.mark.parametrize("path,kind", [("/dev/null", "character device"), ("/", "directory")])
+def test_device_or_directory_as_run_or_rig_file_is_refused(tmp_path: Path, path: str,
+                                                           kind: str):
+    if not Path(path).exists():
+        pytest.skip(f"no {path}")
+    out = str(tmp_path / "logs")
+    _one_line_refusal(harness_in_process("run", path, "--out", out), "run file", kind)
+    _one_line_refusal(harness_in_process("run", "slew-rw", "--rig", path, "--out", out),
+                      "rig file", kind)
+
+
+# -- signals before a run begins ---------------------------------------------------------------
+
+BLOCKED_START = """
+import sys, time
+import harness.commands.run as run_command
+
+def blocked(*args, **kwargs):
+    print("reading", file=sys.stderr, flush=True)
+    while True:
+        time.sleep(3600)  # a read that never ends (restarted after a handler that returns)
+
+run_command.load_run = blocked
+from harness.cli import main
+sys.exit(main(["run", "slew-rw", "--out", sys.argv[1]]))
+"""
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_before_the_run_begins_ends_the_process(tmp_path: Path, signum: int):
+    proc = subprocess.Popen([sys.executable, "-c", BLOCKED_START, str(tmp_path / "logs")],
+                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        assert proc.stderr is not None
+        assert proc.stderr.readline().strip() == "reading"
+        proc.send_signal(signum)
+        start = time.monotonic()
+        code = proc.wait(timeout=10)
+        assert time.monotonic() - start < 2.0
+        err = proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert code == 130, err
+    assert "Traceback" not in err
+    assert signal.Signals(signum).name in err and "before the run began" in err
+    assert not (tmp_path / "logs").exists()
+
+
+def test_a_third_signal_cuts_the_closing_short():
+    from harness.core.interrupts import StopRequest
+
+    req = StopRequest()
+    with pytest.raises(KeyboardInterrupt):  # nothing begun: at once
+        req._handler(signal.SIGTERM, sys._getframe())
+    req = StopRequest()
+    req.begin()
+    req._handler(signal.SIGTERM, sys._getframe())  # stop at the next tick
+    req._handler(signal.SIGTERM, sys._getframe())  # closing: noted
+    with pytest.raises(KeyboardInterrupt):
+        req._handler(signal.SIGTERM, sys._getframe())
