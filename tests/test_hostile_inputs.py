@@ -151,3 +151,77 @@ def test_a_third_signal_cuts_the_closing_short():
     req._handler(signal.SIGTERM, sys._getframe())  # closing: noted
     with pytest.raises(KeyboardInterrupt):
         req._handler(signal.SIGTERM, sys._getframe())
+
+
+# -- values a file may hold ---------------------------------------------------------------------
+
+def _run_file(tmp_path: Path, extra: str) -> Path:
+    path = tmp_path / "hostile-run.yaml"
+    path.write_text((RUNS / "slew-rw.yaml").read_text() + "\n" + extra + "\n")
+    return path
+
+
+def test_unknown_keys_of_mixed_type_are_named(tmp_path: Path):
+    path = _run_file(tmp_path, "1: x\nzzz: y")
+    _one_line_refusal(harness_in_process("run", str(path), "--out", str(tmp_path / "l")),
+                      "unknown key")
+
+
+def test_a_variant_that_is_not_a_mapping_is_named(tmp_path: Path):
+    path = _run_file(tmp_path, "variants: {v: null}")
+    _one_line_refusal(harness_in_process("run", str(path), "--out", str(tmp_path / "l")),
+                      "variants.v", "expected a mapping")
+
+
+def test_a_huge_value_is_quoted_short(tmp_path: Path):
+    path = _run_file(tmp_path, "variants: " + "x" * 200_000)
+    res = harness_in_process("run", str(path), "--out", str(tmp_path / "l"))
+    _one_line_refusal(res, "variants", "200000 characters")
+    assert len(res.stderr) < 400
+
+
+def test_a_huge_csv_field_is_refused_in_one_short_line(tmp_path: Path):
+    csv = tmp_path / "decay.csv"
+    csv.write_text("t,a\n0,0\n0.01," + "x" * 2_000_000 + "\n")
+    res = harness_in_process("identify", str(csv))
+    _one_line_refusal(res, str(csv), "line 3")
+    assert len(res.stderr) < 400
+    short = tmp_path / "short.csv"  # under the line limit: the value quoted short
+    short.write_text("t,a\n0,0\n0.01," + "y" * 5000 + "\n")
+    res = harness_in_process("identify", str(short))
+    _one_line_refusal(res, "line 3", "column 2", "5000 characters")
+    assert len(res.stderr) < 400
+
+
+# -- judging a hand-edited run folder ---------------------------------------------------------
+
+def _short_run(tmp_path: Path) -> Path:
+    from harness.core.runs import load_run
+    from harness.core.session import execute_run
+
+    res = execute_run(load_run("slew-rw", {"duration_s": 0.2}), out_dir=tmp_path / "logs",
+                      show_progress=False)
+    return res.run_dir
+
+
+def test_judge_refuses_a_run_that_is_not_a_mapping_and_a_fault_kind_list(tmp_path: Path):
+    import json
+
+    import yaml
+
+    run_dir = _short_run(tmp_path)
+    cfg_path = run_dir / "config.yaml"
+    cfg = yaml.safe_load(cfg_path.read_text())
+    summary = json.loads((run_dir / "summary.json").read_text())
+    for bad in (5, [1], "text"):
+        cfg_path.write_text(yaml.safe_dump({**cfg, "run": bad}))
+        _one_line_refusal(harness_in_process("judge", str(run_dir)), "config.yaml", "run:")
+    cfg_path.write_text(yaml.safe_dump({k: v for k, v in cfg.items() if k != "run"}))
+    _one_line_refusal(harness_in_process("judge", str(run_dir)), "run: missing")
+    cfg_path.write_text(yaml.safe_dump(cfg))
+    summary["faults"] = [{"device": "hub_sensor", "kind": ["silent"], "message": "m",
+                          "time_s": 0.1}]
+    (run_dir / "summary.json").write_text(json.dumps(summary))
+    res = harness_in_process("judge", str(run_dir))
+    assert res.returncode == 4 and "Traceback" not in res.stderr, res.stderr
+    assert "faults[0].kind" in res.stdout + res.stderr

@@ -102,7 +102,7 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
         for name in names:
             if name is not None and name not in variants:
                 raise ConfigError(f"--variant {name}: {base.source} has variants "
-                                  f"{sorted(variants) or 'none'}")
+                                  f"{sorted(variants, key=str) or 'none'}")
         runs = []
         for name in names:  # every variant checked (criteria included) before any runs
             run = base

@@ -196,7 +196,7 @@ def translate_old_checks(raw: list[Any], source: str, key: str) -> dict[str, Any
         if not isinstance(c, dict) or "field" not in c:
             raise _err(f"{source}: {w}", "mixes the deprecated {field: ...} form with the run "
                        "file's form: write every criterion as NAME: {measure: PATH, ...}")
-        unknown = sorted(set(c) - {"field", "name", "unit", *OLD_RULES})
+        unknown = sorted(set(c) - {"field", "name", "unit", *OLD_RULES}, key=str)
         if unknown:
             raise _err(f"{source}: {w}.{unknown[0]}", "unknown key (the deprecated form takes "
                        f"field, name, unit, {', '.join(OLD_RULES)})")
@@ -315,7 +315,7 @@ def _run_cases(t: dict[str, Any], where: str, suite: str, base_dir: Path, source
         for i, v in enumerate(sel):
             if v not in available:
                 raise _err(f"{where}.variants[{i}]", f"{path.name} has variants "
-                           f"{sorted(available) or 'none'}, not {v!r}")
+                           f"{sorted(available, key=str) or 'none'}, not {v!r}")
         variants = list(sel)
     else:
         raise _err(f"{where}.variants", f"expected 'all' or a list of variant names, got {sel!r}")
@@ -343,7 +343,7 @@ def _run_cases(t: dict[str, Any], where: str, suite: str, base_dir: Path, source
             identify = {}
         if not isinstance(identify, dict):
             raise _err(f"{where}.identify", "expected a mapping {n_modes?, f_max_hz?, check}")
-        unknown = sorted(set(identify) - {"n_modes", "f_max_hz", "check"})
+        unknown = sorted(set(identify) - {"n_modes", "f_max_hz", "check"}, key=str)
         if unknown:
             raise _err(f"{where}.identify.{unknown[0]}",
                        "unknown key (expected one of: check, f_max_hz, n_modes)")
@@ -405,7 +405,8 @@ def _compare(t: dict[str, Any], where: str, suite: str, cases: list[Case]) -> Co
         w = f"{where}.compare[{i}]"
         if not isinstance(r, dict):
             raise _err(w, f"expected a mapping {{measure, largest|smallest}}, got {r!r}")
-        unknown = sorted(set(r) - {"measure", "largest", "smallest", "name", "unit", "why"})
+        unknown = sorted(set(r) - {"measure", "largest", "smallest", "name", "unit", "why"},
+                         key=str)
         if unknown:
             raise _err(f"{w}.{unknown[0]}",
                        "unknown key (expected one of: largest, measure, name, smallest, unit, "
@@ -455,7 +456,7 @@ def load_suite(name_or_path: str) -> Suite:
         raw = run_file_suite(path, raw)
     if not isinstance(raw, dict):
         raise ConfigError(f"suite file {src}: expected a mapping with name and tests")
-    unknown = sorted(set(raw) - {"name", "description", "tests", "require_criteria"})
+    unknown = sorted(set(raw) - {"name", "description", "tests", "require_criteria"}, key=str)
     if unknown:
         raise ConfigError(f"suite file {src}: {unknown[0]}: unknown key (expected one of: "
                           "description, name, require_criteria, tests)")
@@ -480,7 +481,7 @@ def load_suite(name_or_path: str) -> Suite:
         if len(kinds) != 1:
             raise _err(where, "expected exactly one of run, probe, study")
         kind = kinds[0]
-        unknown = sorted(set(t) - set(TEST_KEYS[kind]))
+        unknown = sorted(set(t) - set(TEST_KEYS[kind]), key=str)
         if unknown:
             raise _err(f"{where}.{unknown[0]}", f"unknown key for a {kind} test (expected one "
                        f"of: {', '.join(sorted(TEST_KEYS[kind]))})")
