@@ -225,3 +225,52 @@ def test_judge_refuses_a_run_that_is_not_a_mapping_and_a_fault_kind_list(tmp_pat
     res = harness_in_process("judge", str(run_dir))
     assert res.returncode == 4 and "Traceback" not in res.stderr, res.stderr
     assert "faults[0].kind" in res.stdout + res.stderr
+
+
+# -- suites that would never end --------------------------------------------------------------
+
+def _suite(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "hostile-suite.yaml"
+    path.write_text("name: hostile\ntests:\n" + text)
+    return path
+
+
+def test_a_matrix_key_under_another_is_named(tmp_path: Path):
+    path = _suite(tmp_path, "  - run: slew-rw\n    matrix:\n      duration_s: [1.0]\n"
+                            "      duration_s.x: [2.0]\n")
+    _one_line_refusal(harness_in_process("test", str(path), "--out", str(tmp_path / "o")),
+                      "tests[0].matrix", "duration_s", "duration_s.x")
+
+
+def test_a_matrix_of_a_billion_points_is_refused_before_expanding(tmp_path: Path):
+    keys = ["controller.angle_deg", "controller.bandwidth_rad_s", "controller.damping_ratio",
+            "controller.slew_duration_s", "controller.start_s", "controller.torque_fraction",
+            "settle_band_deg", "residual_window_s", "steady_window_s"]
+    values = "[" + ", ".join(str(v) for v in range(1, 11)) + "]"
+    path = _suite(tmp_path, "  - run: slew-rw\n    matrix:\n"
+                  + "".join(f"      {k}: {values}\n" for k in keys))
+    start = time.monotonic()
+    res = harness_in_process("test", str(path), "--out", str(tmp_path / "o"))
+    assert time.monotonic() - start < 5
+    _one_line_refusal(res, "tests[0].matrix", "1000000000 cases")
+
+
+def test_many_small_matrices_are_bounded_by_the_suite_total(tmp_path: Path, monkeypatch):
+    import harness.testing.suite as suite
+    from rig_models.schema import ConfigError
+
+    monkeypatch.setattr(suite, "MAX_SUITE_CASES", 10)
+    test = ("  - run: slew-rw\n    name: t{i}\n    matrix:\n"
+            "      controller.angle_deg: [1, 2]\n      settle_band_deg: [1, 2]\n")
+    path = _suite(tmp_path, "".join(test.format(i=i) for i in range(3)))
+    with pytest.raises(ConfigError, match=r"tests\[2\].matrix: 4 cases .*at most 10 cases"):
+        suite.load_suite(str(path))
+
+
+@pytest.mark.parametrize("option,value", [("rate_hz", "1000000000"),
+                                          ("duration_s", "1.0e+12"),
+                                          ("receive_timeout_ms", "1.0e+15")])
+def test_a_probe_out_of_range_is_refused(tmp_path: Path, option: str, value: str):
+    path = _suite(tmp_path, f"  - probe: {{{option}: {value}}}\n")
+    _one_line_refusal(harness_in_process("test", str(path), "--out", str(tmp_path / "o")),
+                      f"tests[0].probe.{option}", "at most")
