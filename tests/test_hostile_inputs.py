@@ -274,3 +274,24 @@ def test_a_probe_out_of_range_is_refused(tmp_path: Path, option: str, value: str
     path = _suite(tmp_path, f"  - probe: {{{option}: {value}}}\n")
     _one_line_refusal(harness_in_process("test", str(path), "--out", str(tmp_path / "o")),
                       f"tests[0].probe.{option}", "at most")
+
+
+# -- outputs and sizes asked on the command line ----------------------------------------------
+
+def test_replay_rrd_to_a_directory_or_a_missing_folder_is_refused(tmp_path: Path):
+    run_dir = _short_run(tmp_path)
+    _one_line_refusal(harness_in_process("replay", str(run_dir), "--rrd", str(tmp_path)),
+                      "--rrd", "a directory")
+    missing = tmp_path / "no-such-folder" / "replay.rrd"
+    _one_line_refusal(harness_in_process("replay", str(run_dir), "--rrd", str(missing)),
+                      "--rrd", "does not exist")
+    assert not missing.parent.exists()
+
+
+def test_a_sweep_grid_too_large_is_refused_naming_its_size(tmp_path: Path):
+    start = time.monotonic()
+    res = harness_in_process("sweep", "--n-lambda", "100000", "--n-beta", "100000",
+                             "--out", str(tmp_path / "o"))
+    assert time.monotonic() - start < 5
+    _one_line_refusal(res, "--n-lambda 100000", "--n-beta 100000", "149 GiB")
+    assert not (tmp_path / "o").exists()
