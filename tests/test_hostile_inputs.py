@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
 
+import can
 import pytest
 from in_process import harness_in_process
 
@@ -371,3 +373,72 @@ def test_the_rig_process_ends_soon_after_a_sigkilled_harness(tmp_path: Path):
         for pid in rigs:
             if _alive(pid):
                 os.kill(pid, signal.SIGKILL)
+
+
+# -- the socketcand server: its own log and its client slots ----------------------------------
+
+def _raw_socket(port: int) -> socket.socket:
+    sock = socket.create_connection(("127.0.0.1", port), timeout=5)
+    assert sock.recv(64).startswith(b"< hi >")
+    return sock
+
+
+def test_socketcand_server_rate_limits_its_log_of_malformed_input(caplog):
+    import logging
+
+    from drivers.socketcand_server import LOG_LINES_PER_S, SocketcandServerBus
+
+    bus = SocketcandServerBus(port=0)
+    try:
+        with caplog.at_level(logging.WARNING, logger="drivers.socketcand_server"):
+            sock = _raw_socket(bus.port)
+            n = 20_000
+            sock.sendall(b"< open can0 >< rawmode >" + b"< bogus " + b"x" * 200 + b" >" * 1
+                         + b"< bogus >" * (n - 1))
+            assert _wait_until(lambda: bus.stats.malformed_commands >= n)
+            sock.close()
+            assert _wait_until(lambda: bus.stats.clients_connected == 0)
+        lines = [r.getMessage() for r in caplog.records if "malformed" in r.getMessage()]
+        # a few windows of LOG_LINES_PER_S lines, one line of the rest: not 20 000 lines
+        assert len(lines) <= 4 * (LOG_LINES_PER_S + 1), len(lines)
+        assert any("not logged" in ln for ln in lines)
+        assert sum(len(ln) for ln in lines) < 20_000
+        assert all(len(ln) < 400 for ln in lines)
+    finally:
+        bus.shutdown()
+
+
+def test_socketcand_server_idle_clients_never_lock_a_new_one_out():
+    from drivers.socketcand_server import EVICT_IDLE_S, SocketcandServerBus
+
+    bus = SocketcandServerBus(port=0, max_clients=4, handshake_timeout_s=60.0)
+    idle = []
+    try:
+        for _ in range(4):  # four clients in rawmode that then say nothing
+            sock = _raw_socket(bus.port)
+            sock.sendall(b"< open can0 >< rawmode >")
+            idle.append(sock)
+        assert _wait_until(lambda: bus.stats.clients_in_rawmode == 4)
+        time.sleep(EVICT_IDLE_S + 0.2)
+        start = time.monotonic()
+        newcomer = can.Bus(interface="socketcand", host="127.0.0.1", port=bus.port,
+                           channel="can0")
+        try:
+            assert time.monotonic() - start < 5
+            assert bus.wait_for_clients(4, timeout_s=5)
+            assert bus.stats.clients_dropped_total >= 1
+        finally:
+            newcomer.shutdown()
+    finally:
+        for sock in idle:
+            sock.close()
+        bus.shutdown()
+
+
+def _wait_until(condition, timeout_s: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.02)
+    return condition()
