@@ -442,3 +442,50 @@ def _wait_until(condition, timeout_s: float = 10.0) -> bool:
             return True
         time.sleep(0.02)
     return condition()
+
+
+# -- a CAN log that would inflate or claim gigabytes -----------------------------------------
+
+def _blf_head(tmp_path: Path) -> bytes:
+    """The file header of an empty log as python-can writes it."""
+    from can.io import blf
+
+    empty = tmp_path / "empty.blf"
+    writer = can.BLFWriter(str(empty))
+    writer.stop()
+    raw = empty.read_bytes()
+    return raw[:blf.FILE_HEADER_STRUCT.unpack_from(raw)[1]]
+
+
+def _blf_object(obj_type: int, payload: bytes, claimed: int | None = None) -> bytes:
+    from can.io import blf
+
+    base = blf.OBJ_HEADER_BASE_STRUCT
+    size = claimed if claimed is not None else base.size + len(payload)
+    return base.pack(b"LOBJ", base.size, 1, size, obj_type) + payload + b"\0" * (size % 4)
+
+
+def test_replay_refuses_a_zlib_bomb_and_a_huge_object_in_bounded_memory(tmp_path: Path):
+    import resource
+    import zlib
+
+    from can.io import blf
+
+    z = zlib.compressobj(9)
+    body = b"".join(z.compress(b"\0" * (1 << 24)) for _ in range(16)) + z.flush()  # 256 MiB
+    bomb = tmp_path / "bomb.blf"
+    bomb.write_bytes(_blf_head(tmp_path) + _blf_object(
+        blf.LOG_CONTAINER, blf.LOG_CONTAINER_STRUCT.pack(blf.ZLIB_DEFLATE, 1 << 28) + body))
+    huge = tmp_path / "huge.blf"
+    with open(huge, "wb") as f:  # an object claiming 1 GiB, the file sparse to that size
+        f.write(_blf_head(tmp_path) + _blf_object(blf.LOG_CONTAINER, b"", claimed=1 << 30))
+        f.truncate(1 << 30)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    for path, names in ((bomb, ("bomb.blf", "inflates past")),
+                        (huge, ("huge.blf", "1073741824 bytes"))):
+        res = harness_in_process("replay", str(path))
+        assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+        last = res.stderr.strip().splitlines()[-1]  # after the stage line "reading ..."
+        assert all(name in last for name in names), last
+    grown_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before
+    assert grown_kb < 100_000, f"the refusals took {grown_kb} KB more"
