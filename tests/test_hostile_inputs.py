@@ -129,7 +129,7 @@ def test_a_signal_before_the_run_begins_ends_the_process(tmp_path: Path, signum:
         proc.send_signal(signum)
         start = time.monotonic()
         code = proc.wait(timeout=10)
-        assert time.monotonic() - start < 2.0
+        assert time.monotonic() - start < 5.0  # about 0.1 s on a quiet host
         err = proc.stderr.read()
     finally:
         if proc.poll() is None:
@@ -265,7 +265,8 @@ def test_many_small_matrices_are_bounded_by_the_suite_total(tmp_path: Path, monk
     test = ("  - run: slew-rw\n    name: t{i}\n    matrix:\n"
             "      controller.angle_deg: [1, 2]\n      settle_band_deg: [1, 2]\n")
     path = _suite(tmp_path, "".join(test.format(i=i) for i in range(3)))
-    with pytest.raises(ConfigError, match=r"tests\[2\].matrix: 4 cases .*at most 10 cases"):
+    with pytest.raises(ConfigError,
+                       match=r"tests\[2\].matrix: 4 cases .*than the 2 left of the 10 cases"):
         suite.load_suite(str(path))
 
 

@@ -359,8 +359,7 @@ def _run_cases(t: dict[str, Any], where: str, suite: str, base_dir: Path, source
     if n_cases > budget:
         raise _err(f"{where}.matrix", f"{n_cases} cases ({len(variants)} variant(s) x "
                    f"{' x '.join(str(len(v)) for v in matrix.values())} matrix values), more "
-                   f"than the {budget} {'' if budget == MAX_SUITE_CASES else 'more '}the "
-                   f"suite may have (at most {MAX_SUITE_CASES} cases)")
+                   f"than the {budget} left of the {MAX_SUITE_CASES} cases a suite may have")
     sets = t.get("set") or {}
     if not isinstance(sets, dict):
         raise _err(f"{where}.set", f"expected a mapping of run-file overrides, got {sets!r}")
