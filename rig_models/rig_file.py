@@ -245,11 +245,11 @@ def load_rig(name_or_path: str | Path = "sgsrt") -> RigConfig:
     return rig_from_dict(raw, source=f"rig file {path.name}", base_dir=path.resolve().parent)
 
 
-def _read_rig_yaml(path: Path, seen: tuple[Path, ...]) -> Any:
+def _read_rig_yaml(path: Path, seen: tuple[Path, ...], what: str = "rig file") -> Any:
     """A rig file's data; ``extends: NAME`` takes another rig file's data as the base and
     overrides it key by key (a rig that differs only in its device binding names the
-    physics once)."""
-    raw = load_yaml(path, "rig file")
+    physics once). ``what`` names the file in errors (a base: the file that extends it)."""
+    raw = load_yaml(path, what)
     if not isinstance(raw, dict) or "extends" not in raw:
         return raw
     base_name = raw.pop("extends")
@@ -263,7 +263,8 @@ def _read_rig_yaml(path: Path, seen: tuple[Path, ...]) -> Any:
         raise ConfigError(f"rig file {path.name}: extends: {base_name}: not found")
     if base.resolve() in seen or base.resolve() == path.resolve():
         raise ConfigError(f"rig file {path.name}: extends: {base_name}: a circle of extends")
-    base_data = _read_rig_yaml(base, seen + (path.resolve(),))
+    base_data = _read_rig_yaml(base, seen + (path.resolve(),),
+                               f"rig file {path.name}: extends: rig file")
     if base_data is None:
         base_data = {}
     if not isinstance(base_data, dict):

@@ -6,6 +6,11 @@ gigabytes and minutes or died with MemoryError, and a recursive alias (``&a [*a]
 ends for code that walks the document. ``load_yaml`` refuses a file over
 ``MAX_YAML_BYTES`` before reading it, and a document whose values, counted as expanded,
 exceed ``MAX_YAML_VALUES``, with a ``ConfigError`` naming the file.
+
+Only a regular file is read: a FIFO blocked ``open()`` until a writer came (for ever, and
+deaf to SIGTERM), a device or a socket never ends. The file is opened without blocking and
+checked to be regular on its open descriptor, so nothing swapped in after a first check can
+block either.
 """
 
 from __future__ import annotations
@@ -77,6 +82,47 @@ def _check_strings(doc: Any, source: str) -> None:
             stack.extend((item, f"{path}[{i}]") for i, item in enumerate(v))
 
 
+def file_kind(mode: int) -> str:
+    """What a file that is not a regular one is, in words."""
+    for test, name in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def open_regular(path: Path, source: str) -> int:
+    """A descriptor of ``path`` opened for reading, checked to be a regular file; else
+    ``ConfigError`` naming ``source``. Opened with ``O_NONBLOCK`` (a FIFO's open returns at
+    once instead of waiting for a writer), then checked on the descriptor itself."""
+    mode = os.stat(path).st_mode  # a directory or device refused before any open
+    if not stat.S_ISREG(mode):
+        raise ConfigError(f"{source}: {file_kind(mode)}, not a regular file")
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise ConfigError(f"{source}: {file_kind(mode)}, not a regular file")
+        os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def read_regular_text(path: Path, source: str, limit: int, what: str) -> str:
+    """The UTF-8 text of the regular file ``path``, at most ``limit`` bytes; else
+    ``ConfigError`` naming ``source`` (``OSError``, ``UnicodeDecodeError`` pass)."""
+    fd = open_regular(path, source)
+    with open(fd, encoding="utf-8", errors="strict") as f:
+        size = os.fstat(fd).st_size
+        if size > limit:
+            raise ConfigError(f"{source}: {size / 2**20:.1f} MiB, more than the "
+                              f"{limit // 2**20} MiB {what} may have")
+        return f.read(limit + 1)
+
+
 def load_yaml(path: Path, what: str = "file") -> Any:
     """The document of ``path``; ``ConfigError`` (naming ``what`` and the file) when it is
     too big, expands too far, is not valid YAML, or cannot be read."""
@@ -85,19 +131,7 @@ def load_yaml(path: Path, what: str = "file") -> Any:
     if len(source) > 300:  # a path of thousands of characters: its ends say which
         source = f"{source[:150]}...{source[-150:]}"
     try:
-        # opened without blocking and checked to be a regular file: a FIFO (or a device)
-        # named as a file would block the open or the read for ever
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0)
-                     | getattr(os, "O_NOCTTY", 0))
-        with open(fd, "rb") as f:
-            st = os.fstat(f.fileno())
-            if not stat.S_ISREG(st.st_mode):
-                raise ConfigError(f"{source}: not a regular file (a FIFO, device, socket or "
-                                  "folder)")
-            if st.st_size > MAX_YAML_BYTES:
-                raise ConfigError(f"{source}: {st.st_size / 2**20:.1f} MiB, more than the "
-                                  f"{MAX_YAML_BYTES // 2**20} MiB a YAML input may have")
-            text = f.read(MAX_YAML_BYTES + 1).decode("utf-8", errors="strict")
+        text = read_regular_text(path, source, MAX_YAML_BYTES, "a YAML input")
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{source}: not UTF-8 text ({exc.reason} at byte {exc.start})"
                           ) from None

@@ -228,7 +228,7 @@ _SIGNAL_KEYS = {"message", "signal", "scale", "offset", "sensitivity", "mux", "m
 def _signal_map(quantity: str, spec: Any, key: str, protocol: Protocol, path: Path
                 ) -> tuple[FrameCodec, SignalMap, int | None, int | None]:
     spec = _mapping(spec, key)
-    unknown = sorted(set(spec) - _SIGNAL_KEYS)
+    unknown = sorted(set(spec) - _SIGNAL_KEYS, key=str)
     if unknown:
         raise BindingError(f"{key}.{unknown[0]}: unknown key (expected one of: "
                            f"{', '.join(sorted(_SIGNAL_KEYS))})")
@@ -265,7 +265,7 @@ def _dbc_device(device: str, cfg: Mapping[str, Any], key: str, base_dir: Path | 
                 ) -> tuple[tuple[TelemetryMap, ...], tuple[CommandMap, ...],
                            tuple[str, int] | None, str]:
     allowed = {"binding", "dbc", "telemetry", "commands"}
-    unknown = sorted(set(cfg) - allowed)
+    unknown = sorted(set(cfg) - allowed, key=str)
     if unknown:
         raise BindingError(f"{key}.{unknown[0]}: unknown key (expected one of: "
                            f"{', '.join(sorted(allowed))})")
@@ -348,7 +348,7 @@ def _sync_and_heartbeat(bus: Mapping[str, Any], base_dir: Path | None, sgsrt: Pr
         sync, sgsrt_sync = SyncMap(sgsrt["SYNC"], "tick"), True
     else:
         cfg = _mapping(sync_cfg, "bus.sync")
-        unknown = sorted(set(cfg) - {"dbc", "message", "signal"})
+        unknown = sorted(set(cfg) - {"dbc", "message", "signal"}, key=str)
         if unknown:
             raise BindingError(f"bus.sync.{unknown[0]}: unknown key (expected dbc, message, "
                                "signal)")
@@ -360,7 +360,7 @@ def _sync_and_heartbeat(bus: Mapping[str, Any], base_dir: Path | None, sgsrt: Pr
         hb = HeartbeatMap(sgsrt["HEARTBEAT"], "counter", "armed")
     else:
         cfg = _mapping(hb_cfg, "bus.heartbeat")
-        unknown = sorted(set(cfg) - {"dbc", "message", "counter", "armed"})
+        unknown = sorted(set(cfg) - {"dbc", "message", "counter", "armed"}, key=str)
         if unknown:
             raise BindingError(f"bus.heartbeat.{unknown[0]}: unknown key (expected dbc, "
                                "message, counter, armed)")
@@ -380,7 +380,7 @@ def build_binding(data: Mapping[str, Any], base_dir: Path | None = None) -> RigB
     ``bus.heartbeat``). Raises BindingError naming the key."""
     sgsrt = load_protocol(str(DBC_PATH))
     devices = _mapping(data.get("devices"), "devices")
-    unknown = sorted(set(devices) - set(DEVICES))
+    unknown = sorted(set(devices) - set(DEVICES), key=str)
     if unknown:
         raise BindingError(f"devices.{unknown[0]}: unknown device (expected one of: "
                            f"{', '.join(DEVICES)})")

@@ -544,7 +544,7 @@ def _quantity(q: str, spec: Any, key: str, od: Any, eds: str, command: bool) -> 
     if not isinstance(spec, Mapping):
         raise BindingError(f"{key}: expected a mapping with object (and sub, scale, ...), got "
                            f"{spec!r}")
-    unknown = sorted(set(spec) - _QTY_KEYS)
+    unknown = sorted(set(spec) - _QTY_KEYS, key=str)
     if unknown:
         raise BindingError(f"{key}.{unknown[0]}: unknown key (expected one of: "
                            f"{', '.join(sorted(_QTY_KEYS))})")
@@ -606,7 +606,7 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
     node_of: dict[str, int] = {}
     for device, cfg in devices.items():
         key = f"devices.{device}"
-        unknown = sorted(set(cfg) - _DEVICE_KEYS)
+        unknown = sorted(set(cfg) - _DEVICE_KEYS, key=str)
         if unknown:
             raise BindingError(f"{key}.{unknown[0]}: unknown key (expected one of: "
                                f"{', '.join(sorted(_DEVICE_KEYS))})")

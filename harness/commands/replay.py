@@ -157,9 +157,25 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _writer(rrd: Path | None, source: Path) -> ReplayRecording | None:
-    from harness.core.replay import ReplayRecording, replay_recording_name  # see cmd_replay
+    """The recording ``--rrd`` asks for; ``ReplayError`` naming it when it cannot be a
+    file there (a directory, a folder that does not exist, a file Rerun cannot create)."""
+    from harness.core.replay import (  # see cmd_replay
+        ReplayError,
+        ReplayRecording,
+        replay_recording_name,
+    )
 
-    return None if rrd is None else ReplayRecording(rrd, replay_recording_name(source))
+    if rrd is None:
+        return None
+    if rrd.is_dir():
+        raise ReplayError(f"--rrd {rrd}: a directory; expected a file name such as "
+                          f"{rrd / 'replay.rrd'}")
+    if not rrd.parent.is_dir():
+        raise ReplayError(f"--rrd {rrd}: the folder {rrd.parent} does not exist")
+    try:
+        return ReplayRecording(rrd, replay_recording_name(source))
+    except RuntimeError as exc:  # Rerun's file sink could not create the file
+        raise ReplayError(f"--rrd {rrd}: cannot write: {exc}") from None
 
 
 def _each(*consumers: Any) -> Any:

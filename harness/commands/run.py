@@ -71,7 +71,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 def cmd_run(args: argparse.Namespace) -> int:
     summaries = []
     with stop_on_signals() as stop:
-        return _run_all(args, stop, summaries)
+        try:
+            return _run_all(args, stop, summaries)
+        except KeyboardInterrupt:
+            # a signal before the run began (nothing sent), or a third one while its files
+            # were closed (the rig already left safe): one line, exit 130
+            when = "while closing the run" if stop.begun else "before the run began; " \
+                "nothing sent"
+            print(f"harness: {stop.reason or 'interrupted'}: stopped {when}", file=sys.stderr)
+            return 130
 
 
 def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> int:
@@ -104,7 +112,7 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
         for name in names:
             if name is not None and name not in variants:
                 raise ConfigError(f"--variant {name}: {base.source} has variants "
-                                  f"{sorted(variants) or 'none'}")
+                                  f"{sorted(variants, key=str) or 'none'}")
         runs = []
         for name in names:  # every variant checked (criteria included) before any runs
             run = base
@@ -117,6 +125,7 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
         for name, run in runs:
             if name is not None:
                 print(f"harness: {run.name}", file=sys.stderr)
+            stop.begin()
             try:
                 result = execute_run(run, out_dir=args.out, bus=args.bus, clock=args.clock,
                                      live_view_url=args.view, show_progress=not args.quiet,

@@ -61,6 +61,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_sweep)
 
 
+MAX_SWEEP_POINTS = 1_000_000
+"""The largest grid (lambdas x betas): the default is 30 x 30; a grid of 10^5 x 10^5 asked
+for arrays of 149 GiB and ended in a traceback."""
+
+SWEEP_BYTES_PER_POINT = 16
+"""What a grid point's results take (two float64: rotor speed and disturbance amplitude)."""
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
     # numpy, scipy, Matplotlib and Rerun only when a sweep runs (start-up of `harness --help`)
     import numpy as np
@@ -74,6 +82,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     try:
         if args.n_lambda < 2 or args.n_beta < 2:
             raise ConfigError("--n-lambda and --n-beta must be >= 2")
+        points = args.n_lambda * args.n_beta
+        if points > MAX_SWEEP_POINTS:
+            raise ConfigError(
+                f"--n-lambda {args.n_lambda} x --n-beta {args.n_beta}: {points} grid points "
+                f"(about {points * SWEEP_BYTES_PER_POINT / 2**30:.0f} GiB of results), more "
+                f"than the {MAX_SWEEP_POINTS} a sweep may have")
         if not 0 < args.lambda_min < args.lambda_max:
             raise ConfigError("--lambda-min must be > 0 and < --lambda-max")
         if not 0 <= args.beta_min < args.beta_max:

@@ -15,6 +15,7 @@ import json
 import signal
 import sys
 import threading
+from collections.abc import Callable
 
 from harness.commands import examples
 from rig_models.faults import parse_fault
@@ -50,7 +51,43 @@ def register(sub: argparse._SubParsersAction) -> None:
         "harness virtual-rig --serve-socketcand 29536",
         "harness virtual-rig --bus socketcan:vcan0 --lockstep",
         "harness virtual-rig --serve-unix rig1 --realtime")
+    p.add_argument("--parent-fd", type=int, default=-1, help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_virtual_rig)
+
+
+def watch_parent(fd: int, stop: threading.Event) -> Callable[[], bool]:
+    """A ``stop`` test for the rig's loop that is also true once the pipe ``fd`` reaches its
+    end: the process holding its write end (the harness that started this rig) has ended,
+    even by SIGKILL. The loop looks at the pipe itself (at most every 0.1 s, one ``select``):
+    a thread waiting on it could be starved of the CPU by the loop's own SCHED_FIFO thread
+    pinned to the same core (it saw the end seconds late)."""
+    import os
+    import select
+    import time
+
+    next_look = 0.0
+
+    def wait() -> None:
+        try:
+            while os.read(fd, 1):
+                pass
+        except OSError:
+            pass
+        stop.set()
+
+    def should_stop() -> bool:
+        nonlocal next_look
+        if stop.is_set():
+            return True
+        now = time.monotonic()
+        if now >= next_look:
+            next_look = now + 0.1
+            if select.select([fd], [], [], 0)[0]:  # the harness never writes: its end
+                stop.set()
+        return stop.is_set()
+
+    threading.Thread(target=wait, name="parent-watch", daemon=True).start()
+    return should_stop
 
 
 def cmd_virtual_rig(args: argparse.Namespace) -> int:
@@ -86,6 +123,7 @@ def cmd_virtual_rig(args: argparse.Namespace) -> int:
         return 2
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    should_stop = watch_parent(args.parent_fd, stop) if args.parent_fd >= 0 else stop.is_set
     if args.duration_s > 0:
         timer = threading.Timer(args.duration_s, stop.set)
         timer.daemon = True
@@ -107,7 +145,7 @@ def cmd_virtual_rig(args: argparse.Namespace) -> int:
           f"{' in lockstep' if args.lockstep else ''}; Ctrl-C to stop", file=sys.stderr,
           flush=True)
     try:
-        rig.run_forever(stop.is_set, timing=timing, lockstep=args.lockstep)
+        rig.run_forever(should_stop, timing=timing, lockstep=args.lockstep)
     except KeyboardInterrupt:
         pass
     finally:

@@ -205,12 +205,25 @@ def read_log(path: Path) -> Iterator[can.Message]:
     time: the frames are never all in memory (a 600 s capture's list took about 1 GB)."""
     if not path.is_file():
         raise ReplayError(f"{path}: no such file")
+    if path.suffix.lower() == ".blf":  # bounded in memory whatever the file says
+        return _frames_of(path, _blf_messages(path))
     try:
         reader = can.LogReader(str(path))
     except Exception as exc:  # python-can raises many kinds for a damaged or foreign file
         raise ReplayError(f"{path}: cannot read as a CAN log ({type(exc).__name__}: {exc})"
                           ) from exc
     return _frames_of(path, reader)
+
+
+def _blf_messages(path: Path) -> Iterator[can.Message]:
+    """The frames of a BLF log as python-can's ``BLFReader`` gives them, read by
+    ``harness.record.blf_frames`` (which bounds an object's and a container's size)."""
+    from harness.record.blf_frames import read_frames
+
+    for t, can_id, ext, remote, error, rx, dlc, data, channel in read_frames(path):
+        yield can.Message(timestamp=t, arbitration_id=can_id, is_extended_id=ext,
+                          is_remote_frame=remote, is_error_frame=error, is_rx=rx, dlc=dlc,
+                          data=data, channel=channel)
 
 
 def _frames_of(path: Path, reader: Iterable[can.Message]) -> Iterator[can.Message]:

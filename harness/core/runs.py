@@ -18,7 +18,7 @@ from harness.core.builtin_runs import list_runs, run_path
 from harness.core.monitor import LIMITS_SCHEMA, MONITOR_SCHEMA
 from rig_models.faults import FaultSpec, make_fault
 from rig_models.rig_file import RigConfig, load_rig, rig_from_dict
-from rig_models.schema import ConfigError, Field, validate
+from rig_models.schema import ConfigError, Field, short_repr, validate
 from rig_models.yaml_file import load_yaml
 
 ACTUATORS = ("reaction_wheel", "thruster_valves", "piezo_amplifier", "disturbance_rotor")
@@ -185,6 +185,15 @@ def run_from_dict(raw: Any, source: str = "run", base_dir: Path | None = None,
         raise ConfigError(f"{source}: faults: expected a list of {{kind, at_s, ...}}")
     for i, f in enumerate(data["faults"] or []):
         make_fault(f, f"{source}: faults[{i}]")
+    variants = data["variants"]
+    if variants is not None:
+        if not isinstance(variants, dict):
+            raise ConfigError(f"{source}: variants: expected a mapping NAME: {{key: value, "
+                              f"...}}, got {short_repr(variants)}")
+        for vname, over in variants.items():
+            if not isinstance(over, dict):
+                raise ConfigError(f"{source}: variants.{vname}: expected a mapping of the "
+                                  f"run's keys to override, got {short_repr(over)}")
     data["controller"] = validate(ctrl, controller_type(ctrl["type"]).schema, source,
                                   "controller")
     rig = load_rig(data["rig"])

@@ -414,6 +414,29 @@ def _load_yaml(path: Path) -> Any:
         raise JudgeInputError(str(exc)) from exc
 
 
+def _run_config(cfg_path: Path, loaded: Any, own_criteria: bool) -> Mapping[str, Any]:
+    """config.yaml as the harness wrote it (``run:`` and ``rig:`` mappings); else
+    ``JudgeInputError`` naming the key: a ``run:`` of another shape (a number) would read
+    as a run without criteria (NO CRITERIA, exit 0) when its criteria were lost."""
+    from rig_models.schema import short_repr
+
+    if not isinstance(loaded, Mapping):
+        raise JudgeInputError(f"{cfg_path}: expected a mapping with run: and rig: (as the "
+                              f"harness writes it), got {short_repr(loaded)}")
+    run = loaded.get("run")
+    if run is None and own_criteria:
+        raise JudgeInputError(f"{cfg_path}: run: missing; the run's criteria are under it "
+                              "(or give --expect FILE)")
+    if run is not None and not isinstance(run, Mapping):
+        raise JudgeInputError(f"{cfg_path}: run: expected the run's mapping (as the harness "
+                              f"writes it), got {short_repr(run)}")
+    rig = loaded.get("rig")
+    if rig is not None and not isinstance(rig, Mapping):
+        raise JudgeInputError(f"{cfg_path}: rig: expected the rig's mapping (as the harness "
+                              f"writes it), got {short_repr(rig)}")
+    return loaded
+
+
 def criteria_of(run_dir: Path, cfg: Mapping[str, Any], expect: Any = None
                 ) -> tuple[list[Criterion], Path | None]:
     """The criteria to judge ``run_dir`` by: ``expect`` (a file with an ``expect:`` section,
@@ -450,8 +473,7 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
     cfg: Mapping[str, Any] = {}
     results: list[CriterionResult] = []
     if cfg_path.is_file():
-        loaded = _load_yaml(cfg_path)
-        cfg = loaded if isinstance(loaded, Mapping) else {}
+        cfg = _run_config(cfg_path, _load_yaml(cfg_path), own_criteria=expect is None)
     elif expect is None:
         raise JudgeInputError(f"{cfg_path}: no such file (not a run directory)")
     criteria, expect_file = criteria_of(run_dir, cfg, expect)
