@@ -135,6 +135,8 @@ def load_yaml(path: Path, what: str = "file") -> Any:
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{source}: not UTF-8 text ({exc.reason} at byte {exc.start})"
                           ) from None
+    except ConfigError:
+        raise  # already one line naming the file
     except (OSError, ValueError) as exc:
         why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
         raise ConfigError(f"{source}: cannot read: {why}") from None

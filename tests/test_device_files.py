@@ -170,7 +170,7 @@ def test_a_fifo_as_eds_dbc_or_rig_base_is_refused_at_once(tmp_path):
     rig.write_text("extends: base.yaml\nname: x\n")
     from rig_models.schema import ConfigError
 
-    with pytest.raises(ConfigError, match=r"base\.yaml: not a regular file"):
+    with pytest.raises(ConfigError, match=r"base\.yaml: .*not a regular file"):
         load_rig(rig)
     from drivers.dbc import DbcError, load_protocol
 

@@ -105,14 +105,14 @@ def test_device_or_directory_as_run_or_rig_file_is_refused(tmp_path: Path, path:
 
 BLOCKED_START = """
 import sys, time
-import harness.commands.run as run_command
+import harness.core.runs as runs  # the command imports load_run from here when it runs
 
 def blocked(*args, **kwargs):
     print("reading", file=sys.stderr, flush=True)
     while True:
         time.sleep(3600)  # a read that never ends (restarted after a handler that returns)
 
-run_command.load_run = blocked
+runs.load_run = blocked
 from harness.cli import main
 sys.exit(main(["run", "slew-rw", "--out", sys.argv[1]]))
 """
