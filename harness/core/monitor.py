@@ -205,7 +205,10 @@ class PlausibilityWindow:
         self.wheel_tick0, self.speed0 = self.wheel_tick, self.speed_last
         self.wheel_n = 1 if self.wheel_tick >= 0 else 0
         self.wheel_ok = True
-        self.torque_int = self.torque_abs = self.torque_peak = 0.0
+        self.torque_int = self.torque_abs = 0.0
+        # the torque loop's output at the window's start trails the last window's commands:
+        # their peak bounds it (no torque commanded in this window can still turn the wheel)
+        self.torque_peak = getattr(self, "torque_peak", 0.0)
 
 
 def _cause(measured: float, predicted: float, band: float, still: str) -> str:
@@ -414,7 +417,7 @@ class FaultMonitor:
             self._accel_const_limit = limit((q["accelerometer.accel"],))
         piezo = tuple(q[c] for c in ("piezo_amplifier.sensor_ch1",
                                      "piezo_amplifier.sensor_ch2") if c in q)
-        if len(piezo) == 2:
+        if len(piezo) == 2 and rig.data.get("piezo_patches"):  # no patches: nothing to sense
             self._piezo_const_limit = limit(piezo)
         if not cfg.get("plausibility", True):
             return
@@ -924,9 +927,10 @@ class FaultMonitor:
                 return self._event(tick, w.name, "duplicate frames", (
                     f"{surplus} frames more than its SYNCs asked for since t = "
                     f"{self._base_time(w):.3f} s: a second node answers with its id"))
-            if grace:
+            if grace and tick - w.driver.last_tick <= w.silent_after:
                 # frames asked for and not come, counted in order (a PDO carries no
-                # counter: a lost frame and a late one look alike until the grace is past)
+                # counter: a lost frame and a late one look alike until the grace is past);
+                # a device that stopped answering altogether is the silent rule's
                 window = w.window
                 deficit = w.due_by(tick) - w.base_due - got
                 while window and window[-1][1] >= deficit:
