@@ -26,7 +26,7 @@ rotor in the default rig file):
 | drive disabled | a drive commanded enabled reports otherwise (its CiA 402 state named) | 2 d + 2 |
 | frames lost (wall clock) | frames older than the grace g not come (see below) | 2 (g+6) d |
 | duplicate frames | a device's frames beyond what the SYNCs asked for | 20 + s; s |
-| node id used twice | 8 heartbeats of one CANopen node within 5 of its periods | 8 heartbeats |
+| node id used twice | twice 8 heartbeats of a CANopen node within 5 of its periods | 16 beats |
 | physics: hub | the angle's change against its rate's integral over a window | a window |
 | physics: wheel | the speed's change against -(torque sent) dt / rotor inertia | a window |
 | stuck (noise) | a channel equal for longer than its noise and resolution make likely | that |

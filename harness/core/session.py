@@ -455,7 +455,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
         co_nodes: list[Any] | None = None
         if interface.co is not None:
             co_nodes = canopen_setup(interface, pump, can_log, dry_run, show_progress)
-            interface.watch_heartbeats(dt_s, grace_ticks=monitor.realtime_grace)
+            interface.watch_heartbeats(dt_s, grace_ticks=monitor.realtime_grace,
+                                       quiet_ticks=monitor.startup_ticks)
         monitor.on_warning = _warning_logger(recorder, show_progress)
         reference = getattr(controller, "reference", None)
         recorder.log_static_text("/run/config", "```yaml\n" + yaml.safe_dump(
