@@ -66,6 +66,9 @@ PLOTS: dict[str, Plot] = {p.key: p for p in (
     Plot("rotor_angle", "Disturbance rotor angle (rad)", ("/rotor/angle_rad",)),
     Plot("timing", "Loop timing: lateness and work (ms)",
          ("/timing/lateness_ms", "/timing/work_ms"), from_zero=True),
+    Plot("wire", "Timing on the wire: SYNC jitter, last answer after SYNC, command margin "
+         "(ms)", ("/timing/sync_jitter_ms", "/timing/answer_latency_ms",
+                  "/timing/command_margin_ms")),
     Plot("frames", "Telemetry frames per tick: read, late or missing (count)",
          ("/timing/frames_rx", "/bus/late_or_missing"), from_zero=True),
 )}
