@@ -653,7 +653,7 @@ def _final_layout(recorder: Recorder, run: RunConfig, run_dir: Path,
         # the time axes end where the recording does (a faulted run's at the fault)
         end_s = plot_stats.end_s or run.data["duration_s"]
         ranges, legends = plot_stats.ranges(), plot_stats.legends(end_s)
-        write_layout_file(run_dir, ranges, legends, end_s)
+        write_layout_file(run_dir, ranges, legends, end_s, CHANNELS)
         recorder.send_layout(layout_for_run(run.resolved(), CHANNELS, ranges, legends, end_s))
     except Exception as exc:  # the layout of the start stays
         print(f"harness: could not write the run's final layout ({exc})", file=sys.stderr)
