@@ -9,7 +9,7 @@ for that echo only, so the harness's bus watch can take it as its own frame and 
 another master's. The echo is off until ``enable_echo`` (the CANopen set-up before the run
 does not see it).
 
-Also: ``has_broadcast_manager`` says whether a bus can have the kernel send SYNC.
+Also: ``broadcast_manager_missing`` says whether a bus can have the kernel send SYNC.
 """
 
 from __future__ import annotations
@@ -77,6 +77,14 @@ class EchoSocketcanBus(SocketcanBus):  # type: ignore[misc]
         return msg, self._is_filtered
 
 
-def has_broadcast_manager(bus: can.BusABC) -> bool:
-    """The kernel can send this bus's periodic frames (SocketCAN's broadcast manager)."""
-    return isinstance(bus, SocketcanBus)
+def broadcast_manager_missing(bus: can.BusABC) -> str | None:
+    """Why the kernel cannot send this bus's periodic frames (SocketCAN's broadcast
+    manager), or None if it can: a BCM socket is opened on the bus's channel and closed."""
+    if not isinstance(bus, SocketcanBus):
+        return f"{type(bus).__name__} is not a SocketCAN bus"
+    try:
+        with socket.socket(socket.AF_CAN, socket.SOCK_DGRAM, socket.CAN_BCM) as bcm:
+            bcm.connect((bus.channel,))
+    except (OSError, AttributeError) as exc:
+        return f"no broadcast manager on {bus.channel} ({exc}; Linux: modprobe can-bcm)"
+    return None

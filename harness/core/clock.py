@@ -20,6 +20,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+import can
+
 BUS_LOCKSTEP_WAIT_S = 0.5
 """Lockstep over a bus (a virtual rig in its own process, ``harness virtual-rig --lockstep``):
 how long a tick waits for the devices' answers at most. Time does not matter in lockstep, so
@@ -95,7 +97,11 @@ class KernelSyncClock:
         self._sync_perf = 0.0
 
     def start(self) -> None:
-        self.interface.start_kernel_sync(self.dt_s)
+        try:
+            self.interface.start_kernel_sync(self.dt_s)
+        except (OSError, can.CanError) as exc:
+            raise KernelSyncLost(f"the kernel's broadcast manager did not start SYNC: "
+                                 f"{exc}") from exc
 
     def wait(self, tick: int) -> float:
         ts = self.interface.wait_kernel_sync(

@@ -186,10 +186,10 @@ def run_loop(
     step_total = step_max = 0.0
     steps_over = 0
     wall0 = perf()
-    clock.start()
     tick = 0
     prev_overrun = False
     try:
+        clock.start()  # the kernel's SYNC (KernelSyncClock) starts here: inside, left safe
         for tick in range(n_ticks):
             if should_stop is not None and should_stop():
                 stats.stopped_by = "interrupted"

@@ -446,11 +446,11 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
         interface = RigInterface(harness_bus, protocol, run.rig, can_log, run.actuators,
                                  dry_run=dry_run)
         if kernel_sync:
-            from harness.bus.socketcan_echo import has_broadcast_manager
+            from harness.bus.socketcan_echo import broadcast_manager_missing
 
-            if not has_broadcast_manager(harness_bus):
-                raise RunRefused(f"{run.source}: sync_source: kernel: bus {spec} has no "
-                                 "broadcast manager to send SYNC (SocketCAN only)")
+            why = broadcast_manager_missing(harness_bus)
+            if why is not None:  # before the CANopen set-up: nothing sent
+                raise RunRefused(f"{run.source}: sync_source: kernel: bus {spec}: {why}")
             loop_clock = KernelSyncClock(dt_s, interface)
         heartbeat_every = max(1, round(run.data["rate_hz"] / run.data["heartbeat_hz"]))
         monitor = make_monitor(run, interface, realtime=clock_name == "realtime")
