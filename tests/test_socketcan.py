@@ -416,19 +416,29 @@ def _check_wire_timing(s: dict[str, Any], sent_by: str) -> dict[str, Any]:
     return w
 
 
-def test_kernel_sent_sync_paces_the_run_and_is_timed_on_the_wire(rig, rate_and_run, tmp_path):
+def test_kernel_sent_sync_paces_the_run_and_is_timed_on_the_wire(rate_and_run, tmp_path):
     """``sync_source: kernel``: the broadcast manager sends SYNC, each tick starts when the
-    loop reads it back, and the loop puts the next SYNC's counter into the kernel's task."""
+    loop reads it back, and the loop puts the next SYNC's counter into the kernel's task.
+    The kernel's SYNC goes on while the loop stalls (under emulation for a good part of a
+    second), so the rig's devices count SYNCs without the harness's heartbeat: their
+    watchdog waits longer here than the lab's 0.25 s."""
     rate, run = rate_and_run
+    rig_file = tmp_path / "sgsrt-patient.yaml"
+    rig_file.write_text(yaml.safe_dump({"extends": "sgsrt", "name": "sgsrt-patient",
+                                        "watchdog": {"heartbeat_timeout_s": 5.0}}))
     raw: dict[str, Any] = yaml.safe_load(run_path(run).read_text())
-    raw.update(name="slew-rw-kernel-sync", sync_source="kernel")
+    raw.update(name="slew-rw-kernel-sync", sync_source="kernel", rig=str(rig_file))
     path = tmp_path / "kernel-sync.yaml"
     path.write_text(yaml.safe_dump(raw, sort_keys=False))
-    rig.fresh()
-    with Capture(tmp_path / "candump.log") as cap:
-        proc = subprocess.run(_harness_cmd(str(path), tmp_path / "out"), capture_output=True,
-                              text=True, timeout=RUN_TIMEOUT_S)
-    assert proc.returncode == 0, proc.stderr[-4000:]
+    rig = RigProcess(rate, tmp_path, rig=str(rig_file))
+    rig.start()
+    try:
+        with Capture(tmp_path / "candump.log") as cap:
+            proc = subprocess.run(_harness_cmd(str(path), tmp_path / "out"),
+                                  capture_output=True, text=True, timeout=RUN_TIMEOUT_S)
+    finally:
+        log = rig.stop()
+    assert proc.returncode == 0, proc.stderr[-4000:] + log[-2000:]
     s = json.loads(proc.stdout)
     assert s["stopped_by"] == "completed", s
     assert abs(s["final_angle_error_deg"]) < 0.1, s
