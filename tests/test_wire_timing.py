@@ -159,12 +159,14 @@ def test_a_kernel_sent_sync_is_logged_as_the_harness_own_and_paces_the_loop():
     iface.start_kernel_sync(DT)
     msg, period = bus.periodic[0]
     assert period == DT and bytes(msg.data) == iface._sync_payload(0)
-    iface.send_sync(0)  # the next SYNC's counter into the task, nothing sent by the loop
-    assert bus.sent == [] and iface.kernel_sync.data == [iface._sync_payload(1)]  # type: ignore[union-attr]
     sync_key = iface.binding.sync.key
     # the broadcast manager's socket is not the harness's raw socket: is_rx, yet its own
     iface.feed(_own(iface, sync_key, 3.0, is_rx=True), 0)
     assert iface.counters.foreign == 0 and iface.counters.sent == 1
+    # the next SYNC's counter (the kernel's SYNCs read so far) into the task; nothing sent
+    iface.send_sync(0)
+    assert bus.sent == [] and iface.kernel_sync.data == [  # type: ignore[union-attr]
+        iface._sync_payload(1)]
     assert iface.wait_kernel_sync(1, 0.0) == 3.0 and iface.wire_sync_ts == 3.0
     assert iface.wait_kernel_sync(2, 0.0) is None  # no SYNC waiting, the bus silent
 

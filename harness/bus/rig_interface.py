@@ -191,6 +191,7 @@ class RigInterface:
         # the SYNCs seen and not yet taken by the loop, as (time stamp, last command before)
         self.kernel_sync: can.broadcastmanager.CyclicSendTaskABC | None = None
         self._kernel_syncs: deque[tuple[float, float]] = deque(maxlen=KERNEL_SYNC_BACKLOG)
+        self.kernel_syncs_read = 0
         self.state = RigState()
         # the drivers' values dicts the state was last read from (snapshot)
         self._snapshot_seen: list[dict[str, float] | None] = [None] * 6
@@ -228,14 +229,15 @@ class RigInterface:
 
     def send_sync(self, tick: int) -> None:
         """The SYNC of ``tick``; with the kernel sending SYNC, the payload (counter) of the
-        next one instead (the broadcast manager sends the task's data as it is)."""
+        next one instead: the number of kernel SYNCs read so far, the next one's index on
+        the wire (the broadcast manager sends the task's data as it is)."""
         task = self.kernel_sync
         if task is not None:
             key = self.binding.sync.key
             try:
                 task.modify_data(can.Message(  # type: ignore[attr-defined]
                     arbitration_id=key[0], is_extended_id=key[1],
-                    data=self._sync_payload(tick + 1)))
+                    data=self._sync_payload(self.kernel_syncs_read)))
             except can.CanError:
                 self.counters.send_errors += 1
             return
@@ -301,6 +303,7 @@ class RigInterface:
         if self.kernel_sync is not None and key == self.binding.sync.key:
             # from the broadcast manager's own socket: logged as the harness's transmission
             self._kernel_syncs.append((msg.timestamp, self.wire_cmd_ts))
+            self.kernel_syncs_read += 1
             self.counters.sent += 1
             if self.can_log is not None:
                 msg.is_rx = False
