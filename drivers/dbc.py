@@ -27,6 +27,7 @@ signal.
 from __future__ import annotations
 
 import math
+import re
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -385,6 +386,10 @@ class Protocol:
     by_name: dict[str, FrameCodec]
     by_id: dict[int, FrameCodec]
     by_key: dict[tuple[int, bool], FrameCodec] = field(default_factory=dict)
+    #: message name -> why it is not exact (overlapping signals, a signal outside the
+    #: payload, a VAL_ table of a signal it lacks, a form the codecs do not support, an id
+    #: another message has): a rig that binds it is refused, any other rig is warned
+    problems: dict[str, str] = field(default_factory=dict)
 
     def __getitem__(self, name: str) -> FrameCodec:
         return self.by_name[name]
@@ -395,29 +400,76 @@ class Protocol:
         return self.by_key.get((arbitration_id, is_extended))
 
 
+_UNUSED_ENTRY = re.compile(r"^\s*(VAL_|SIG_VALTYPE_)\s+(\d+)\s+(\w+)", re.M)
+
+
+def _parse_dbc(text: str, where: str) -> tuple[cantools.database.Database, dict[int, str]]:
+    """cantools' non-strict parse of a DBC, as real files are read (a whole vehicle's DBC
+    often has one message with overlapping signals); a ``VAL_`` or ``SIG_VALTYPE_`` entry for
+    a signal a message lacks (cantools refuses the whole file for it) is dropped and noted
+    against that message's id."""
+    notes: dict[int, str] = {}
+    for _ in range(3):
+        try:
+            return cantools.database.load_string(text, database_format="dbc",
+                                                 strict=False), notes
+        except Exception as exc:  # cantools wraps the parser's ValueError in its own
+            entries = _UNUSED_ENTRY.findall(str(exc))
+            if not entries or "unused " not in str(exc):
+                raise
+            for kind, frame_id, signal in entries:
+                notes[int(frame_id)] = f"{kind} entry for a signal it lacks ({signal})"
+                text = re.sub(rf"^\s*{kind}\s+{frame_id}\s+{re.escape(signal)}\b.*$", "",
+                              text, flags=re.M)
+    raise DbcError(f"{where}: not a valid DBC: entries for signals no message has")
+
+
 @cache
 def load_protocol(path: str | Path | None = None) -> Protocol:
     """The codecs of a DBC (the rig's own ``sgsrt.dbc`` by default). DbcError naming the
-    file if it cannot be read, parsed, or holds a message the codecs do not support."""
+    file if it cannot be read or parsed at all. A message that is not exact (see
+    ``Protocol.problems``) is kept out of the codecs or marked, not fatal: only a rig that
+    binds it is refused (``drivers.binding``)."""
+    from drivers.device_file import DeviceFileError, read_device_file
+
     where = str(path or DBC_PATH)
     try:
-        db = cantools.database.load_file(where, database_format="dbc")
-    except OSError as exc:
-        raise DbcError(f"{where}: cannot read the DBC ({exc.strerror or exc})") from exc
+        # cantools reads DBC files as Windows-1252, their usual encoding
+        text = read_device_file(where).decode("cp1252", errors="replace")
+    except DeviceFileError as exc:
+        raise DbcError(str(exc)) from None
+    try:
+        db, notes = _parse_dbc(text, where)
+    except DbcError:
+        raise
+    except RecursionError:
+        raise DbcError(f"{where}: not a valid DBC: nested too deeply") from None
     except Exception as exc:  # cantools raises its own errors and plain ones on bad input
-        raise DbcError(f"{where}: not a valid DBC: {exc}") from exc
+        first = str(exc).splitlines()[0][:300] if str(exc) else type(exc).__name__
+        raise DbcError(f"{where}: not a valid DBC: {first}") from None
     codecs = []
     by_key: dict[tuple[int, bool], FrameCodec] = {}
+    problems: dict[str, str] = {}
     for m in db.messages:
+        if m.frame_id in notes:
+            problems[m.name] = notes[m.frame_id]
+        try:
+            m.refresh(strict=True)
+        except Exception as exc:  # overlapping signals, a signal outside the payload
+            problems.setdefault(m.name, str(exc).splitlines()[0][:300])
+            m.refresh(strict=False)
         try:
             c = FrameCodec(m)
-        except ValueError as exc:
-            raise DbcError(f"{where}: {exc}") from exc
+        except (ValueError, TypeError, OverflowError) as exc:
+            problems[m.name] = str(exc)
+            continue
         key = (c.frame_id, c.is_extended)
         if key in by_key:
-            raise DbcError(f"{where}: {c.name} and {by_key[key].name} have the same "
-                           f"{'extended' if c.is_extended else 'standard'} id "
-                           f"0x{c.frame_id:X}")
+            first = by_key[key].name
+            why = (f"{first} and {c.name} have the same "
+                   f"{'extended' if c.is_extended else 'standard'} id 0x{c.frame_id:X}")
+            problems[c.name] = problems[first] = why
+            continue
         by_key[key] = c
         codecs.append(c)
     return Protocol(
@@ -425,6 +477,7 @@ def load_protocol(path: str | Path | None = None) -> Protocol:
         by_name={c.name: c for c in codecs},
         by_id={c.frame_id: c for c in codecs if not c.is_extended},
         by_key=by_key,
+        problems=problems,
     )
 
 

@@ -34,6 +34,12 @@ same read makes its constructor fail. The server cannot see when that read happe
 ``handshake_settle_s`` after entering rawmode it queues (never drops, up to a bound) the frames
 for that client, then flushes them in order.
 
+Its own log is bounded: at most ``LOG_LINES_PER_S`` lines of malformed input per client a
+second, the rest counted and said in one line (200 000 malformed commands wrote 15.8 MB
+to stderr). A full server never lets idle clients lock a new one out: a client that sent
+nothing for ``EVICT_IDLE_S`` (one not in rawmode first, then the longest idle) is dropped
+to make room; only when every client is active is a new one refused.
+
 Only 127.0.0.1 is served: any other host is refused with ValueError. TCP_NODELAY is set on
 every accepted socket; pass ``tcp_tune=True`` to the python-can client for the other
 direction.
@@ -56,6 +62,15 @@ from dataclasses import dataclass, field
 import can
 
 log = logging.getLogger(__name__)
+
+LOG_LINES_PER_S = 5
+"""Lines of malformed input a client gets in the log a second; the rest are counted."""
+
+EVICT_IDLE_S = 1.0
+"""A client that sent nothing this long may be dropped to make room for a new one."""
+
+QUOTE_CHARS = 80
+"""The most characters of a client's command a log line quotes."""
 
 LOOPBACK_HOST = "127.0.0.1"
 MAX_COMMAND_CHARS = 256
@@ -168,6 +183,13 @@ def split_commands(buffer: str) -> tuple[list[str], int, str]:
         pos = end + 1
 
 
+def _quote(text: str) -> str:
+    """``repr(text)`` of at most ``QUOTE_CHARS`` characters of it."""
+    if len(text) <= QUOTE_CHARS:
+        return repr(text)
+    return f"{text[:QUOTE_CHARS]!r}... ({len(text)} characters)"
+
+
 def _command_tokens(command: str) -> list[str]:
     if not (command.startswith("<") and command.endswith(">")):
         raise MalformedCommandError(f"command: expected '< ... >', got {command!r}")
@@ -219,6 +241,10 @@ class _Client:
     settle_until: float = 0.0
     pending: deque[str] | None = None
     connected_at: float = field(default_factory=time.monotonic)
+    last_active: float = field(default_factory=time.monotonic)
+    log_window: float = 0.0
+    log_lines: int = 0
+    log_suppressed: int = 0
 
 
 @dataclass(frozen=True)
@@ -469,6 +495,15 @@ class SocketcandServerBus(can.BusABC):
         client = _Client(sock=sock, key=sock.fileno(), peer=peer)
         with self._lock:
             too_many = len(self._clients) >= self._max_clients
+            idle = self._idlest_locked() if too_many else None
+        if idle is not None:  # idle clients never lock a new one out
+            log.warning("socketcand server: dropping idle client %s (nothing sent for %.1f s) "
+                        "for %s", idle.peer, time.monotonic() - idle.last_active, peer)
+            with self._lock:
+                self._counts["dropped"] += 1
+            self._remove_client(idle)
+        with self._lock:
+            too_many = len(self._clients) >= self._max_clients
             if not too_many:
                 self._clients[client.key] = client
                 self._counts["accepted"] += 1
@@ -483,6 +518,15 @@ class SocketcandServerBus(can.BusABC):
         log.info("socketcand server: client %s connected", peer)
         self._write(client, "< hi >")
 
+    def _idlest_locked(self) -> _Client | None:
+        """The client to drop for a new one: idle ``EVICT_IDLE_S`` or more, one not in
+        rawmode before one in rawmode, then the longest idle; None when all are active."""
+        now = time.monotonic()
+        idle = [cl for cl in self._clients.values() if now - cl.last_active >= EVICT_IDLE_S]
+        if not idle:
+            return None
+        return min(idle, key=lambda cl: (cl.mode is _Mode.RAW, cl.last_active))
+
     def _read_client(self, client: _Client) -> None:
         try:
             chunk = client.sock.recv(4096)
@@ -494,6 +538,7 @@ class SocketcandServerBus(can.BusABC):
             self._remove_client(client)
             return
         _quickack(client.sock)
+        client.last_active = time.monotonic()
         commands, junk, client.rx_text = split_commands(
             client.rx_text + chunk.decode("ascii", errors="replace")
         )
@@ -531,7 +576,7 @@ class SocketcandServerBus(can.BusABC):
             self._set_mode(client, _Mode.BCM)
             self._write(client, "< ok >")
         else:
-            self._count_malformed(1, client, f"unsupported command {command!r}")
+            self._count_malformed(1, client, f"unsupported command {_quote(command)}")
             if client.mode is not _Mode.RAW:
                 self._write(client, "< error unknown command >")
 
@@ -642,7 +687,18 @@ class SocketcandServerBus(can.BusABC):
     def _count_malformed(self, count: int, client: _Client, why: str) -> None:
         with self._lock:
             self._counts["malformed"] += count
-        log.warning("socketcand server: malformed input from %s skipped: %s", client.peer, why)
+        now = time.monotonic()
+        if now - client.log_window >= 1.0:
+            if client.log_suppressed:
+                log.warning("socketcand server: %d more malformed inputs from %s not logged",
+                            client.log_suppressed, client.peer)
+            client.log_window, client.log_lines, client.log_suppressed = now, 0, 0
+        if client.log_lines >= LOG_LINES_PER_S:
+            client.log_suppressed += 1
+            return
+        client.log_lines += 1
+        log.warning("socketcand server: malformed input from %s skipped: %s", client.peer,
+                    why[:2 * QUOTE_CHARS])
 
     def _mark_for_close(self, client: _Client) -> None:
         with client.send_lock:
@@ -661,6 +717,10 @@ class SocketcandServerBus(can.BusABC):
         with client.send_lock:
             client.closed = True
             client.sock.close()
+        if client.log_suppressed:
+            log.warning("socketcand server: %d more malformed inputs from %s not logged",
+                        client.log_suppressed, client.peer)
+            client.log_suppressed = 0
         log.info("socketcand server: client %s disconnected", client.peer)
 
     def _close_everything(self) -> None:

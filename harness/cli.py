@@ -3,21 +3,27 @@
 Each sub-command lives in its own module under `harness/commands/` and exposes
 ``register(subparsers) -> None``; the parser it adds sets ``func`` (args -> int exit code).
 Modules are discovered, so adding a command never touches this file.
+
+Start-up: only the command chosen is imported. The others are listed in ``harness --help``
+by the name and one-line help their ``register`` passes to ``add_parser``, read from their
+source (``command_index``); a module whose name or help is not a plain string there is
+imported to register itself, which is always right, only slower.
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
 import importlib
 import math
 import os
 import pkgutil
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from harness import commands
 from harness.record.output import OutputError, is_output_failure
-from harness.record.recording import ABANDONED
 
 MAX_RATE_HZ = 10_000.0
 """The fastest loop or SYNC rate any command accepts: a 1 Mbit/s CAN bus carries about
@@ -88,23 +94,107 @@ def check_numbers(parser: argparse.ArgumentParser) -> None:
             action.type = _checked_number(option, action.dest, action.type)
 
 
-def build_parser() -> argparse.ArgumentParser:
+CommandLines = list[tuple[str, dict[str, str]]]
+"""A module's commands: (name, ``add_parser`` keywords other than the name: only ``help``)."""
+
+
+def _commands_in(path: Path) -> CommandLines | None:
+    """The commands a command module's ``register(sub)`` adds with ``sub.add_parser("NAME",
+    help="...")``, read from its source without importing it; [] for a module with no
+    ``register``; None when they cannot be read so (a computed name or help, aliases, no
+    ``add_parser`` call): the module is then imported."""
+    try:
+        tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    except (OSError, SyntaxError, ValueError):
+        return None
+    register = next((n for n in tree.body if isinstance(n, ast.FunctionDef)
+                     and n.name == "register"), None)
+    if register is None:
+        return []
+    if not register.args.args:
+        return None
+    sub = register.args.args[0].arg
+    found: CommandLines = []
+    for node in ast.walk(register):
+        if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                and node.func.attr == "add_parser" and isinstance(node.func.value, ast.Name)
+                and node.func.value.id == sub):
+            continue
+        if not node.args or not isinstance(node.args[0], ast.Constant) \
+                or not isinstance(node.args[0].value, str):
+            return None
+        keywords: dict[str, str] = {}
+        for kw in node.keywords:
+            if kw.arg is None or kw.arg == "aliases":
+                return None
+            if kw.arg == "help":
+                if not (isinstance(kw.value, ast.Constant) and isinstance(kw.value.value, str)):
+                    return None
+                keywords["help"] = kw.value.value
+        found.append((node.args[0].value, keywords))
+    return found or None
+
+
+def command_index() -> list[tuple[str, CommandLines | None]]:
+    """Every module of ``harness/commands/`` (sorted by name) with the commands it adds
+    (``_commands_in``), read without importing any of them."""
+    out = []
+    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        folder = getattr(info.module_finder, "path", None)
+        lines = None
+        if folder is not None and not info.ispkg:
+            lines = _commands_in(Path(folder) / f"{info.name}.py")
+        out.append((info.name, lines))
+    return out
+
+
+def chosen_command(argv: Sequence[str]) -> str | None:
+    """The command an argument list names: its first argument that is not an option (the
+    top-level parser takes no option but ``--help``)."""
+    return next((a for a in argv if not a.startswith("-")), None)
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The whole command line. With ``argv``, only the module of the command it names is
+    imported, the others are listed by their help line (``command_index``); without it,
+    every command module is imported (the CLI reference, tests walking every option)."""
     parser = argparse.ArgumentParser(
         prog="harness",
         description="HIL test harness for the SGSRT flexible-spacecraft air-bearing rig.",
+        epilog="examples:\n  harness cases\n  harness run slew-rw-zv\n  harness COMMAND --help",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-        module = importlib.import_module(f"harness.commands.{info.name}")
-        register = getattr(module, "register", None)
-        if register is not None:
-            register(sub)
+    chosen = None if argv is None else chosen_command(argv)
+    for name, lines in command_index():
+        if argv is None or lines is None or any(cmd == chosen for cmd, _ in lines):
+            register = getattr(importlib.import_module(f"harness.commands.{name}"),
+                               "register", None)
+            if register is not None:
+                register(sub)
+        else:
+            for cmd, keywords in lines:  # not chosen: listed by its help line, not imported
+                sub.add_parser(cmd, **keywords)
     check_numbers(parser)
+    describe(parser)
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+def describe(parser: argparse.ArgumentParser) -> None:
+    """A (sub-)command registered without a description shows its one-line help as one in
+    its ``--help`` (``harness design lhhl --help``, a study's)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            helps = {choice.dest: choice.help for choice in action._choices_actions}
+            for name, sub in action.choices.items():
+                if sub.description is None and helps.get(name):
+                    sub.description = helps[name]
+                describe(sub)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(argv)
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # a refused option (exit 2, named) or --help: returned, so
@@ -112,7 +202,11 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "func", None) is None:
         parser.print_help(sys.stderr)
         return 2
-    ABANDONED.clear()
+    # the recorder's module, if a command loaded it (only a recording command does: Rerun's
+    # import is a third of a second)
+    recording = sys.modules.get("harness.record.recording")
+    if recording is not None:
+        recording.ABANDONED.clear()
     try:
         code = _run(args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
@@ -120,7 +214,8 @@ def main(argv: list[str] | None = None) -> int:
         # the reader went away (`harness logs | head -1`): what it read is all it wanted
         _silence_stdout()
         return EXIT_BROKEN_PIPE
-    if ABANDONED.is_set():
+    recording = sys.modules.get("harness.record.recording")
+    if recording is not None and recording.ABANDONED.is_set():
         # a Rerun sink stopped answering (a viewer gone, a dead disk): Rerun's own shutdown
         # at exit would wait for it forever; everything of ours is written and closed
         sys.stdout.flush()

@@ -70,6 +70,9 @@ RIG_SCHEMA: dict[str, Any] = {
         "max_voltage_v": Field("number", "V", default=200.0, **POSITIVE, maximum=327.0),
         "max_current_a": Field("number", "A", default=0.1, **POSITIVE),
         "sensor_noise_rms_v": Field("number", "V", default=0.001, minimum=0.0),
+        # the sensor patches' reading step (the sgsrt DBC's 1 mV); the stuck rule of the
+        # monitor takes it with the noise (harness.core.plausibility)
+        "sensor_lsb_v": Field("number", "V", default=0.001, minimum=0.0),
     },
     # one entry per amplifier channel (1, 2): a PZT actuator pair with a sensor patch
     "piezo_patches": Field("any", default=[]),
@@ -242,11 +245,11 @@ def load_rig(name_or_path: str | Path = "sgsrt") -> RigConfig:
     return rig_from_dict(raw, source=f"rig file {path.name}", base_dir=path.resolve().parent)
 
 
-def _read_rig_yaml(path: Path, seen: tuple[Path, ...]) -> Any:
+def _read_rig_yaml(path: Path, seen: tuple[Path, ...], what: str = "rig file") -> Any:
     """A rig file's data; ``extends: NAME`` takes another rig file's data as the base and
     overrides it key by key (a rig that differs only in its device binding names the
-    physics once)."""
-    raw = load_yaml(path, "rig file")
+    physics once). ``what`` names the file in errors (a base: the file that extends it)."""
+    raw = load_yaml(path, what)
     if not isinstance(raw, dict) or "extends" not in raw:
         return raw
     base_name = raw.pop("extends")
@@ -260,7 +263,18 @@ def _read_rig_yaml(path: Path, seen: tuple[Path, ...]) -> Any:
         raise ConfigError(f"rig file {path.name}: extends: {base_name}: not found")
     if base.resolve() in seen or base.resolve() == path.resolve():
         raise ConfigError(f"rig file {path.name}: extends: {base_name}: a circle of extends")
-    return _merge(_read_rig_yaml(base, seen + (path.resolve(),)) or {}, raw)
+    base_data = _read_rig_yaml(base, seen + (path.resolve(),),
+                               f"rig file {path.name}: extends: rig file")
+    if base_data is None:
+        base_data = {}
+    if not isinstance(base_data, dict):
+        raise ConfigError(f"rig file {path.name}: extends: {base_name}: its top level is "
+                          f"{_kind(base_data)}, not a mapping of keys (a rig file)")
+    return _merge(base_data, raw)
+
+
+def _kind(value: Any) -> str:
+    return "a list" if isinstance(value, list) else f"a {type(value).__name__} ({value!r:.40})"
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any],

@@ -17,6 +17,18 @@ class ConfigError(ValueError):
     """A rig or run file does not match its schema."""
 
 
+QUOTE_CHARS = 80
+"""The most characters of a value an error quotes (a file's value may be megabytes)."""
+
+
+def short_repr(value: Any, limit: int = QUOTE_CHARS) -> str:
+    """``repr(value)`` cut to about ``limit`` characters (with the total length said)."""
+    if isinstance(value, str) and len(value) > limit:
+        return f"{value[:limit]!r}... ({len(value)} characters)"
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
 @dataclass(frozen=True)
 class Field:
     """One leaf of a schema."""
@@ -99,8 +111,9 @@ def validate(data: Any, schema: Schema, source: str, path: str = "") -> dict[str
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise ConfigError(f"{source}: {where}: expected a mapping of keys, got {data!r}")
-    unknown = sorted(set(data) - set(schema))
+        raise ConfigError(f"{source}: {where}: expected a mapping of keys, got "
+                          f"{short_repr(data)}")
+    unknown = sorted(set(data) - set(schema), key=str)
     if unknown:
         known = ", ".join(sorted(schema))
         raise ConfigError(
@@ -119,14 +132,14 @@ def validate(data: Any, schema: Schema, source: str, path: str = "") -> dict[str
             value = data[key]
             if not _leaf_ok(spec, value) or not _range_ok(spec, value):
                 raise ConfigError(
-                    f"{source}: {key_path}: expected {spec.describe()}, got {value!r}"
+                    f"{source}: {key_path}: expected {spec.describe()}, got {short_repr(value)}"
                 )
             if spec.kind == "number":
                 value = float(value)
             if spec.check is not None:
                 problem = spec.check(value)
                 if problem:
-                    raise ConfigError(f"{source}: {key_path}: {problem}, got {value!r}")
+                    raise ConfigError(f"{source}: {key_path}: {problem}, got {short_repr(value)}")
             out[key] = value
         else:
             out[key] = validate(data.get(key), spec, source, key_path)

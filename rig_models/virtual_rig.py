@@ -178,6 +178,17 @@ class TruthSample:
     modal: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
+def check_virtual_rig(rig: RigConfig) -> None:
+    """``ConfigError`` (naming the rig file's key and the device file's object) if the
+    virtual rig cannot be one of the rig's devices: called before a run on the virtual bus,
+    so such a rig is refused with nothing sent rather than failing mid-set-up."""
+    co = rig.binding.canopen
+    if co is not None:
+        from rig_models.canopen.rig_devices import check_emulation
+
+        check_emulation(co)
+
+
 class VirtualRig:
     def __init__(self, rig: RigConfig, bus: can.BusABC, dt_s: float,
                  faults: list[FaultSpec] | None = None) -> None:

@@ -6,10 +6,17 @@ gigabytes and minutes or died with MemoryError, and a recursive alias (``&a [*a]
 ends for code that walks the document. ``load_yaml`` refuses a file over
 ``MAX_YAML_BYTES`` before reading it, and a document whose values, counted as expanded,
 exceed ``MAX_YAML_VALUES``, with a ``ConfigError`` naming the file.
+
+Only a regular file is read: a FIFO blocked ``open()`` until a writer came (for ever, and
+deaf to SIGTERM), a device or a socket never ends. The file is opened without blocking and
+checked to be regular on its open descriptor, so nothing swapped in after a first check can
+block either.
 """
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -75,23 +82,64 @@ def _check_strings(doc: Any, source: str) -> None:
             stack.extend((item, f"{path}[{i}]") for i, item in enumerate(v))
 
 
+def file_kind(mode: int) -> str:
+    """What a file that is not a regular one is, in words."""
+    for test, name in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def open_regular(path: Path, source: str) -> int:
+    """A descriptor of ``path`` opened for reading, checked to be a regular file; else
+    ``ConfigError`` naming ``source``. Opened with ``O_NONBLOCK`` (a FIFO's open returns at
+    once instead of waiting for a writer), then checked on the descriptor itself."""
+    mode = os.stat(path).st_mode  # a directory or device refused before any open
+    if not stat.S_ISREG(mode):
+        raise ConfigError(f"{source}: {file_kind(mode)}, not a regular file")
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise ConfigError(f"{source}: {file_kind(mode)}, not a regular file")
+        os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def read_regular_text(path: Path, source: str, limit: int, what: str) -> str:
+    """The UTF-8 text of the regular file ``path``, at most ``limit`` bytes; else
+    ``ConfigError`` naming ``source`` (``OSError``, ``UnicodeDecodeError`` pass)."""
+    fd = open_regular(path, source)
+    with open(fd, encoding="utf-8", errors="strict") as f:
+        size = os.fstat(fd).st_size
+        if size > limit:
+            raise ConfigError(f"{source}: {size / 2**20:.1f} MiB, more than the "
+                              f"{limit // 2**20} MiB {what} may have")
+        return f.read(limit + 1)
+
+
 def load_yaml(path: Path, what: str = "file") -> Any:
     """The document of ``path``; ``ConfigError`` (naming ``what`` and the file) when it is
     too big, expands too far, is not valid YAML, or cannot be read."""
     path = Path(path)
     source = f"{what} {path}"
+    if len(source) > 300:  # a path of thousands of characters: its ends say which
+        source = f"{source[:150]}...{source[-150:]}"
     try:
-        size = path.stat().st_size
-        if size > MAX_YAML_BYTES:
-            raise ConfigError(f"{source}: {size / 2**20:.1f} MiB, more than the "
-                              f"{MAX_YAML_BYTES // 2**20} MiB a YAML input may have")
-        with open(path, encoding="utf-8", errors="strict") as f:
-            text = f.read(MAX_YAML_BYTES + 1)
+        text = read_regular_text(path, source, MAX_YAML_BYTES, "a YAML input")
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{source}: not UTF-8 text ({exc.reason} at byte {exc.start})"
                           ) from None
-    except OSError as exc:
-        raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    except ConfigError:
+        raise  # already one line naming the file
+    except (OSError, ValueError) as exc:
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise ConfigError(f"{source}: cannot read: {why}") from None
     if len(text) > MAX_YAML_BYTES:  # it grew since its size was read
         raise ConfigError(f"{source}: more than the {MAX_YAML_BYTES // 2**20} MiB a YAML "
                           "input may have")

@@ -247,7 +247,7 @@ CO_CASES = [
     ("node_heartbeat_lost", "hub_sensor", "heartbeat lost", 0.15 + 0.05 + 0.002),
     ("node_emcy", "accelerometer", "EMCY", 0.002),          # the tick it arrives
     ("drive_fault", "reaction_wheel", "EMCY", 0.002),       # its EMCY, the same tick
-    ("drive_disabled", "reaction_wheel", "drive disabled", 0.002),  # its statusword's PDO
+    ("drive_disabled", "reaction_wheel", "drive disabled", 0.010),  # still off 2 d + 2 ticks
     ("node_reboot", "thruster_valves", "node rebooted", 0.002),
     ("node_stopped", "hub_sensor", "NMT state", 0.05 + 0.002),  # its next heartbeat
 ]

@@ -40,7 +40,7 @@ def mute_sink(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
 
 
 def _sweep(path: Path) -> None:
-    from harness.commands.sweep import save_rrd
+    from harness.studies.sweep_report import save_rrd
 
     lambdas, betas = np.array([0.5, 1.0]), np.array([0.6, 0.8])
     save_rrd(path, "sweep", lambdas, betas, np.full((2, 2, 2), 0.01))

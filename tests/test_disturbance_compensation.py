@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from harness.commands.report import collect
-from harness.commands.sweep import analyse
 from harness.controllers.square_wave import DisturbanceLaw, square_wave_torque
 from harness.core.periodic import steady_state_amplitude
 from harness.core.runs import load_run
 from harness.studies.sweep import SweepSpec, harmonic_steady_state, run_sweep, simulate_lambda
+from harness.studies.sweep_report import analyse
+from harness.testing.paper_tables import collect
 from rig_models.devices import DisturbanceRotor
 from rig_models.rig_file import load_rig
 from rig_models.schema import ConfigError

@@ -90,7 +90,7 @@ def cli(*args: str, process: bool = False) -> tuple[int, str]:
 
 # ----------------------------------------------------------------------------- drift
 def test_mode_drift_alarm_fires_on_the_first_run_beyond_the_combined_uncertainty(tmp_path):
-    from harness.commands.identify import identify_run
+    from harness.core.identify import identify_run
 
     logs = tmp_path / "logs"
     e0 = NOMINAL["beam"]["youngs_modulus_pa"]
@@ -446,15 +446,24 @@ def test_twin_residual_finds_the_changed_rig(tmp_path):
     out = {}
     for name, d in (("same", same), ("changed", changed)):
         code, text = cli("twin", str(d), "--rig", str(RIGS_DIR / "sgsrt.yaml"), "--json")
-        assert code == 0, text
+        assert code == (0 if name == "same" else 1), text  # the changed rig: an alarm
         out[name] = json.loads(text)
     def ch(which: str, name: str) -> dict:
         return next(c for c in out[which]["channels"] if c["channel"] == name)
 
     # unchanged: every sensor's residual is its noise (the model explains the rest)
+    # (a channel the rig file gives no noise: within the alarm threshold of its resolution)
     for c in out["same"]["channels"]:
-        if c["rms_over_noise"] is not None:
+        assert c["rms_over_noise"] is not None, c  # every channel is judged
+        if c["noise_from"] == "rig file noise":
             assert 0.8 < c["rms_over_noise"] < 1.3, c
+        else:
+            assert c["rms_over_noise"] < out["same"]["max_ratio"], c
+    assert not out["same"]["beyond"]
+    # the changed rig: an alarm, its channels worst first
+    ratios = [c["rms_over_noise"] for c in out["changed"]["channels"]]
+    assert ratios == sorted(ratios, reverse=True)
+    assert out["changed"]["beyond"][0] == out["changed"]["channels"][0]["channel"]
     # changed: the piezo strain sensor near the root sees the mismatch first (tens of times
     # its noise), the hub angle too; the tip accelerometer's is near its noise here
     worst = out["changed"]["worst_channel"]

@@ -61,7 +61,7 @@ def test_identifies_modes_1_to_3_against_the_model(free_decay):
 
 def _final_start(free_decay) -> float:
     """Start of the long free decay after all the bursts (from the run's config.yaml)."""
-    from harness.commands.identify import default_start
+    from harness.core.identify import default_start
 
     return default_start(yaml.safe_load((free_decay.run_dir / "config.yaml").read_text()))
 

@@ -212,8 +212,8 @@ def test_wheel_bursts_gaps_and_repeats() -> None:
 
 
 def test_run_file_windows_cover_each_gap_and_the_final_decay() -> None:
-    from harness.commands.identify import SETTLE_S as settle
-    from harness.commands.identify import analysis_windows, default_start
+    from harness.core.identify import SETTLE_S as settle
+    from harness.core.identify import analysis_windows, default_start
     from harness.core.runs import load_run
 
     cfg = load_run("free-decay").resolved()

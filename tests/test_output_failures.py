@@ -389,9 +389,10 @@ def test_second_signal_aborts_a_loop_but_not_the_closing():
     from harness.core.interrupts import StopRequest
 
     req = StopRequest()
+    req.begin()
     req._handler(signal.SIGTERM, _sys._getframe())
     assert req() == "SIGTERM"
-    # after the loop (closing and judging the run): noted, never a KeyboardInterrupt
+    # after the loop (closing and judging the run): noted, not a KeyboardInterrupt
     req._handler(signal.SIGTERM, _sys._getframe())
     # inside a ticking loop: at once
     scope = {"__name__": "harness.core.loop", "req": req, "signal": signal, "_sys": _sys}

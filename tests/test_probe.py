@@ -142,3 +142,13 @@ def test_probe_names_the_rig_it_probed(capsys):
     assert report["rig"] == "sgsrt-canopen" and report["bus"] == "virtual:sgsrt-canopen"
     assert report["binding"]["hub_sensor"] == {"binding": "canopen", "node_id": 4,
                                                "eds": "sgsrt_encoder.eds"}
+
+
+def test_last_values_carry_their_units(capsys):
+    assert main(["probe", "--duration-s", "0.2"]) == 0
+    out = capsys.readouterr().out
+    hub = next(line for line in out.splitlines() if line.strip().startswith("hub_sensor")
+               and "angle" in line)
+    assert " rad," in hub and hub.rstrip().endswith("rad/s")
+    wheel = next(line for line in out.splitlines() if "torque_limited" in line)
+    assert "rad/s" in wheel and "N m" in wheel

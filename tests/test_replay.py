@@ -241,3 +241,32 @@ def test_cli_bad_input_exit_2(run_dir, capsys, tmp_path):
     assert "config.yaml: no such file" in capsys.readouterr().err
     assert main(["replay", str(run_dir / "can.blf"), "--rig", "no-such-rig"]) == 2
     assert "no-such-rig" in capsys.readouterr().err
+
+
+def test_strict_exits_1_on_unknown_ids_gaps_and_missing_telemetry(run_dir, capsys, tmp_path):
+    """A capture with foreign ids replays (exit 0) but is not accepted with --strict."""
+    assert main(["replay", str(run_dir / "can.blf"), "--strict"]) == 0  # a clean log
+    capsys.readouterr()
+    hub = P["HUB_TLM"].frame_id
+
+    def edit(i, t, m):
+        if t == 300 and m.arbitration_id == P["SYNC"].frame_id:
+            return None  # a SYNC gap
+        if t == 400 and m.arbitration_id == hub:
+            return None  # missing telemetry
+        if i % 50 == 0 and t > 0:
+            return can.Message(timestamp=m.timestamp, arbitration_id=0x7A5, data=b"\x01",
+                               is_extended_id=False)  # an id no device has
+        return m
+
+    bad = tmp_path / "foreign.blf"
+    _rewrite_log(run_dir / "can.blf", bad, edit)
+    assert main(["replay", str(bad), "--json"]) == 0  # read, not judged
+    capsys.readouterr()
+    assert main(["replay", str(bad), "--strict", "--json"]) == 1
+    cap = capsys.readouterr()
+    problems = json.loads(cap.out)["strict_problems"]
+    assert any("unknown ids" in p for p in problems)
+    assert any("SYNC gaps" in p for p in problems)
+    assert any("missing" in p for p in problems)
+    assert "harness replay --strict:" in cap.err

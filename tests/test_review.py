@@ -257,7 +257,8 @@ def test_verdict_rrd_opens_with_the_runs_layout(faulted):
     from harness.record.reader import read_scalar_channel
     from harness.review.events import values_at
 
-    t, angle = read_scalar_channel(verdict, "/markers/angle/verdict")
+    # each criterion's markers in a series of their own (a legend names its series' last)
+    t, angle = read_scalar_channel(verdict, "/markers/angle/verdict/settle")
     assert t == pytest.approx([0.5])
     t_run, a_run = read_scalar_channel(faulted.run_dir / "run.rrd", "/attitude/angle_deg")
     assert angle[0] == pytest.approx(a_run[np.searchsorted(t_run, 0.5 + 1e-9) - 1])
@@ -288,13 +289,14 @@ def test_identify_rrd_spectrum_marks_every_mode_with_the_runs_layout(faulted, tm
     text = read_text(path, "/identify/modes")
     assert "f: undamped natural frequency" in text and "fd: damped frequency" in text
     for i, (w, z, _) in enumerate(modes):
-        block = text.split(f"## Mode {i + 1} ")[1].split("## ")[0]
-        f_hz = float(block.split("- f = ")[1].split()[0])
-        fd_hz = float(block.split("- fd = ")[1].split()[0])
+        block = text.split(f"**Mode {i + 1}** ")[1].split("**Mode")[0]
+        f_hz = float(block.split("f = ")[1].split()[0])
+        fd_hz = float(block.split("fd = ")[1].split()[0])
         assert f_hz == pytest.approx(w / (2 * np.pi), rel=0.01)
         assert fd_hz == pytest.approx(w * np.sqrt(1 - z * z) / (2 * np.pi), rel=0.01)
-        assert fd_hz < f_hz and "+-" in block.split("- f = ")[1].splitlines()[0]
-        assert float(block.split("- zeta = ")[1].split()[0]) == pytest.approx(z, rel=0.1)
+        assert fd_hz < f_hz and "+-" in block.split("f = ")[1].splitlines()[0]
+        assert float(block.split("zeta = ")[1].split()[0].rstrip(",")) == \
+            pytest.approx(z, rel=0.1)
     # every mode's marker its own colour, none the spectrum's
     from harness.review.spectrum import MODE_COLOURS, SPECTRUM_COLOUR
 
@@ -311,14 +313,19 @@ def test_modes_view_compares_with_the_model():
          "damping_ratio": 0.02, "sigma_damping": 0.001, "fft_peak_omega_rad_s": 6.28,
          "model_mode": 1, "model_omega_rad_s": 2 * np.pi * 1.02, "model_damping_ratio": 0.01,
          "source": {"experiment": "final free decay"}}
-    text = modes_markdown([m], ["a note"])
-    assert "- model (mode 1): f = 1.0200 Hz, zeta = 0.0100" in text
-    assert "- identified - model: f -1.96 %, zeta +100.00 %" in text
-    assert "- from: final free decay" in text and "- a note" in text
+    text = modes_markdown([m, m, m], ["a note"])
+    assert "(model mode 1: f = 1.0200 Hz, zeta = 0.0100)" in text
+    assert "identified - model: f -1.96 %, zeta +100.00 %" in text
+    assert "from: final free decay" in text and "- a note" in text
+    # two lines a mode, the model and the difference among them, before the legend: three
+    # modes fit the panel (a heading, seven lines a mode and the legend first needed a scroll)
+    head = text.split("f: undamped natural frequency")[0].strip().splitlines()
+    assert len(head) <= 2 + 2 * 3, head
+    assert sum("identified - model" in line for line in head) == 3
 
 
 def test_sweep_rrd_has_its_layout(tmp_path):
-    from harness.commands.sweep import save_rrd
+    from harness.studies.sweep_report import save_rrd
 
     lambdas = np.linspace(0.5, 1.5, 4)
     betas = np.array([0.6, 1.0])
@@ -338,8 +345,8 @@ def test_sweep_rrd_has_its_layout(tmp_path):
 def test_sweep_rrd_shows_the_whole_range_one_colour_per_beta_and_scaled_maps(tmp_path):
     """The whole lambda range on screen (the resonance included), the maps with a colour
     scale, and each beta's colour the same in every plot."""
-    from harness.commands.sweep import save_plots, save_rrd, sweep_blueprint
     from harness.review.reader import read_series_styles
+    from harness.studies.sweep_report import save_plots, save_rrd, sweep_blueprint
 
     lambdas = np.linspace(0.3, 3.2, 30)
     betas = np.array([0.3, 0.6, 1.0])
@@ -417,7 +424,8 @@ def test_judged_run_verdict_rrd_has_layout_events_and_markers(faulted, tmp_path)
     fault_t = faulted.summary["faults"][0]["time_s"]
     assert ev and ev[0].time_s == pytest.approx(fault_t)
     assert read_text(path, "/run/verdict")
-    assert {"/markers/angle/verdict", "/markers/tip/verdict"} <= entities(path)
+    assert {"/markers/angle/verdict/unexpected_fault",
+            "/markers/tip/verdict/unexpected_fault"} <= entities(path)
     ours = read_blueprints(faulted.run_dir / "run.rrd")[-1]
     theirs = read_blueprints(path)[-1]
     assert sorted(v.name for v in ours) == sorted(v.name for v in theirs)
@@ -451,11 +459,14 @@ def test_verdict_lives_in_run_rrd_and_rejudging_replaces_it(faulted, tmp_path):
         assert f"{fault['time_s']:.3f} s" in head
         items = [ln for ln in text.splitlines() if ln.startswith("- **")]
         verdicts = [ln.split("**")[1] for ln in items]
-        assert verdicts == sorted(verdicts, key=["ERROR", "FAIL", "MARGINAL", "PASS"].index)
+        assert verdicts == sorted(verdicts, key=["ERROR", "FAIL", "MARGINAL", "NOT JUDGED",
+                                                 "PASS"].index)
         assert "unexpected_fault" in items[0]  # the cause before its consequences
         final = next(ln for ln in items if " final_error:" in ln)
-        assert "limit |x| ≤ 0.1 deg" in final and "margin" in final and "worst at" in final
-        assert "missing data" in text and "a consequence of the run stopping early" in text
+        # measured against where the run stopped, not where it was going: not judged
+        assert final.startswith("- **NOT JUDGED** final_error") and "margin" not in final
+        assert "limit |x| ≤ 0.1 deg" in final
+        assert "not judged: a fault (hub_sensor: silent)" in text
         ev = [e for e in read_events(rrd) if e.entity == "/events/verdict"]
         assert len(ev) == 1 and ev[0].time_s == pytest.approx(fault["time_s"])
         # the unexpected fault is marked once, by the run's own fault marker
@@ -474,7 +485,7 @@ def test_verdict_lives_in_run_rrd_and_rejudging_replaces_it(faulted, tmp_path):
             "limit": {"max_abs_m_s2": 0.01}, "margin": -0.02, "verdict": "FAIL",
             "worst_time_s": 0.5, "message": "too much"}
     assert write_into_run(run_dir, {"verdict": "FAIL", "reason": "x", "criteria": [fail]})
-    assert "/markers/tip/verdict" in entities(rrd)
+    assert "/markers/tip/verdict/tip_quiet" in entities(rrd)
     assert [e.time_s for e in read_events(rrd) if e.entity == "/events/verdict"] == [0.5]
 
 
@@ -495,7 +506,7 @@ def test_baseline_comparison_draws_the_baseline_on_the_same_plot(faulted, tmp_pa
     cfg = yaml.safe_load(cfg_path.read_text())
     cfg["run"]["expect"] = {"same_as_before": {
         "baseline": str(faulted.run_dir), "channel": "/attitude/error_deg",
-        "tol_deg": 1e-6, "max_shift_s": 0.01}}
+        "tol_deg": 1e-6, "max_shift_s": 0.01, "applies_to_stopped": True}}
     cfg_path.write_text(yaml.safe_dump(cfg))
     v = judge_run(run_dir)
     [same] = [c for c in v.criteria if c.name == "same_as_before"]

@@ -43,7 +43,7 @@ def test_run_rrd_legends_name_each_series(slew_result):
 
 
 def test_sweep_rrd_legends_are_the_betas(tmp_path):
-    from harness.commands.sweep import save_rrd
+    from harness.studies.sweep_report import save_rrd
 
     path = tmp_path / "sweep.rrd"
     save_rrd(path, "sweep-test", np.linspace(0.5, 1.5, 3), np.array([0.6, 1.0]),

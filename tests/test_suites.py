@@ -389,11 +389,15 @@ def test_real_bus_runs_one_at_a_time_after_a_good_probe(tmp_path):
     with RigProcess(load_rig("sgsrt"), 100.0, tmp_path, [], lifetime_s=120) as where:
         proc = harness_test(str(suite), "--bus", where, "--out", str(out),
                             "--junit", str(tmp_path / "j.xml"), process=True)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    # a real-time run is also judged by the bench's timing: on this shared machine a host
+    # stall can make "hold" INCONCLUSIVE (exit 6, tests/test_bench_health.py); what this
+    # test checks, the real bus's flow, holds either way, and a FAIL or ERROR still fails it
+    assert proc.returncode in (0, 6), proc.stderr[-3000:]
     assert "pre-flight probe OK" in proc.stderr and "on inline" in proc.stderr
     results = json.loads((suite_dir_of(out, "rig") / "results.json").read_text())
     by_item = {t["item"]: t for t in results["tests"]}
-    assert by_item["hold"]["verdict"] == "PASS" and by_item["fault"]["verdict"] == "SKIPPED"
+    assert by_item["hold"]["verdict"] in ("PASS", "INCONCLUSIVE"), by_item["hold"]["reason"]
+    assert by_item["fault"]["verdict"] == "SKIPPED"
     assert by_item["probe"]["verdict"] == "PASS"
     assert by_item["probe"]["reason"].startswith("pre-flight")  # not probed twice
     summary = json.loads((suite_dir_of(out, "rig") / by_item["hold"]["run_dir"]

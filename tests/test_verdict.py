@@ -61,9 +61,10 @@ def test_scalar_dotted_paths_null_missing_and_budget():
     assert r.verdict == FAIL and "never stayed" in r.message  # null settle time is a result
     r = scalar({"measure": "steady_tip_accel_amplitude_m_s2", "max_m_s2": 1})
     assert r.verdict == ERROR and "missing data" in r.message
-    # the real-time budget: a failed lateness criterion makes the test invalid, not failed
+    # the real-time budget: a failed lateness criterion makes the test inconclusive (the
+    # bench did not hold its time), not failed
     r = scalar({"measure": "lateness_ms.max", "max_ms": 1})
-    assert r.verdict == ERROR and "real-time budget" in r.message
+    assert r.verdict == "INCONCLUSIVE" and "real-time budget" in r.message
     r = scalar({"measure": "lateness_ms.max", "max_ms": 1, "budget": False})
     assert r.verdict == FAIL
     r = scalar({"measure": "wheel_torque_within_limit", "is": True},
@@ -335,11 +336,15 @@ def test_verdict_worst_wins_and_exit_codes():
     assert make_verdict([p, m]).exit_code == 5
     fail = scalar({"measure": "final_angle_error_deg", "max_abs_deg": 0.01})
     assert make_verdict([p, m, fail]).exit_code == 1
-    err = scalar({"measure": "lateness_ms.max", "max_ms": 1})
-    v = make_verdict([p, m, fail, err])
-    assert v.verdict == ERROR and v.exit_code == 4
+    # the bench did not hold its time: INCONCLUSIVE (exit 6), over a FAIL measured on it
+    late = scalar({"measure": "lateness_ms.max", "max_ms": 1})
+    v = make_verdict([p, m, fail, late])
+    assert v.verdict == "INCONCLUSIVE" and v.exit_code == 6
+    assert v.reason.startswith("the bench did not hold real time") and "not trusted" in v.reason
     stopped = run_checks([], dict(SUMMARY, stopped_by="error", error="ValueError: x"))
     assert make_verdict(stopped).exit_code == 4 and "raised" in make_verdict(stopped).reason
+    # an ERROR (the run broke) outranks INCONCLUSIVE
+    assert make_verdict([late, *stopped]).verdict == ERROR
     interrupted = run_checks([], dict(SUMMARY, stopped_by="interrupted"))
     assert make_verdict(interrupted).exit_code == 130
 

@@ -188,11 +188,12 @@ def test_error_verdicts_and_judge_exit_codes(judged_run, tmp_path, capsys):
     d = copy("interrupted")
     _edit_summary(d, stopped_by="interrupted")
     assert main(["judge", str(d)]) == 130
-    d = copy("overruns")  # a real-time budget not held: the test was not valid
+    d = copy("overruns")  # a real-time budget not held: the bench, not the controller
     _edit_summary(d, overruns=7)
-    assert main(["judge", str(d)]) == 4
+    assert main(["judge", str(d)]) == 6
     c = next(c for c in verdict_of(d)["criteria"] if c["name"] == "no_overruns")
-    assert c["verdict"] == "ERROR" and "real-time budget" in c["message"]
+    assert c["verdict"] == "INCONCLUSIVE" and "real-time budget" in c["message"]
+    assert verdict_of(d)["verdict"] == "INCONCLUSIVE"
     d = copy("killed")
     (d / "summary.json").unlink()
     assert main(["judge", str(d)]) == 4

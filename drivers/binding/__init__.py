@@ -17,12 +17,14 @@ The same binding serves the harness (decode telemetry, encode commands) and the 
 files and DBC/EDS files, never in code (the sgsrt defaults below are the one exception: they
 ARE the sgsrt protocol).
 
-May import: ``drivers.dbc``, ``drivers.canopen_pdo``, ``canopen`` (EDS parsing only). Never
-``harness`` or ``rig_models``.
+May import: ``drivers.dbc``, ``drivers.canopen_pdo``, ``drivers.device_file``, ``canopen``
+(EDS parsing only). Never ``harness`` or ``rig_models``.
 """
 
 from __future__ import annotations
 
+import errno
+import stat
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,6 +47,7 @@ from drivers.binding.quantities import (
     TELEMETRY,
 )
 from drivers.dbc import DBC_PATH, FrameCodec, Protocol, load_protocol
+from drivers.device_file import kind_of
 
 __all__ = ["BindingError", "RigBinding", "absolutize", "build_binding", "resolve_file", "KINDS"]
 
@@ -91,6 +94,9 @@ class RigBinding:
     sequence: dict[str, tuple[str, int]] = field(default_factory=dict)
     files: dict[str, str] = field(default_factory=dict)  # device -> DBC/EDS path
     canopen: Any = None  # drivers.binding.canopen.CanopenBus when a device binds canopen
+    # what is wrong in the device files but not in what the rig binds (a DBC's message no
+    # device uses): a line each, the harness shows them before a run
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def bound(self) -> tuple[str, ...]:
@@ -141,8 +147,16 @@ def resolve_file(value: Any, key: str, base_dir: Path | None, subdir: str = "") 
         ([base_dir / p] if base_dir is not None else []) + [DRIVERS_DIR / subdir / p,
                                                             DRIVERS_DIR / p])
     for c in candidates:
-        if c.is_file():
-            return c.resolve()
+        try:
+            mode = c.stat().st_mode
+        except (OSError, ValueError) as exc:  # absent, or a name the file system refuses
+            if isinstance(exc, OSError) and exc.errno == errno.ENAMETOOLONG:
+                raise BindingError(f"{key}: the path is too long for the file system "
+                                   f"({len(str(c))} characters)") from None
+            continue
+        if not stat.S_ISREG(mode):
+            raise BindingError(f"{key}: {c.name}: {kind_of(mode)}, not a regular file")
+        return c.resolve()
     raise BindingError(f"{key}: file {value!r} not found (looked in: "
                        f"{', '.join(str(c.parent) for c in candidates)})")
 
@@ -191,6 +205,9 @@ def _load_dbc(path: Path, key: str) -> Protocol:
 
 
 def _message(protocol: Protocol, name: Any, key: str, path: Path) -> FrameCodec:
+    if isinstance(name, str) and name in protocol.problems:
+        raise BindingError(f"{key}.message: {name} of {path.name} is not exact: "
+                           f"{protocol.problems[name]}")
     if not isinstance(name, str) or name not in protocol.by_name:
         known = ", ".join(sorted(protocol.by_name))
         raise BindingError(f"{key}.message: {name!r} is not a message of {path.name} "
@@ -211,7 +228,7 @@ _SIGNAL_KEYS = {"message", "signal", "scale", "offset", "sensitivity", "mux", "m
 def _signal_map(quantity: str, spec: Any, key: str, protocol: Protocol, path: Path
                 ) -> tuple[FrameCodec, SignalMap, int | None, int | None]:
     spec = _mapping(spec, key)
-    unknown = sorted(set(spec) - _SIGNAL_KEYS)
+    unknown = sorted(set(spec) - _SIGNAL_KEYS, key=str)
     if unknown:
         raise BindingError(f"{key}.{unknown[0]}: unknown key (expected one of: "
                            f"{', '.join(sorted(_SIGNAL_KEYS))})")
@@ -248,7 +265,7 @@ def _dbc_device(device: str, cfg: Mapping[str, Any], key: str, base_dir: Path | 
                 ) -> tuple[tuple[TelemetryMap, ...], tuple[CommandMap, ...],
                            tuple[str, int] | None, str]:
     allowed = {"binding", "dbc", "telemetry", "commands"}
-    unknown = sorted(set(cfg) - allowed)
+    unknown = sorted(set(cfg) - allowed, key=str)
     if unknown:
         raise BindingError(f"{key}.{unknown[0]}: unknown key (expected one of: "
                            f"{', '.join(sorted(allowed))})")
@@ -331,7 +348,7 @@ def _sync_and_heartbeat(bus: Mapping[str, Any], base_dir: Path | None, sgsrt: Pr
         sync, sgsrt_sync = SyncMap(sgsrt["SYNC"], "tick"), True
     else:
         cfg = _mapping(sync_cfg, "bus.sync")
-        unknown = sorted(set(cfg) - {"dbc", "message", "signal"})
+        unknown = sorted(set(cfg) - {"dbc", "message", "signal"}, key=str)
         if unknown:
             raise BindingError(f"bus.sync.{unknown[0]}: unknown key (expected dbc, message, "
                                "signal)")
@@ -343,7 +360,7 @@ def _sync_and_heartbeat(bus: Mapping[str, Any], base_dir: Path | None, sgsrt: Pr
         hb = HeartbeatMap(sgsrt["HEARTBEAT"], "counter", "armed")
     else:
         cfg = _mapping(hb_cfg, "bus.heartbeat")
-        unknown = sorted(set(cfg) - {"dbc", "message", "counter", "armed"})
+        unknown = sorted(set(cfg) - {"dbc", "message", "counter", "armed"}, key=str)
         if unknown:
             raise BindingError(f"bus.heartbeat.{unknown[0]}: unknown key (expected dbc, "
                                "message, counter, armed)")
@@ -363,7 +380,7 @@ def build_binding(data: Mapping[str, Any], base_dir: Path | None = None) -> RigB
     ``bus.heartbeat``). Raises BindingError naming the key."""
     sgsrt = load_protocol(str(DBC_PATH))
     devices = _mapping(data.get("devices"), "devices")
-    unknown = sorted(set(devices) - set(DEVICES))
+    unknown = sorted(set(devices) - set(DEVICES), key=str)
     if unknown:
         raise BindingError(f"devices.{unknown[0]}: unknown device (expected one of: "
                            f"{', '.join(DEVICES)})")
@@ -437,7 +454,25 @@ def build_binding(data: Mapping[str, Any], base_dir: Path | None = None) -> RigB
     binding = RigBinding(kinds, sync, heartbeat, telemetry, commands, sequence, files,
                          canopen_bus)
     _check_distinct(binding)
+    binding.warnings = _unbound_problems(binding)
     return binding
+
+
+def _unbound_problems(b: RigBinding) -> list[str]:
+    """A line per message of a bound DBC that is not exact but that no device uses: the
+    file loads as real ones are (non-strict), only what the rig binds must be exact."""
+    used: dict[str, set[str]] = {}
+    for device, kind in b.kinds.items():
+        if kind == "dbc":
+            names = used.setdefault(b.files[device], set())
+            names.update(m.codec.name for m in (*b.telemetry[device], *b.commands[device]))
+    out = []
+    for path, names in used.items():
+        for name, why in load_protocol(path).problems.items():
+            if name not in names:
+                out.append(f"{Path(path).name}: message {name}: {why} (not bound by this "
+                           "rig: ignored)")
+    return out
 
 
 def _check_distinct(b: RigBinding) -> None:

@@ -12,6 +12,7 @@ is CiA 301 itself (COB-IDs, the SYNC counter, NMT, EMCY meanings).
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cache
@@ -94,12 +95,59 @@ _TYPES = {  # CiA 301 data type -> (bits, signed, struct code)
 @cache
 def load_eds(path: str, node_id: int) -> Any:
     """The node's object dictionary (the ``canopen`` library's EDS/DCF parser)."""
+    return parse_od(path, node_id, BindingError)
+
+
+_SECTION = re.compile(r"^\s*\[([^\]]*)\]", re.M)
+_EMPTY_KEY = re.compile(r"^[ \t]*[A-Za-z_0-9]+[ \t]*=[ \t]*\r?$\n?", re.M)
+
+
+def _without_empty_device_info(text: str) -> str:
+    """The file as the ``canopen`` library's parser can take it, its meaning unchanged: the
+    ``[DeviceInfo]`` keys with no value left out (CiA 306 makes most of them optional,
+    editors write them empty, ``VendorNumber=``, and the parser fails on an empty number),
+    and the ``[Comments]`` section left out (free text whose ``Lines=`` count editors get
+    wrong, which the parser checks)."""
+    out = []
+    pos = 0
+    for m in _SECTION.finditer(text):
+        name = m.group(1).strip().lower()
+        if name not in ("deviceinfo", "comments"):
+            continue
+        nxt = _SECTION.search(text, m.end())
+        end = nxt.start() if nxt else len(text)
+        out.append(text[pos:m.start()])
+        if name == "deviceinfo":
+            out.append(text[m.start():m.end()] + _EMPTY_KEY.sub("", text[m.end():end]))
+        pos = end
+    out.append(text[pos:])
+    return "".join(out)
+
+
+def parse_od(path: str | Path, node_id: int, error: type[Exception]) -> Any:
+    """``canopen.import_od`` of a bounded read of the file (``drivers.device_file``): a
+    special file, an oversized one or one the parser chokes on is ``error`` naming the file,
+    never a traceback or a hang."""
+    import io
+
     import canopen
 
+    from drivers.device_file import DeviceFileError, read_text
+
+    name = Path(path).name
     try:
-        return canopen.import_od(path, node_id)
+        text = read_text(path)
+    except DeviceFileError as exc:
+        raise error(str(exc)) from None
+    source = io.StringIO(_without_empty_device_info(text))
+    source.name = str(path)  # the parser tells an EDS from a DCF by the name
+    try:
+        return canopen.import_od(source, node_id)
+    except RecursionError:
+        raise error(f"{name}: not a loadable EDS/DCF file (nested too deeply)") from None
     except Exception as exc:  # the parser raises many kinds for a bad file
-        raise BindingError(f"{Path(path).name}: cannot read the EDS ({exc})") from exc
+        text = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
+        raise error(f"{name}: not a loadable EDS/DCF file ({text})") from None
 
 
 @dataclass(frozen=True)
@@ -439,9 +487,14 @@ class NodeSpec:
     od: Any
     mode_of_operation: int | None = None
     identity: dict[str, int] = field(default_factory=dict)
+    # where each expected identity value comes from (the rig file's key or the file's)
+    identity_source: dict[str, str] = field(default_factory=dict)
     device_type: int | None = None
     parameters: list[tuple[ObjRef, int]] = field(default_factory=list)
     heartbeat_ms: int = 50
+    # False: the rig file says the node cannot consume the harness's heartbeat (0x1016 is
+    # not written); what replaces it for safety is the lab's (docs/lab.md)
+    heartbeat_consumer: bool = True
     verify: bool = False  # a DCF: its PDO mapping is verified on the device, not written
     tpdos: list[PdoSpec] = field(default_factory=list)
     rpdos: list[PdoSpec] = field(default_factory=list)
@@ -469,7 +522,14 @@ class CanopenBus:
 
 
 _DEVICE_KEYS = {"binding", "node_id", "eds", "profile", "mode_of_operation", "identity",
-                "device_type", "parameters", "telemetry", "commands", "heartbeat_ms"}
+                "device_type", "parameters", "telemetry", "commands", "heartbeat_ms",
+                "heartbeat_consumer"}
+# CiA 402 modes of operation (0x6060) and their bit in the supported drive modes (0x6502)
+MODE_NAMES = {1: "profile position", 2: "velocity", 3: "profile velocity",
+              4: "profile torque", 6: "homing", 7: "interpolated position",
+              8: "cyclic synchronous position", 9: "cyclic synchronous velocity",
+              10: "cyclic synchronous torque"}
+MODE_BITS = {1: 0, 2: 1, 3: 2, 4: 3, 6: 5, 7: 6, 8: 7, 9: 8, 10: 9}
 _QTY_KEYS = {"object", "sub", "scale", "offset", "sensitivity", "bit", "mask", "equals",
              "values"}
 
@@ -484,7 +544,7 @@ def _quantity(q: str, spec: Any, key: str, od: Any, eds: str, command: bool) -> 
     if not isinstance(spec, Mapping):
         raise BindingError(f"{key}: expected a mapping with object (and sub, scale, ...), got "
                            f"{spec!r}")
-    unknown = sorted(set(spec) - _QTY_KEYS)
+    unknown = sorted(set(spec) - _QTY_KEYS, key=str)
     if unknown:
         raise BindingError(f"{key}.{unknown[0]}: unknown key (expected one of: "
                            f"{', '.join(sorted(_QTY_KEYS))})")
@@ -546,7 +606,7 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
     node_of: dict[str, int] = {}
     for device, cfg in devices.items():
         key = f"devices.{device}"
-        unknown = sorted(set(cfg) - _DEVICE_KEYS)
+        unknown = sorted(set(cfg) - _DEVICE_KEYS, key=str)
         if unknown:
             raise BindingError(f"{key}.{unknown[0]}: unknown key (expected one of: "
                                f"{', '.join(sorted(_DEVICE_KEYS))})")
@@ -559,7 +619,10 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
         if profile not in PROFILES:
             raise BindingError(f"{key}.profile: expected one of {', '.join(PROFILES)}, got "
                                f"{profile!r}")
-        od = load_eds(eds, node_id)
+        try:
+            od = load_eds(eds, node_id)
+        except BindingError as exc:
+            raise BindingError(f"{key}.eds: {exc}") from None
         node = nodes.get(node_id)
         if node is None:
             node = nodes[node_id] = NodeSpec(node_id, eds, profile, [], od,
@@ -579,14 +642,35 @@ def build_canopen(devices: Mapping[str, Mapping[str, Any]], dividers: Mapping[st
         elif profile == "cia402":
             raise BindingError(f"{key}.mode_of_operation: missing (10 cyclic synchronous "
                                "torque, 9 velocity, 8 position)")
+        if node.mode_of_operation is not None:
+            supported = _od_value(od, 0x6502, 0)
+            bit = MODE_BITS.get(node.mode_of_operation)
+            if supported is not None and bit is not None and not supported >> bit & 1:
+                have = [f"{m} {MODE_NAMES[m]}" for m, b in MODE_BITS.items()
+                        if supported >> b & 1]
+                raise BindingError(
+                    f"{key}.mode_of_operation: {node.mode_of_operation} "
+                    f"({MODE_NAMES[node.mode_of_operation]}) is not among "
+                    f"{Path(eds).name}'s supported drive modes (0x6502 = 0x{supported:X}: "
+                    f"{', '.join(have) or 'none of the standard ones'})")
+        if "heartbeat_consumer" in cfg:
+            if not isinstance(cfg["heartbeat_consumer"], bool):
+                raise BindingError(f"{key}.heartbeat_consumer: expected true or false, got "
+                                   f"{cfg['heartbeat_consumer']!r}")
+            node.heartbeat_consumer = node.heartbeat_consumer and cfg["heartbeat_consumer"]
         if "heartbeat_ms" in cfg:
             node.heartbeat_ms = _int(cfg["heartbeat_ms"], f"{key}.heartbeat_ms", 1, 65535)
         ident = cfg.get("identity") or {}
         if not isinstance(ident, Mapping) or set(ident) - {"vendor_id", "product_code",
                                                            "revision"}:
             raise BindingError(f"{key}.identity: expected vendor_id, product_code, revision")
-        node.identity.update({k: _int(v, f"{key}.identity.{k}", 0, 2**32 - 1)
-                              for k, v in ident.items()})
+        if not node.identity_source:
+            for name, (value, source) in file_identity(od, Path(eds).name).items():
+                node.identity[name] = value
+                node.identity_source[name] = source
+        for k, v in ident.items():
+            node.identity[k] = _int(v, f"{key}.identity.{k}", 0, 2**32 - 1)
+            node.identity_source[k] = f"the rig file's {key}.identity.{k}"
         if "device_type" in cfg:
             node.device_type = _int(cfg["device_type"], f"{key}.device_type", 0, 2**32 - 1)
         for i, p in enumerate(cfg.get("parameters") or []):
@@ -684,7 +768,40 @@ def _od_value(od: Any, index: int, sub: int) -> int | None:
     if var is None:
         return None
     v = var.value if getattr(var, "value", None) is not None else var.default
-    return int(v) if v is not None else None
+    # a number; anything else (an object the file gives a string or domain type) is not
+    # a value the harness can use here
+    return int(v) if isinstance(v, int) else None
+
+
+_IDENTITY = ((1, "vendor_id", "vendor_number", "VendorNumber"),
+             (2, "product_code", "product_number", "ProductNumber"),
+             (3, "revision", "revision_number", "RevisionNumber"))
+
+
+def file_identity(od: Any, name: str) -> dict[str, tuple[int, str]]:
+    """The identity (0x1018) the device file expects, with where each value comes from: a
+    DCF's configured value (ParameterValue), else 0x1018's default, else the file's
+    ``[DeviceInfo]`` VendorNumber / ProductNumber / RevisionNumber (vendor files often leave
+    0x1018's defaults empty or 0 and name the device there). The revision is checked only
+    when a DCF configures it or the rig file names it: a device of a newer firmware is still
+    the device. A value known nowhere (or 0 everywhere) is not checked."""
+    info = getattr(od, "device_information", None)
+    obj = od.get(0x1018) if hasattr(od, "get") else None
+    out: dict[str, tuple[int, str]] = {}
+    for sub, key, attr, ini in _IDENTITY:
+        var = getattr(obj, "subindices", {}).get(sub) if obj is not None else None
+        configured = getattr(var, "value", None) if var is not None else None
+        default = getattr(var, "default", None) if var is not None else None
+        from_info = getattr(info, attr, None) if info is not None else None
+        if isinstance(configured, int) and configured:
+            out[key] = (configured, f"{name}'s configured 0x1018.{sub} (ParameterValue)")
+        elif sub == 3:
+            continue
+        elif isinstance(default, int) and default:
+            out[key] = (default, f"{name}'s 0x1018.{sub} default")
+        elif isinstance(from_info, int) and from_info:
+            out[key] = (from_info, f"{name}'s [DeviceInfo] {ini}")
+    return out
 
 
 def dcf_pdos(od: Any, node_id: int, comm_base: int, map_base: int, name: str,

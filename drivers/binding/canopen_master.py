@@ -27,6 +27,8 @@ import can
 
 from drivers.binding.canopen import (
     HEARTBEAT_BASE,
+    MODE_BITS,
+    MODE_NAMES,
     NMT_STATES,
     CanopenBus,
     NodeSpec,
@@ -62,7 +64,10 @@ def _sdo_text(exc: Exception) -> str:
 
 
 def nmt_frame(command: int, node_id: int = 0) -> can.Message:
-    return can.Message(arbitration_id=0, data=bytes((command, node_id)), is_extended_id=False)
+    """An NMT command from the harness: transmitted (``is_rx`` False), so the run's CAN log
+    records it as the harness's own frame, not as one it received."""
+    return can.Message(arbitration_id=0, data=bytes((command, node_id)), is_extended_id=False,
+                       is_rx=False)
 
 
 class CanopenMaster:
@@ -194,11 +199,13 @@ class CanopenMaster:
             v = u32.unpack(self._sdo(rn, spec, 0x1018, sub, f"identity {name}"))[0]
             identity[name] = v
             want = spec.identity.get(name)
-            if want is None and name != "revision":
-                want = int(spec.od[0x1018][sub].default or 0)
             if want is not None and v != want:
-                raise SetupError(f"{spec.label}: identity {name} 0x{v:08X}, expected "
-                                 f"0x{want:08X} (0x1018.{sub})")
+                source = spec.identity_source.get(name, "the rig file")
+                raise SetupError(
+                    f"{spec.label}: identity {name} (0x1018.{sub}) is 0x{v:08X} on the device, "
+                    f"{source} expects 0x{want:08X}; another device at this node id? If it "
+                    f"is the right one, set devices.{spec.devices[0]}.identity.{name}: "
+                    f"0x{v:08X} in the rig file")
         scaling: dict[str, Any] = {}
         for index in SCALING_OBJECTS.get(spec.profile, ()):
             if index not in spec.od:
@@ -247,9 +254,15 @@ class CanopenMaster:
             pass  # the SYNC counter overflow is the master's (0x1019 on the SYNC producer)
         self._sdo(rn, spec, 0x1017, 0, "heartbeat producer time",
                   struct.pack("<H", spec.heartbeat_ms))
-        if self._has(spec, 0x1016, 1):
-            self._sdo(rn, spec, 0x1016, 1, "heartbeat consumer", u32.pack(
-                self.co.master_id << 16 | self.co.consumer_timeout_ms))
+        if spec.heartbeat_consumer and self._has(spec, 0x1016, 1):
+            try:
+                self._sdo(rn, spec, 0x1016, 1, "heartbeat consumer", u32.pack(
+                    self.co.master_id << 16 | self.co.consumer_timeout_ms))
+            except SetupError as exc:
+                raise SetupError(f"{exc}; if the device cannot consume the harness's "
+                                 f"heartbeat, set devices.{spec.devices[0]}."
+                                 "heartbeat_consumer: false in the rig file (docs/lab.md: what "
+                                 "must then keep it safe)") from exc
         if self._has(spec, 0x1029, 1):
             self._sdo(rn, spec, 0x1029, 1, "error behaviour: pre-operational", b"\x00")
         if spec.profile == "cia401":
@@ -269,7 +282,16 @@ class CanopenMaster:
         for ref, value in spec.parameters:
             self._sdo(rn, spec, ref.index, ref.sub, f"parameter {ref.name}",
                       _pack_value(ref, value))
-        if spec.mode_of_operation is not None:
+        if spec.mode_of_operation is not None and self._has(spec, 0x6502):
+            supported = u32.unpack(self._sdo(rn, spec, 0x6502, 0, "supported drive modes"))[0]
+            bit = MODE_BITS.get(spec.mode_of_operation)
+            if bit is not None and not supported >> bit & 1:
+                raise SetupError(f"{spec.label}: supported drive modes 0x6502 = "
+                                 f"0x{supported:08X} on the device lack mode "
+                                 f"{spec.mode_of_operation} "
+                                 f"({MODE_NAMES[spec.mode_of_operation]}), the rig file's "
+                                 f"devices.{spec.devices[0]}.mode_of_operation")
+        if spec.mode_of_operation is not None and self._has(spec, 0x6060):
             self._sdo(rn, spec, 0x6060, 0, "modes of operation",
                       struct.pack("<b", spec.mode_of_operation))
         return {"node_id": spec.node_id, "devices": list(spec.devices),
@@ -332,6 +354,8 @@ class CanopenMaster:
         control(0x06, "shutdown", 0x6F, 0x21)
         control(0x07, "switch on", 0x6F, 0x23)
         control(0x0F, "enable operation", 0x6F, 0x27)
+        if not self._has(spec, 0x6061):
+            return  # a drive of one mode: it shows none (CiA 402 makes 0x6061 optional)
         mode = struct.unpack("<b", self._sdo(rn, spec, 0x6061, 0, "mode display"))[0]
         if spec.mode_of_operation is not None and mode != spec.mode_of_operation:
             raise SetupError(f"{spec.label}: modes of operation display {mode}, expected "

@@ -169,6 +169,10 @@ class RigInterface:
         self._hb_recent: dict[int, list[float]] = {}
         self._dt_s = 0.0
         self._hb_wall = False
+        # heartbeats queued during the set-up arrive in a burst in the first ticks: counted
+        # for the duplicate rule only from this tick (the monitor's start-up)
+        self._hb_dup_from = 0
+        self._hb_dup_windows: dict[int, int] = {}
         self._hb_timeout_ticks: dict[int, int] = {}
         # no heartbeat can be missing up to this tick (None: look at every node)
         self._hb_quiet_until: int | None = None
@@ -500,13 +504,15 @@ class RigInterface:
                                "not send: another master is on the bus")
 
     # ------------------------------------------------------------------ CANopen
-    def watch_heartbeats(self, dt_s: float, start_tick: int = 0, grace_ticks: int = 0) -> None:
+    def watch_heartbeats(self, dt_s: float, start_tick: int = 0, grace_ticks: int = 0,
+                         quiet_ticks: int = 0) -> None:
         """From ``start_tick`` on, each node must send its heartbeat within 3 of its periods
         (at least 2 ticks, and at least ``grace_ticks``: the monitor's real-time grace on a
         slow host): a node silent for longer is a fault (``protocol_fault``)."""
         if self.co is None:
             return
         self._dt_s = dt_s
+        self._hb_dup_from = start_tick + quiet_ticks
         # lockstep: the rig's time is the tick's; on the wall clock a stalled loop reads a
         # node's heartbeats in a burst, so their spacing is the senders' time stamps'
         self._hb_wall = grace_ticks > 0
@@ -533,7 +539,7 @@ class RigInterface:
             self._hb_tick[nid] = tick
             self._hb_quiet_until = None
             state = data[0] & 0x7F if data else -1
-            if state != 0 and self._dt_s > 0.0:
+            if state != 0 and self._dt_s > 0.0 and tick >= self._hb_dup_from:
                 self._duplicate_heartbeat(
                     nid, msg.timestamp if self._hb_wall else tick * self._dt_s, device)
             if state == 0:
@@ -570,13 +576,21 @@ class RigInterface:
         if len(recent) > DUPLICATE_HB_COUNT:
             del recent[0]
         period_s = self.co.nodes[nid].heartbeat_ms * 1e-3
-        if (len(recent) == DUPLICATE_HB_COUNT
-                and recent[-1] - recent[0] < DUPLICATE_HB_PERIODS * period_s):
+        if len(recent) < DUPLICATE_HB_COUNT:
+            return
+        if recent[-1] - recent[0] >= DUPLICATE_HB_PERIODS * period_s:
+            self._hb_dup_windows[nid] = 0
+            return
+        # twice in a row: a stalled host or loop delivers one burst of a node's heartbeats;
+        # a second node with its id keeps doubling them
+        windows = self._hb_dup_windows[nid] = self._hb_dup_windows.get(nid, 0) + 1
+        span = recent[-1] - recent[0]
+        recent.clear()
+        if windows >= 2:
             self.protocol_events.append((device, "node id used twice", (
-                f"node {nid}: {DUPLICATE_HB_COUNT} heartbeats within "
-                f"{recent[-1] - recent[0]:.3g} s, its period is "
-                f"{self.co.nodes[nid].heartbeat_ms} ms: two nodes answer with id {nid}")))
-            recent.clear()
+                f"node {nid}: twice {DUPLICATE_HB_COUNT} heartbeats in a row within "
+                f"{span:.3g} s, its period is {self.co.nodes[nid].heartbeat_ms} ms: two "
+                f"nodes answer with id {nid}")))
 
     def protocol_fault(self, tick: int) -> tuple[str, str, str] | None:
         """The first protocol fault so far (CANopen): an EMCY, a boot-up, a node not

@@ -7,8 +7,10 @@ the loop timing margin that the lab rig (separate devices) would not take. With
 server on 127.0.0.1, an OS-chosen port) with the run's resolved rig written beside the
 recording, connects to it over python-can's ``socketcand`` interface, and stops it (SIGTERM,
 then SIGKILL) when the run ends, on every exit path. Should the harness itself be killed, the
-rig process exits on its own a minute after the run's planned end (its watchdog has made it
-safe long before). The rig's stderr goes to ``rig.log`` in
+rig process ends within a second: it holds the read end of a pipe whose write end only the
+harness holds (``--parent-fd``), and the pipe's end of file (the harness gone, however it
+ended) stops it as SIGTERM would, the rig left safe. It also exits on its own a minute after
+the run's planned end, as a backstop. The rig's stderr goes to ``rig.log`` in
 the run directory.
 """
 
@@ -87,6 +89,7 @@ class RigProcess:
         self.proc: subprocess.Popen[str] | None = None
         self._log: IO[str] | None = None
         self._pump: threading.Thread | None = None
+        self._lifeline: int | None = None
 
     def __enter__(self) -> str:
         serve = (["--serve-socketcand", "0"] if self.transport == "tcp" else
@@ -98,8 +101,20 @@ class RigProcess:
         if self.lifetime_s > 0:  # if the harness is killed, the rig still exits by itself
             cmd += ["--duration-s", f"{self.lifetime_s:g}"]
         self._log = self.log_path.open("w")
-        self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.PIPE, text=True, start_new_session=True)
+        # the child watches the read end; the write end (not inherited by any child) closes
+        # when this process ends, however it ends
+        watch, self._lifeline = os.pipe()
+        cmd += ["--parent-fd", str(watch)]
+        try:
+            self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL,
+                                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                         text=True, start_new_session=True, pass_fds=(watch,))
+        except BaseException:
+            os.close(self._lifeline)
+            self._lifeline = None
+            raise
+        finally:
+            os.close(watch)
         lines: queue.Queue[str | None] = queue.Queue()
         self._pump = threading.Thread(target=self._copy_stderr, args=(lines,), daemon=True)
         self._pump.start()
@@ -182,6 +197,9 @@ class RigProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+        if self._lifeline is not None:
+            os.close(self._lifeline)
+            self._lifeline = None
         if self._pump is not None:
             self._pump.join(timeout=5)
         if self._log is not None:

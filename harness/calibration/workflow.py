@@ -55,9 +55,11 @@ from harness.calibration.plan import (
 )
 from harness.calibration.residual import fit_modal_residual, true_residual
 from harness.controllers.shaped_wheel_slew import Mode
+from harness.core.identify import analysis_windows, load_record, write_spectrum_rrd
 from harness.core.paths import safe_child, safe_name
 from harness.core.runs import RunConfig, build_controller, run_from_dict, virtual_bus
 from harness.core.session import RunResult, execute_run, refuse_beyond_limits
+from harness.identification.windows import identify_windows
 from rig_models.rig_file import RigConfig, load_rig
 from rig_models.schema import ConfigError
 
@@ -180,9 +182,6 @@ def _run(run: RunConfig, runs_dir: Path, bus: str | None, clock: str) -> RunResu
 def identify_run(run_dir: Path) -> Any:
     """The modes of an excitation run, as ``harness identify RUN_DIR`` finds them (and its
     identify.rrd beside run.rrd)."""
-    from harness.commands.identify import analysis_windows, load_record, write_spectrum_rrd
-    from harness.identification.windows import identify_windows
-
     t, a, cfg, _ = load_record(run_dir)
     windows = analysis_windows(cfg)
     if windows is None:
@@ -384,6 +383,30 @@ def baseline_expect(c: Calibration, shaped_limit_m_s2: float) -> dict[str, Any]:
                 "it, that criterion could not tell shaping from none")}}
 
 
+TEMPLATE_RUNS = {"wheel": "slew-rw-zv", "valves": "slew-thruster-lhhl"}
+"""The built-in run a calibrated slew of each actuator replaces. Its criteria (the final
+error, at rest when the profile ends or settled in time, the actuator's limit, a clean bus,
+left safe) stay the calibrated run file's criteria; its ``modal_residual:`` ones name the
+modes and the limit of that run's rig, and the calibration's measured one takes their
+place."""
+
+
+def template_expect(actuator: str) -> dict[str, Any]:
+    """The criteria of the run the calibrated slew replaces (``TEMPLATE_RUNS``), but the
+    modal residual ones; empty when that run file cannot be read."""
+    from harness.core.runs import RUNS_DIR
+
+    try:
+        raw = yaml.safe_load((RUNS_DIR / f"{TEMPLATE_RUNS[actuator]}.yaml").read_text())
+    except (KeyError, OSError, yaml.YAMLError):
+        return {}
+    expect = raw.get("expect") if isinstance(raw, dict) else None
+    if not isinstance(expect, dict):
+        return {}
+    return {k: v for k, v in expect.items()
+            if not (isinstance(v, dict) and "modal_residual" in v)}
+
+
 def _dump(path: Path, data: dict[str, Any], header: str) -> None:
     text = "".join(f"# {line}\n" for line in header.splitlines())
     path.write_text(text + yaml.safe_dump(data, sort_keys=False))
@@ -497,8 +520,9 @@ def calibrate(opts: Options, progress: Callable[[str], None] = lambda m: None) -
             row["ratio_truth"] = ref["truth"]["peak_m_s2"] / row["truth"]["peak_m_s2"]
         judge(c, row)
         claim = residual_expect(c, row, cand.label)
-        if claim:
-            row["run"]["expect"] = claim
+        kept = template_expect(opts.actuator)
+        if claim or kept:
+            row["run"]["expect"] = {**kept, **claim}
         c.verified[cand.key] = row
         truth = (f", truth {row['truth']['peak_m_s2']:.2e} ({row['ratio_truth']:.1f}x)"
                  if row["truth"] is not None else "")

@@ -42,10 +42,7 @@ import json
 import sys
 from pathlib import Path
 
-import yaml
-
-from harness.bus import BusSpecError
-from harness.core.session import RunRefused
+from harness.commands import examples
 from rig_models.schema import ConfigError
 
 
@@ -75,6 +72,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dry-run", action="store_true",
                    help="print the excitation plan (and its run file) and send nothing")
     p.add_argument("--json", action="store_true", help="results as JSON on stdout")
+    p.epilog = examples(
+        "harness calibrate",
+        "harness calibrate --actuator valves --angle-deg 5 --json",
+        "harness calibrate --bus socketcan:can0 --dry-run")
     p.set_defaults(func=cmd_calibrate)
 
 
@@ -83,6 +84,10 @@ def _progress(msg: str) -> None:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
+    # the loop, python-can, numpy and scipy only when calibrating (start-up of `harness --help`)
+    import yaml
+
+    from harness.bus import BusSpecError
     from harness.calibration.workflow import (
         CalibrationError,
         Options,
@@ -90,6 +95,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         calibrate,
         plan_run_dict,
     )
+    from harness.core.session import RunRefused
 
     if args.max_verify is not None and args.max_verify < 1:
         print(f"harness calibrate: --max-verify: expected >= 1, got {args.max_verify}",

@@ -14,20 +14,25 @@ import argparse
 import json
 import math
 import sys
+from typing import TYPE_CHECKING
 
-from harness.shaping.two_amplitude import (
-    ModeConstraint,
-    SequenceReport,
-    design_two_amplitude,
-    evaluate_sequence,
-)
+from harness.commands import examples
+
+if TYPE_CHECKING:
+    from harness.shaping.two_amplitude import SequenceReport
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "design",
         help="design or evaluate a two-amplitude fuel-efficient shaper (LHHL / HLLH)",
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.epilog = examples(
+        "harness design lhhl --inertia-kg-m2 17731 --torque-n-m 8 --angle-deg 3 --mode"
+        " 0.3354:0.001 1.082:1",
+        "harness design evaluate --times 0 1 2 3 --amplitudes 1 -1 -1 1 --inertia-kg-m2 100"
+        " --torque-n-m 1")
     kinds = parser.add_subparsers(dest="design_kind", metavar="KIND")
     for kind in ("lhhl", "hllh"):
         p = kinds.add_parser(kind, help=f"shortest {kind.upper()} sequence meeting mode limits")
@@ -77,6 +82,9 @@ def _add_plant_args(p: argparse.ArgumentParser) -> None:
 
 
 def _run_design(args: argparse.Namespace) -> int:
+    # numpy and scipy only when designing (start-up of `harness --help`)
+    from harness.shaping.two_amplitude import ModeConstraint, design_two_amplitude
+
     try:
         modes = [ModeConstraint.parse(m) for m in args.mode]
         print(f"searching {args.kind} ({args.starts} starts + dense scan) ...", file=sys.stderr)
@@ -118,6 +126,9 @@ def _run_design(args: argparse.Namespace) -> int:
 
 
 def _run_evaluate(args: argparse.Namespace) -> int:
+    # numpy and scipy only when evaluating (start-up of `harness --help`)
+    from harness.shaping.two_amplitude import ModeConstraint, evaluate_sequence
+
     try:
         freqs: list[float] = []
         limits: list[float] = []

@@ -36,6 +36,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from harness.commands import examples
 from harness.history import drift
 
 
@@ -97,10 +98,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--seeds", type=int, default=5, help="noise seeds of the prediction (5)")
     q.add_argument("--k", type=float, default=drift.DEFAULT_K,
                    help="within the scatter: |value - mean| <= k x its std (3)")
+    p.epilog = examples(
+        "harness history list",
+        "harness history drift --json",
+        "harness history import --logs logs",
+        "harness history scatter logs/20260101T120000.000000Z-slew-rw")
     p.set_defaults(func=cmd_history)
 
 
 def _filters(args: argparse.Namespace) -> Any:
+    # imported when used: start-up of `harness --help`
     from harness.history.db import Filters
     from harness.history.times import TimeError, utc_text
 
@@ -118,6 +125,7 @@ def _filters(args: argparse.Namespace) -> Any:
 
 
 def cmd_history(args: argparse.Namespace) -> int:
+    # imported when used: start-up of `harness --help`
     from harness.history.db import HistoryError, open_db
 
     if args.history_command is None:
@@ -138,6 +146,7 @@ def cmd_history(args: argparse.Namespace) -> int:
                 and args.history_command != "import":
             import os
 
+            # imported when used: start-up of `harness --help`
             from harness.history.db import ENV_URL
 
             if not os.environ.get(ENV_URL):
@@ -148,6 +157,7 @@ def cmd_history(args: argparse.Namespace) -> int:
             if args.history_command == "import":
                 if not args.logs.is_dir():
                     raise ValueError(f"--logs {args.logs}: not a directory")
+                # imported when used: start-up of `harness --help`
                 from harness.history.record import import_logs
 
                 skipped: list[tuple[Path, str]] = []
@@ -219,6 +229,7 @@ def _bands(db: Any, args: argparse.Namespace, rig: str | None
 def _spread(args: argparse.Namespace, series: Any) -> float | None:
     """The predicted scatter's std of a criterion, from the cache, if one was made for
     the configuration of the series' newest run."""
+    # imported when used: start-up of `harness --help`
     from harness.history.scatter import cached_spread
 
     src = next((r["source"] for r in reversed(series.rows) if r.get("source")), None)
@@ -247,6 +258,7 @@ def _analysed(db: Any, args: argparse.Namespace, filters: Any, what: str, test: 
 def _mark_scatter(args: argparse.Namespace, series: Any) -> None:
     """A failed or marginal run whose configuration's scatter was predicted (harness
     history scatter) is marked within or beyond it."""
+    # imported when used: start-up of `harness --help`
     from harness.history.scatter import cached_prediction, within
 
     for r in series.rows:
@@ -258,6 +270,7 @@ def _mark_scatter(args: argparse.Namespace, series: Any) -> None:
 
 
 def _show(db: Any, args: argparse.Namespace, filters: Any) -> int:
+    # imported when used: start-up of `harness --help`
     from harness.history import series as hs
 
     if args.mode is not None and args.mode < 1:
@@ -323,6 +336,7 @@ def _drift(db: Any, args: argparse.Namespace, filters: Any) -> int:
 
 
 def _scatter(args: argparse.Namespace) -> int:
+    # imported when used: start-up of `harness --help`
     from harness.history.scatter import ScatterError, classify, predict_for_run
 
     if not (args.run_dir / "verdict.json").is_file():
@@ -340,11 +354,16 @@ def _scatter(args: argparse.Namespace) -> int:
     else:
         print(f"predicted from {pred['seeds']} noise seeds of the virtual rig "
               f"({pred['cache']})")
-        print(f"{'criterion':<28} {'value':>11} {'mean':>11} {'std':>10} {'z':>7} "
+        from harness.review.units import unit_text
+
+        # every value with its unit, as in verdicts (the criterion's)
+        print(f"{'criterion':<28} {'value':>15} {'mean':>15} {'std':>14} {'z':>7} "
               f"{'verdict':<8} scatter")
         for r in rows:
             z = "-" if r["z"] is None else f"{r['z']:.1f}"
-            print(f"{r['name']:<28} {_g(r['value'])} {_g(r['mean'])} {_g(r['std'], 10)} "
+            u = unit_text(r.get("unit"))
+            print(f"{r['name']:<28} {_g(r['value'], 15, u)} {_g(r['mean'], 15, u)} "
+                  f"{_g(r['std'], 14, u)} "
                   f"{z:>7} {r['verdict']:<8} {r['scatter']}")
         for r in rows:
             if r["message"]:
@@ -352,5 +371,5 @@ def _scatter(args: argparse.Namespace) -> int:
     return 1 if any(r["scatter"] == "beyond" for r in rows) else 0
 
 
-def _g(v: Any, width: int = 11) -> str:
-    return f"{'-':>{width}}" if v is None else f"{v:>{width}.4g}"
+def _g(v: Any, width: int = 11, unit: str = "") -> str:
+    return f"{'-':>{width}}" if v is None else f"{f'{v:.4g} {unit}'.rstrip():>{width}}"

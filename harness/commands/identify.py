@@ -38,84 +38,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
-from typing import Any
 
-import numpy as np
-
-from harness.identification.csv_input import read_accel_csv
-from harness.identification.windows import AnalysisWindow, MultiWindowResult, identify_windows
-from harness.record.reader import read_scalar_channel
-from rig_models.rig_file import rig_from_dict
-from rig_models.yaml_file import load_yaml
-
-# Paper 003 Table 1 (rad/s), comparison only.
-PAPER_TABLE1 = {"measured_fft": [2.7382, 13.9487], "calculated": [2.8081, 13.643]}
-SETTLE_S = 0.1  # a free-decay window starts this long after its excitation ends
-
-
-def load_record(path: Path) -> tuple[np.ndarray, np.ndarray, dict[str, Any] | None, Path | None]:
-    """(t, accel, resolved config or None, run dir or None) from a run dir, .rrd or CSV."""
-    if path.is_dir():
-        rrd, run_dir = path / "run.rrd", path
-    elif path.suffix == ".rrd":
-        rrd, run_dir = path, path.parent
-    else:
-        rec = read_accel_csv(path)
-        return np.asarray(rec.t), np.asarray(rec.accel), None, None
-    if not rrd.exists():
-        raise ValueError(f"{path}: no run.rrd (expected a run directory, an .rrd or a CSV)")
-    t, a = read_scalar_channel(rrd, "/tip/accel_m_s2")
-    cfg_path = run_dir / "config.yaml"
-    # bounded like any YAML input (a hand-edited copy); ConfigError is a ValueError
-    cfg = load_yaml(cfg_path, "config.yaml") if cfg_path.exists() else None
-    return t, a, cfg, run_dir
-
-
-def analysis_windows(cfg: dict[str, Any] | None) -> list[AnalysisWindow] | None:
-    """The free-decay windows of a run (see the module docstring), else None."""
-    if not cfg:
-        return None
-    c = cfg.get("run", {}).get("controller", {})
-    if c.get("type") == "wheel_pulse":
-        return [AnalysisWindow(float(c["start_s"] + c["width_s"] + SETTLE_S))]
-    if c.get("type") in ("wheel_bursts", "valve_bursts"):
-        from harness.controllers.registry import WheelBursts, _bursts
-
-        wb = WheelBursts(c.get("torque_n_m", 1.0), c["start_s"], _bursts(c))
-        wins = [AnalysisWindow(t0 + SETTLE_S, t1, omega) for t0, t1, omega in wb.free_intervals
-                if t1 - t0 > 2 * SETTLE_S]
-        return [*wins, AnalysisWindow(wb.end_s + SETTLE_S, None, wb.last_omega_rad_s)]
-    return None
-
-
-def default_start(cfg: dict[str, Any] | None) -> float | None:
-    """Start of a run's final free decay (after all of its excitation), else None."""
-    wins = analysis_windows(cfg)
-    return None if wins is None else wins[-1].start_s
-
-
-def model_modes(cfg: dict[str, Any] | None) -> dict[str, list[float]] | None:
-    if not cfg or "rig" not in cfg:
-        return None
-    rig = rig_from_dict(cfg["rig"], source="config.yaml rig")
-    wn, zeta = rig.plant.hub_free_modal_damping()
-    return {"omega_rad_s": wn.tolist(), "damping_ratio": zeta.tolist()}
-
-
-def write_spectrum_rrd(run_dir: Path, result: MultiWindowResult,
-                       modes: list[dict[str, Any]] | None = None,
-                       cfg: dict[str, Any] | None = None) -> Path:
-    """identify.rrd in the run directory (harness.review.spectrum): the spectra over
-    frequency in Hz, every mode marked, the modes' table, with the run's own layout."""
-    from harness.record.output import fresh_output_path
-    from harness.review.spectrum import write_identify_rrd
-
-    # never through a link placed in the run folder (Rerun's file sink follows links)
-    return write_identify_rrd(fresh_output_path(run_dir / "identify.rrd"), run_dir, result,
-                              modes, cfg)
+from harness.commands import examples
 
 
 def _window_arg(text: str) -> tuple[float, float | None]:
@@ -129,7 +55,10 @@ def _window_arg(text: str) -> tuple[float, float | None]:
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("identify", help="identify vibration modes from the tip accelerometer",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog=examples("harness identify logs/20260101T120000.000000Z-free-decay",
+                                       "harness identify run.rrd --window 2:4 --window 6:8 --json",
+                                       "harness identify accel.csv --start-s 1.5 --n-modes 2"))
     p.add_argument("source", type=Path, help="run directory, run.rrd, or CSV of time,accel")
     p.add_argument("--start-s", type=float,
                    help="one free decay from this time (s) to the end, instead of the run's "
@@ -144,61 +73,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_identify)
 
 
-def _windows(args: argparse.Namespace, t: np.ndarray,
-             cfg: dict[str, Any] | None) -> list[AnalysisWindow]:
-    if args.start_s is not None and args.window:
-        raise ValueError("give --start-s or --window, not both")
-    if args.start_s is not None:
-        return [AnalysisWindow(args.start_s)]
-    if args.window:
-        return [AnalysisWindow(s, e) for s, e in args.window]
-    return analysis_windows(cfg) or [AnalysisWindow(float(t[0]))]
-
-
-def _nearest_model_mode(omega: float, truth: dict[str, list[float]]) -> int:
-    return int(np.argmin([abs(math.log(omega / w)) for w in truth["omega_rad_s"]]))
-
-
-def identify_record(t: np.ndarray, a: np.ndarray, cfg: dict[str, Any] | None,
-                    run_dir: Path | None, windows: list[AnalysisWindow],
-                    n_modes: int | None = None, f_max_hz: float | None = None
-                    ) -> dict[str, Any]:
-    """What ``harness identify --json`` prints (also writes identify.rrd in ``run_dir``)."""
-    result = identify_windows(t, a, windows, n_modes=n_modes, f_max_hz=f_max_hz)
-    truth = model_modes(cfg)
-    # top-level keys of the long window (fs, fft, fit, ...) as before; modes from all windows
-    out = result.primary.to_dict()
-    out.update(result.to_dict())
-    if truth is not None:
-        out["model_hub_free"] = truth
-        for m in out["modes"]:
-            i = _nearest_model_mode(m["omega_rad_s"], truth)
-            m["model_mode"] = i + 1
-            m["model_omega_rad_s"] = truth["omega_rad_s"][i]
-            m["omega_error_percent"] = 100 * (m["omega_rad_s"] / truth["omega_rad_s"][i] - 1)
-            m["model_damping_ratio"] = truth["damping_ratio"][i]
-            m["damping_error_percent"] = 100 * (
-                m["damping_ratio"] / truth["damping_ratio"][i] - 1)
-    out["paper_003_table1_rad_s"] = PAPER_TABLE1
-    if run_dir is not None:
-        out["spectrum_rrd"] = str(write_spectrum_rrd(run_dir, result, out["modes"], cfg))
-    return out
-
-
-def identify_run(source: Path, n_modes: int | None = None,
-                 f_max_hz: float | None = None) -> dict[str, Any]:
-    """Identify a run directory (.rrd, CSV) over its own free-decay windows."""
-    t, a, cfg, run_dir = load_record(source)
-    windows = analysis_windows(cfg) or [AnalysisWindow(float(t[0]))]
-    return identify_record(t, a, cfg, run_dir, windows, n_modes, f_max_hz)
-
-
 def cmd_identify(args: argparse.Namespace) -> int:
+    # numpy, scipy and Rerun only when a command identifies (start-up of `harness --help`)
+    from harness.core.identify import chosen_windows, identify_record, load_record
+    from rig_models.paper003 import PAPER_TABLE1
+
     try:
         if args.n_modes is not None and args.n_modes < 1:
             raise ValueError(f"--n-modes must be >= 1, got {args.n_modes}")
         t, a, cfg, run_dir = load_record(args.source)
-        windows = _windows(args, t, cfg)
+        windows = chosen_windows(t, cfg, args.start_s, args.window)
         print(f"harness identify: {len(t)} samples, {t[-1] - t[0]:.1f} s, free decay"
               f"{'s' if len(windows) > 1 else ''} "
               f"{', '.join(w.label() for w in windows)} ...", file=sys.stderr)

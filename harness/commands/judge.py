@@ -11,9 +11,13 @@ unless ``--write`` is given, so the run's own verdict (what ``harness logs`` rep
 It prints one line per criterion (value, limit, margin, verdict, the
 worst sample's time). Forms of criteria: docs/criteria.md.
 
+A real-time run is also judged by the bench's timing (overruns, lateness, telemetry missing
+in ticks the loop held, against the run file's ``realtime:`` limits): beyond one it is
+INCONCLUSIVE, and the reason says whose the lost time was (host, harness, device).
+
 Exit codes: 0 PASS (or NO CRITERIA), 1 FAIL, 2 bad input (no such directory, bad criteria),
-3 ERROR by a fault the run did not expect, 4 ERROR otherwise (the run raised, missing data, a
-real-time budget not held), 5 MARGINAL, 130 the run was interrupted.
+3 ERROR by a fault the run did not expect, 4 ERROR otherwise (the run raised, missing data),
+5 MARGINAL, 6 INCONCLUSIVE (the bench did not hold real time), 130 the run was interrupted.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ import json
 import sys
 from pathlib import Path
 
-from harness.testing import JudgeInputError, format_block, judge_run, write_verdict
+from harness.commands import examples
 from rig_models.schema import ConfigError
 
 
@@ -37,10 +41,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with --expect: make this the run's verdict (verdict.json, "
                    "verdict.rrd); without, a what-if judgement writes nothing")
     p.add_argument("--json", action="store_true", help="print verdict.json on stdout")
+    p.epilog = examples(
+        "harness judge logs/20260101T120000.000000Z-slew-rw",
+        "harness judge logs/20260101T120000.000000Z-slew-rw --expect criteria.yaml --json")
     p.set_defaults(func=cmd_judge)
 
 
 def cmd_judge(args: argparse.Namespace) -> int:
+    # numpy, scipy and Rerun's reader only when judging (start-up of `harness --help`)
+    from harness.testing import JudgeInputError, format_block, judge_run, write_verdict
+
     try:
         verdict = judge_run(args.run_dir, args.expect)
     except (ConfigError, JudgeInputError) as exc:

@@ -7,12 +7,14 @@ column), oldest first (directory names start with the UTC time): the rig (its na
 ``--json`` adds its hash and each device's binding), the bus and the clock, simulated time,
 how it stopped (completed, fault, interrupted, error), the first fault, the final angle
 error and residual tip acceleration where the run has them, the real-time factor, and the
-verdict of its ``verdict.json`` (PASS, MARGINAL, FAIL, ERROR, NO CRITERIA; ``-`` if the run
+verdict of its ``verdict.json`` (PASS, MARGINAL,
+INCONCLUSIVE, FAIL, ERROR, NO CRITERIA; ``-`` if the run
 was never judged: see ``harness judge``). A directory without a readable ``summary.json``
 (the harness was killed, or the file was damaged) is listed as such: its ``run.rrd`` and
 ``can.blf`` hold what was written.
 
-``--failed`` lists only the failures: runs judged FAIL or ERROR, and runs without a
+``--failed`` lists only the failures: runs judged FAIL, ERROR or INCONCLUSIVE, and runs
+without a
 verdict.json that did not complete (a fault, an exception, an interruption, no summary):
 judged, each of those would be ERROR. A completed run never judged is not listed.
 Exit 0, or 1 if there is no run.
@@ -26,6 +28,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from harness.commands import examples
 from harness.record.summary_file import read_summary
 
 
@@ -34,9 +37,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--logs", type=Path, default=Path("logs"), help="logs directory (./logs)")
     p.add_argument("--last", type=int, default=0, metavar="N", help="only the newest N runs")
-    p.add_argument("--failed", action="store_true", help="only runs judged FAIL or ERROR, and "
-                   "unjudged runs that did not complete")
+    p.add_argument("--failed", action="store_true", help="only runs judged FAIL, ERROR or "
+                   "INCONCLUSIVE, and unjudged runs that did not complete")
     p.add_argument("--json", action="store_true", help="the list as JSON on stdout")
+    p.epilog = examples(
+        "harness logs --last 10",
+        "harness logs --failed --json")
     p.set_defaults(func=cmd_logs)
 
 
@@ -151,9 +157,9 @@ def _verdict(run_dir: Path) -> dict[str, Any]:
 
 
 def is_failure(row: dict[str, Any]) -> bool:
-    """Judged FAIL or ERROR, or not judged and not completed."""
+    """Judged FAIL, ERROR or INCONCLUSIVE, or not judged and not completed."""
     if row.get("verdict"):
-        return row["verdict"] in ("FAIL", "ERROR")
+        return row["verdict"] in ("FAIL", "ERROR", "INCONCLUSIVE")
     return row.get("status") != "completed"
 
 
@@ -196,7 +202,7 @@ def cmd_logs(args: argparse.Namespace) -> int:
     g = max(len("in"), *(len(r.get("group") or "-") for r in rows))
     rw = max(len("rig"), *(len(str(r.get("rig") or "-")) for r in rows))
     bw = max(len("bus"), *(len(str(r.get("bus") or "-")) for r in rows))
-    print(f"{'run directory':<{w}} {'in':<{g}} {'verdict':<11} {'rig':<{rw}} {'bus':<{bw}} "
+    print(f"{'run directory':<{w}} {'in':<{g}} {'verdict':<12} {'rig':<{rw}} {'bus':<{bw}} "
           f"{'clock':<9} {'sim s':>7} "
           f"{'status':<12} {'final err deg':>13} {'resid m/s^2':>11} {'x real':>7}  "
           "first fault / error")
@@ -205,10 +211,10 @@ def cmd_logs(args: argparse.Namespace) -> int:
         group = r.get("group") or "-"
         verdict = r.get("verdict") or "-"
         if "run" not in r:
-            print(f"{name:<{w}} {group:<{g}} {verdict:<11} {r['status']}")
+            print(f"{name:<{w}} {group:<{g}} {verdict:<12} {r['status']}")
             continue
         status = r["status"] + (" (dry)" if r["dry_run"] else "")
-        print(f"{name:<{w}} {group:<{g}} {verdict:<11} {str(r['rig'] or '-'):<{rw}} "
+        print(f"{name:<{w}} {group:<{g}} {verdict:<12} {str(r['rig'] or '-'):<{rw}} "
               f"{str(r['bus'] or '-'):<{bw}} {str(r['clock'] or '-'):<9} "
               f"{_num(r['simulated_s'], '7.2f')} "
               f"{status:<12} {_num(r['final_angle_error_deg'], '13.2e')} "

@@ -25,22 +25,22 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from dataclasses import asdict
-from typing import Any
+from typing import TYPE_CHECKING
 
-from harness.bus import BusSpecError, open_bus, parse_bus
-from harness.core.probe import ProbeResult, probe
-from rig_models.faults import parse_fault
-from rig_models.rig_file import identity_text, load_rig
-from rig_models.schema import ConfigError
-from rig_models.virtual_rig import VirtualRig
+from harness.commands import examples
+
+if TYPE_CHECKING:
+    from harness.core.probe import ProbeResult
 
 EXIT_PROBLEM = 3
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("probe", help="check that every device answers (never arms the rig)",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog=examples("harness probe",
+                                       "harness probe --fault silent_sensor@0.5:hub_sensor",
+                                       "harness probe --bus socketcan:can0 --rig sgsrt --json"))
     p.add_argument("--bus",
                    help="INTERFACE:CHANNEL (default virtual:RIG, the in-process virtual rig "
                    "named after the rig; "
@@ -60,6 +60,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_probe(args: argparse.Namespace) -> int:
+    # python-can, numpy and the drivers only when the probe runs (start-up of `harness --help`)
+    from harness.bus import BusSpecError, open_bus, parse_bus
+    from harness.core.probe import probe
+    from rig_models.faults import parse_fault
+    from rig_models.rig_file import load_rig
+    from rig_models.schema import ConfigError
+    from rig_models.virtual_rig import VirtualRig
+
     rig = None
     buses = []
     try:
@@ -100,30 +108,28 @@ def cmd_probe(args: argparse.Namespace) -> int:
     finally:
         for b in buses:
             b.shutdown()
-    report = to_dict(result)
     if args.json:
-        print(json.dumps(report, indent=2))
+        print(json.dumps(result.to_dict(), indent=2))
     else:
         print_report(result)
     return 0 if result.ok else EXIT_PROBLEM
 
 
-def to_dict(result: ProbeResult) -> dict[str, Any]:
-    return {
-        "bus": result.bus, "rate_hz": result.rate_hz, "ticks": result.ticks, "ok": result.ok,
-        "unknown_ids": result.unknown, "error_frames": result.error_frames,
-        "bus_off": result.bus_off,
-        "devices": [dict(asdict(d), status=d.status, ok=d.ok) for d in result.devices],
-        "canopen_nodes": result.nodes, "setup_error": result.setup_error,
-        **result.rig,  # rig, rig_sha256, bus (the same), binding
-    }
+VALUE_UNITS = {"angle": "rad", "rate": "rad/s", "accel": "m/s²", "speed": "rad/s",
+               "torque": "N m", "sensor_ch1": "V", "sensor_ch2": "V", "voltage_ch1": "V",
+               "voltage_ch2": "V", "on_time": "s"}
+"""The SI unit of each quantity the drivers decode (the rest are counters and flags)."""
 
 
 def _values(values: dict[str, float]) -> str:
-    return ", ".join(f"{k} {v:.6g}" for k, v in values.items()) or "-"
+    """Each last value with its unit, as in verdicts (``angle 1.2e-06 rad``)."""
+    return ", ".join(f"{k} {v:.6g}" + (f" {VALUE_UNITS[k]}" if k in VALUE_UNITS else "")
+                     for k, v in values.items()) or "-"
 
 
 def print_report(r: ProbeResult) -> None:
+    from rig_models.rig_file import identity_text
+
     print(identity_text(r.rig))
     if r.setup_error:
         print(f"{r.bus}: CANopen set-up failed: {r.setup_error}")

@@ -1,5 +1,5 @@
-"""`harness replay PATH [--rig R] [--rate-hz F] [--check] [--rrd OUT.rrd] [--json]`: replay a
-CAN log through the harness's own drivers.
+"""`harness replay PATH [--rig R] [--rate-hz F] [--check] [--strict] [--rrd OUT.rrd]
+[--json]`: replay a CAN log through the harness's own drivers.
 
 PATH is a run directory (its ``can.blf``, rig and rate from its ``config.yaml``) or a CAN log
 file python-can reads (``.blf``, ``.asc``, candump ``.log``: e.g. a capture of the real rig),
@@ -21,8 +21,12 @@ on the replayed ticks (the same checks on the same driver state) and its first f
 is compared with summary.json's (tick, device, kind). ``--rrd OUT.rrd`` writes the replayed
 telemetry and the logged commands as scalar channels on the ``time`` timeline (tick x dt).
 
+``--strict``: a capture to accept, not just to read: unknown ids, malformed or error frames,
+SYNC gaps, missing telemetry or sequence errors are named and exit 1.
+
 Exit status: 0 replayed (and, with --check, every compared tick matches and the monitor
-agrees), 1 the commands or the monitor's fault differ, 2 bad input (missing or unreadable
+agrees; with --strict, the log is clean), 1 the commands or the monitor's fault differ (or,
+with --strict, the log is not clean), 2 bad input (missing or unreadable
 file, --check without a run directory).
 """
 
@@ -32,23 +36,14 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from drivers.dbc import load_protocol
-from harness.core.replay import (
-    CheckResult,
-    MonitorReplay,
-    Replay,
-    ReplayChecker,
-    ReplayError,
-    ReplayRecording,
-    apply_monitor,
-    load_run_dir,
-    replay_log,
-    replay_recording_name,
-)
-from rig_models.rig_file import RigConfig, load_rig
+from harness.commands import examples
 from rig_models.schema import ConfigError
+
+if TYPE_CHECKING:
+    from harness.core.replay import CheckResult, ReplayRecording
+    from rig_models.rig_file import RigConfig
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -64,7 +59,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "compare its commands with the logged ones (run directories only)")
     p.add_argument("--rrd", type=Path, metavar="OUT.rrd",
                    help="write the replayed telemetry and commands to a Rerun recording")
+    p.add_argument("--strict", action="store_true", help="exit 1 when the log has unknown "
+                   "ids, malformed or error frames, SYNC gaps, missing telemetry or sequence "
+                   "errors (a capture to accept, not just to read)")
     p.add_argument("--json", action="store_true", help="JSON on stdout")
+    p.epilog = examples(
+        "harness replay logs/20260101T120000.000000Z-slew-rw --check",
+        "harness replay capture.blf --rig sgsrt --rate-hz 500 --rrd replay.rrd")
     p.set_defaults(func=cmd_replay)
 
 
@@ -73,6 +74,19 @@ def _stage(text: str) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    # python-can, the drivers, the loop and Rerun only when replaying (start-up of
+    # `harness --help`)
+    from harness.core.replay import (
+        MonitorReplay,
+        ReplayChecker,
+        ReplayError,
+        apply_monitor,
+        load_run_dir,
+        replay_log,
+        report_dict,
+    )
+    from rig_models.rig_file import load_rig
+
     path: Path = args.path
     result: CheckResult | None = None
     writer: ReplayRecording | None = None
@@ -127,18 +141,41 @@ def cmd_replay(args: argparse.Namespace) -> int:
     finally:
         if writer is not None:  # the replay stopped part way: what was written stays
             writer.close()
-    report = to_dict(replay, rig_name, result, rig_cfg)
+    report = report_dict(replay, rig_name, result, rig_cfg)
     if args.rrd is not None:
         report["rrd"] = str(args.rrd)
+    problems = replay.strict_problems() if args.strict else []
+    if args.strict:
+        report["strict_problems"] = problems
     if args.json:
         print(json.dumps(report, indent=2))
     else:
         print_report(report)
-    return 1 if result is not None and not result.consistent else 0
+    if problems:
+        print(f"harness replay --strict: {'; '.join(problems)}", file=sys.stderr)
+    return 1 if problems or (result is not None and not result.consistent) else 0
 
 
 def _writer(rrd: Path | None, source: Path) -> ReplayRecording | None:
-    return None if rrd is None else ReplayRecording(rrd, replay_recording_name(source))
+    """The recording ``--rrd`` asks for; ``ReplayError`` naming it when it cannot be a
+    file there (a directory, a folder that does not exist, a file Rerun cannot create)."""
+    from harness.core.replay import (  # see cmd_replay
+        ReplayError,
+        ReplayRecording,
+        replay_recording_name,
+    )
+
+    if rrd is None:
+        return None
+    if rrd.is_dir():
+        raise ReplayError(f"--rrd {rrd}: a directory; expected a file name such as "
+                          f"{rrd / 'replay.rrd'}")
+    if not rrd.parent.is_dir():
+        raise ReplayError(f"--rrd {rrd}: the folder {rrd.parent} does not exist")
+    try:
+        return ReplayRecording(rrd, replay_recording_name(source))
+    except RuntimeError as exc:  # Rerun's file sink could not create the file
+        raise ReplayError(f"--rrd {rrd}: cannot write: {exc}") from None
 
 
 def _each(*consumers: Any) -> Any:
@@ -151,75 +188,6 @@ def _each(*consumers: Any) -> Any:
         for consume in live:
             consume(iface, t)
     return on_tick
-
-
-def frame_names(rig: RigConfig | None) -> dict[int, tuple[str, str]]:
-    """id -> (name, who sends it) by the rig's binding: sgsrt's DBC, a vendor DBC's
-    messages, CANopen's PDOs and service frames (NMT, SYNC, EMCY, SDO, heartbeat) by node."""
-    if rig is None or rig.binding.is_sgsrt():
-        protocol = load_protocol()
-        return {c.frame_id: (c.name, "device") for c in protocol.by_id.values()}
-    b = rig.binding
-    out: dict[int, tuple[str, str]] = {}
-    for f in b.frames():
-        who = "harness" if f.kind in ("sync", "heartbeat", "cmd") else f.device
-        out[f.key[0]] = (f.name if f.kind != "tlm" else f"{f.name} ({f.device})", who)
-    if b.canopen is not None:
-        out[0x000] = ("NMT", "harness")
-        for nid in b.canopen.nodes:
-            dev = b.canopen.device_of_node(nid)
-            out[0x080 + nid] = (f"EMCY node {nid}", dev)
-            out[0x580 + nid] = (f"SDO response node {nid}", dev)
-            out[0x600 + nid] = (f"SDO request node {nid}", "harness")
-            out[0x700 + nid] = (f"heartbeat node {nid}", dev)
-    return out
-
-
-def to_dict(replay: Replay, rig_name: str, result: CheckResult | None,
-            rig: RigConfig | None = None) -> dict[str, Any]:
-    names = frame_names(rig)
-    frames = []
-    for fid, n in sorted(replay.frames_by_id.items()):
-        name, who = names.get(fid, ("?", "unknown"))
-        frames.append({"id": f"0x{fid:03X}", "name": name,
-                       "from": "harness" if fid in replay.harness_ids else who, "frames": n})
-    out: dict[str, Any] = {
-        "log": str(replay.source), "rig": rig_name, "rate_hz": 1.0 / replay.dt_s,
-        "ticks": replay.n_ticks, "first_tick": replay.first_tick,
-        "last_tick": replay.last_tick,
-        "duration_s": replay.last_time_s - replay.first_time_s, "frames": frames,
-        "total_frames": replay.total_frames, "malformed": sum(replay.malformed.values()),
-        "malformed_by_frame": {k: v for k, v in replay.malformed.items() if v},
-        "unknown_ids": replay.unknown, "error_frames": replay.error_frames,
-        "bus_off": replay.bus_off, "sync_gaps": replay.sync_gaps,
-        "sequence_errors": {k: v for k, v in replay.sequence_errors.items() if v},
-        "missing_telemetry": replay.missing_frames,
-        "before_first_sync": replay.before_first_sync,
-    }
-    if result is not None:
-        m = result.first_mismatch
-        out["check"] = {
-            "consistent": result.consistent, "ticks_compared": result.ticks_compared,
-            "ticks_matching": result.ticks_matching,
-            "ticks_identical": result.ticks_identical,
-            "first_mismatch": None if m is None else {
-                "tick": m.tick, "time_s": m.time_s, "frame": m.frame, "detail": m.detail,
-                "logged": _tidy(m.logged), "replayed": _tidy(m.replayed)},
-            "skipped": [{"tick": k, "reason": r} for k, r in result.skipped],
-            "safe_commands_tick": result.safe_tick, "stopped_by": result.stopped_by,
-            "summary_ticks": result.summary_ticks,
-            "monitor": {
-                "consistent": result.monitor_consistent,
-                "replayed_first_fault": None if result.monitor_event is None
-                else result.monitor_event.to_dict(),
-                "logged_first_fault": result.logged_fault},
-        }
-    return out
-
-
-def _tidy(v: Any) -> Any:
-    """Decoded values to 9 significant digits (0.00028, not 0.00028000000000000003)."""
-    return {k: float(f"{x:.9g}") for k, x in v.items()} if isinstance(v, dict) else v
 
 
 def print_report(r: dict[str, Any]) -> None:

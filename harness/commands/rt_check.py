@@ -20,6 +20,7 @@ import argparse
 import json
 import sys
 
+from harness.commands import examples
 from harness.realtime.check import format_report, judge
 from harness.realtime.floor import DEFAULT_WORK_S, Measures, run_floor
 from harness.realtime.host import read_host_facts
@@ -36,6 +37,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--work-us", type=float, default=DEFAULT_WORK_S * 1e6,
                    help="busy work a tick in microseconds (default 150)")
     p.add_argument("--json", action="store_true", help="print the report as JSON on stdout")
+    p.epilog = examples(
+        "harness rt-check --duration-s 10",
+        "harness rt-check --rate-hz 1000 --cpu 1 --json")
     p.set_defaults(func=cmd_rt_check)
 
 

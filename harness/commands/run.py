@@ -1,4 +1,15 @@
-"""`harness run NAME|PATH`: run a test on the (virtual) rig and record it."""
+"""`harness run NAME|PATH`: run a test on the (virtual) rig and record it.
+
+Run a test on the virtual rig (default) or the lab rig. Writes logs/<UTC time>-<name>/ with
+run.rrd, can.blf, config.yaml and summary.json, then judges the run by its expect: criteria
+and writes verdict.json and verdict.rrd (docs/criteria.md). Progress goes to stderr; --json
+prints the summary. Exit codes: 0 PASS (or NO CRITERIA: nothing judged, with a warning),
+1 FAIL, 2 bad input or run refused before anything was sent, 3 ERROR by a fault the run did
+not expect, 4 ERROR otherwise (exception, missing data), 5 MARGINAL, 6 INCONCLUSIVE (a
+real-time run the bench did not hold in time: overruns, lateness or telemetry missing
+beyond the run file's realtime limits; the verdict names whose the lost time was: host,
+harness or device), 130 interrupted; with variants, the most severe.
+"""
 
 from __future__ import annotations
 
@@ -8,37 +19,15 @@ import sys
 import traceback
 from pathlib import Path
 
-import can
-
-from harness.bus import BusSpecError
-from harness.bus.rig_process import RigProcessError
+from harness.commands import examples
 from harness.core.interrupts import StopRequest, stop_on_signals
-from harness.core.runs import load_run
-from harness.core.session import RunRefused, execute_run
-from harness.record.output import OutputError
-from harness.testing import (
-    NO_CRITERIA,
-    JudgeInputError,
-    format_block,
-    judge_run,
-    write_verdict,
-)
 from rig_models.faults import parse_fault
 from rig_models.schema import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run a test (built-in name or YAML path) and record it",
-                       description="Run a test on the virtual rig (default) or the lab rig. "
-                       "Writes logs/<UTC time>-<name>/ with run.rrd, can.blf, config.yaml and "
-                       "summary.json, then judges the run by its expect: criteria and writes "
-                       "verdict.json and verdict.rrd (docs/criteria.md). Progress goes to "
-                       "stderr; --json prints the summary. Exit codes: 0 PASS (or NO "
-                       "CRITERIA: nothing judged, with a warning), 1 FAIL, 2 bad input or run "
-                       "refused before anything was sent, 3 ERROR by a fault the run did "
-                       "not expect, 4 ERROR otherwise "
-                       "(exception, missing data, real-time budget not held), 5 MARGINAL, "
-                       "130 interrupted; with variants, the most severe.")
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run", help="built-in run name (see 'harness cases') or a run file path")
     p.add_argument("--bus", help="INTERFACE:CHANNEL, e.g. virtual:sgsrt (default: virtual:RIG, "
                    "the in-process virtual bus named after the rig), "
@@ -71,16 +60,38 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--view", nargs="?", const="rerun+http://127.0.0.1:9876/proxy",
                    metavar="URL", help="also stream to a Rerun viewer you started with "
                    "'rerun --bind 127.0.0.1' (default URL rerun+http://127.0.0.1:9876/proxy)")
+    p.epilog = examples(
+        "harness run slew-rw-zv",
+        "harness run case-a --variant beta-0.8 --json",
+        "harness run slew-rw --fault silent_sensor@5:hub_sensor",
+        "harness run slew-rw --bus socketcan:can0 --rig sgsrt-canopen")
     p.set_defaults(func=cmd_run)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
     summaries = []
     with stop_on_signals() as stop:
-        return _run_all(args, stop, summaries)
+        try:
+            return _run_all(args, stop, summaries)
+        except KeyboardInterrupt:
+            # a signal before the run began (nothing sent), or a third one while its files
+            # were closed (the rig already left safe): one line, exit 130
+            when = "while closing the run" if stop.begun else "before the run began; " \
+                "nothing sent"
+            print(f"harness: {stop.reason or 'interrupted'}: stopped {when}", file=sys.stderr)
+            return 130
 
 
 def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> int:
+    # python-can, numpy, scipy and Rerun only when a run starts (start-up of `harness --help`)
+    import can
+
+    from harness.bus import BusSpecError
+    from harness.bus.rig_process import RigProcessError
+    from harness.core.runs import load_run
+    from harness.core.session import RunRefused, execute_run
+    from harness.record.output import OutputError
+
     codes: list[int] = []
     try:
         if args.duration_s is not None and not args.duration_s > 0:
@@ -101,7 +112,7 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
         for name in names:
             if name is not None and name not in variants:
                 raise ConfigError(f"--variant {name}: {base.source} has variants "
-                                  f"{sorted(variants) or 'none'}")
+                                  f"{sorted(variants, key=str) or 'none'}")
         runs = []
         for name in names:  # every variant checked (criteria included) before any runs
             run = base
@@ -114,6 +125,7 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
         for name, run in runs:
             if name is not None:
                 print(f"harness: {run.name}", file=sys.stderr)
+            stop.begin()
             try:
                 result = execute_run(run, out_dir=args.out, bus=args.bus, clock=args.clock,
                                      live_view_url=args.view, show_progress=not args.quiet,
@@ -231,7 +243,7 @@ def check_viewer_listening(url: str, timeout_s: float = 2.0) -> None:
                           "or run without --view") from None
 
 
-EXIT_ORDER = (130, 3, 4, 1, 5, 0)
+EXIT_ORDER = (130, 3, 4, 1, 6, 5, 0)
 """Most severe first: the exit code of several runs (variants) is the most severe one's."""
 
 
@@ -242,6 +254,9 @@ def worst_exit(codes: list[int]) -> int:
 def _judge(run_dir: Path, summary: dict | None) -> int:
     """Judge the finished run (run.rrd and can.blf are closed), write verdict.json and
     verdict.rrd, print the verdict; its exit code."""
+    # imported when used: start-up of `harness --help`
+    from harness.testing import NO_CRITERIA, JudgeInputError, format_block, judge_run, write_verdict
+
     try:
         verdict = judge_run(run_dir)
     except (ConfigError, JudgeInputError) as exc:

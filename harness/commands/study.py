@@ -11,12 +11,15 @@ import importlib
 import pkgutil
 
 from harness import studies
+from harness.commands import examples
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "study",
         help="reproduce a paper's study on its reference model, beside the paper's table",
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=examples("harness study xu2018 --only model", "harness study wang2022 --json"),
     )
     study_sub = parser.add_subparsers(dest="study", metavar="STUDY")
     for info in sorted(pkgutil.iter_modules(studies.__path__), key=lambda m: m.name):

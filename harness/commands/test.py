@@ -21,8 +21,9 @@ plots of the checked channels with their bands, links to run.rrd and can.blf).
 Exit status, the most severe test's (as ``harness run``'s variants): 130 interrupted, 2
 refused (bad suite file, no test selected, the pre-flight probe failed), 3 an ERROR by a
 fault nobody expected, 4 another ERROR, 1 a FAIL (a test without criteria FAILs unless the
-suite says ``require_criteria: false``), 5 the worst is MARGINAL, 0 all PASS (or NO
-CRITERIA allowed).
+suite says ``require_criteria: false``), 6 INCONCLUSIVE (a real-time run the bench did not
+hold in time; JUnit ``<skipped>`` with the reason), 5 the worst is MARGINAL, 0 all PASS (or
+NO CRITERIA allowed).
 """
 
 from __future__ import annotations
@@ -34,11 +35,8 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from harness.bus import BusSpecError, parse_bus
-from harness.core.paths import safe_name
-from harness.core.session import make_run_dir
-from harness.engine import CLUSTER_ENV, EngineError, InlineEngine, make_engine
-from harness.testing.suite import list_suites, load_suite
+from harness.commands import examples
+from harness.engine import CLUSTER_ENV
 from rig_models.schema import ConfigError
 
 
@@ -81,6 +79,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="list the tests that would run, run nothing")
     p.add_argument("-v", "--verbose", action="store_true", help="pytest's verbose output")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.epilog = examples(
+        "harness test --list",
+        "harness test acceptance",
+        "harness test paper003 -k identify --workers 2 --junit junit.xml",
+        "harness test acceptance --bus socketcan:can0")
     p.set_defaults(func=cmd_test)
 
 
@@ -89,10 +92,17 @@ def _terminate(signum: int, frame: object) -> None:
 
 
 def cmd_test(args: argparse.Namespace) -> int:
+    # pytest, the loop, python-can and Rerun only when testing (start-up of `harness --help`)
     import pytest
 
+    from harness.bus import BusSpecError, parse_bus
+    from harness.core.paths import safe_name
+    from harness.core.session import make_run_dir
+    from harness.engine import EngineError, InlineEngine, make_engine
     from harness.testing.outcome import exit_code
     from harness.testing.plugin import SuitePlugin
+    from harness.testing.suite import list_suites, load_suite
+    from rig_models.rig_file import load_rig
 
     if args.list:
         for name, desc in list_suites():
@@ -105,8 +115,6 @@ def cmd_test(args: argparse.Namespace) -> int:
     try:
         suites = [load_suite(s) for s in args.suites]
         if args.rig:
-            from rig_models.rig_file import load_rig
-
             load_rig(args.rig)  # a bad rig file is bad input, before anything runs
             for suite in suites:
                 suite.cases[:] = [
@@ -201,7 +209,8 @@ def cmd_test(args: argparse.Namespace) -> int:
         code = 4  # a failure outside any verdict (the plugin itself)
     verdicts = [r["verdict"] for r in plugin.records if r.get("reported", True)]
     counts = ", ".join(f"{v} {verdicts.count(v)}" for v in
-                       ("PASS", "MARGINAL", "FAIL", "ERROR", "SKIPPED") if v in verdicts)
+                       ("PASS", "MARGINAL", "INCONCLUSIVE", "FAIL", "ERROR", "SKIPPED")
+                       if v in verdicts)
     print(f"harness test: {names}: {counts or 'nothing run'}; exit {code}; report "
           f"{out_dir / 'report.html'}" + (f"; JUnit {args.junit}" if args.junit else ""),
           file=sys.stderr)

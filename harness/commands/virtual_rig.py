@@ -15,18 +15,16 @@ import json
 import signal
 import sys
 import threading
+from collections.abc import Callable
 
-from harness.bus import BusSpecError, open_bus, parse_bus
-from harness.bus.rig_process import TIMING_PREFIX
+from harness.commands import examples
 from rig_models.faults import parse_fault
-from rig_models.rig_file import load_rig
 from rig_models.schema import ConfigError
-from rig_models.virtual_rig import SyncTiming, VirtualRig
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("virtual-rig", help="run the virtual rig as its own process",
-                       description=__doc__)
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--rig", default="sgsrt", help="rig name or YAML path (default sgsrt)")
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--bus", help="INTERFACE:CHANNEL to join, e.g. socketcan:vcan0")
@@ -49,12 +47,59 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "lockstep): the devices' timers (CANopen heartbeats) on the rig's "
                         "time, which advances one step per SYNC; the wall-clock watchdog "
                         "10 s later, as a backstop")
+    p.epilog = examples(
+        "harness virtual-rig --serve-socketcand 29536",
+        "harness virtual-rig --bus socketcan:vcan0 --lockstep",
+        "harness virtual-rig --serve-unix rig1 --realtime")
+    p.add_argument("--parent-fd", type=int, default=-1, help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_virtual_rig)
 
 
+def watch_parent(fd: int, stop: threading.Event) -> Callable[[], bool]:
+    """A ``stop`` test for the rig's loop that is also true once the pipe ``fd`` reaches its
+    end: the process holding its write end (the harness that started this rig) has ended,
+    even by SIGKILL. The loop looks at the pipe itself (at most every 0.1 s, one ``select``):
+    a thread waiting on it could be starved of the CPU by the loop's own SCHED_FIFO thread
+    pinned to the same core (it saw the end seconds late)."""
+    import os
+    import select
+    import time
+
+    next_look = 0.0
+
+    def wait() -> None:
+        try:
+            while os.read(fd, 1):
+                pass
+        except OSError:
+            pass
+        stop.set()
+
+    def should_stop() -> bool:
+        nonlocal next_look
+        if stop.is_set():
+            return True
+        now = time.monotonic()
+        if now >= next_look:
+            next_look = now + 0.1
+            if select.select([fd], [], [], 0)[0]:  # the harness never writes: its end
+                stop.set()
+        return stop.is_set()
+
+    threading.Thread(target=wait, name="parent-watch", daemon=True).start()
+    return should_stop
+
+
 def cmd_virtual_rig(args: argparse.Namespace) -> int:
+    # python-can, numpy and scipy only when the rig runs (start-up of `harness --help`)
+    from harness.bus import BusSpecError, open_bus, parse_bus
+    from harness.bus.rig_process import TIMING_PREFIX
+    from rig_models.rig_file import load_rig
+    from rig_models.virtual_rig import SyncTiming, VirtualRig, check_virtual_rig
+
     try:
         rig_cfg = load_rig(args.rig)
+        check_virtual_rig(rig_cfg)  # a device it cannot be: refused before any bus opens
         faults = [parse_fault(f) for f in args.fault or []]
         if args.serve_socketcand is not None:
             from drivers.socketcand_server import SocketcandServerBus
@@ -78,6 +123,7 @@ def cmd_virtual_rig(args: argparse.Namespace) -> int:
         return 2
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    should_stop = watch_parent(args.parent_fd, stop) if args.parent_fd >= 0 else stop.is_set
     if args.duration_s > 0:
         timer = threading.Timer(args.duration_s, stop.set)
         timer.daemon = True
@@ -99,7 +145,7 @@ def cmd_virtual_rig(args: argparse.Namespace) -> int:
           f"{' in lockstep' if args.lockstep else ''}; Ctrl-C to stop", file=sys.stderr,
           flush=True)
     try:
-        rig.run_forever(stop.is_set, timing=timing, lockstep=args.lockstep)
+        rig.run_forever(should_stop, timing=timing, lockstep=args.lockstep)
     except KeyboardInterrupt:
         pass
     finally:

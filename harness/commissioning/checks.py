@@ -26,31 +26,16 @@ from typing import Any
 
 import numpy as np
 
-SIGMAS = 4.0
-"""Standard errors a measurement may stray from the physics by noise alone (4: a false
-FAIL about once in 16 000 checks)."""
-INTEGRATION_FRACTION = 0.02
-"""An angle's change against its rate's integral: the trapezoid of a sampled rate differs
-from the sampled angle's change by the sensors' own filtering; 2 % bounds it at the
-rates these pulses make."""
+from harness.core.plausibility import (  # noqa: F401 (re-exported for the checks' users)
+    FACTORS,
+    INTEGRATION_FRACTION,
+    SIGMAS,
+    likely_cause,
+)
+
 READBACK_MIN_FRACTION = 0.8
 """A valve's read-back must show it open (and the other closed) over this fraction of the
 commanded on-time after its opening delay (the valves answer every few SYNCs)."""
-
-# a ratio this close to a factor (within its own limit) names it as the likely cause
-FACTORS: tuple[tuple[float, str], ...] = (
-    (1000.0, "a factor of 1000 (milli- against base units, e.g. mN.m as N.m, mg as g)"),
-    (1e-3, "a factor of 1/1000 (base units against milli-units)"),
-    (180 / math.pi, "a factor of 180/pi (degrees read as radians)"),
-    (math.pi / 180, "a factor of pi/180 (radians read as degrees)"),
-    (2 * math.pi, "a factor of 2 pi (revolutions or Hz read as radians)"),
-    (1 / (2 * math.pi), "a factor of 1/(2 pi) (radians read as revolutions)"),
-    (60 / (2 * math.pi), "a factor of 60/(2 pi) (rpm read as rad/s)"),
-    (2 * math.pi / 60, "a factor of 2 pi/60 (rad/s read as rpm)"),
-    (9.80665, "a factor of g (g read as m/s^2)"),
-    (1 / 9.80665, "a factor of 1/g (m/s^2 read as g)"),
-)
-
 
 @dataclass
 class Check:
@@ -78,27 +63,6 @@ class Check:
     @property
     def name(self) -> str:
         return f"{self.device}.{self.quantity}"
-
-
-def likely_cause(ratio: float, tol: float, se: float = 0.0) -> str:
-    """What a ratio far from 1 most likely says about the binding (``tol``: how near a
-    factor it must be, relative; ``se``: its standard error, for telling it from 0)."""
-    if not math.isfinite(ratio):
-        return "no usable reading (NaN or infinite)"
-    near = max(tol, 0.05)
-    sign = ratio < 0
-    mag = abs(ratio)
-    for factor, text in FACTORS:
-        if abs(mag / factor - 1.0) <= near:
-            return ("a sign and " if sign else "") + text
-    if mag <= max(SIGMAS * se, 0.02):
-        return ("no response: the quantity is bound to an object or signal that does not "
-                "carry it, or the sensor is pinned at a constant")
-    if sign and abs(mag - 1.0) <= near:
-        return "a sign (the quantity's direction is reversed: a negative scale, or wired " \
-               "the other way)"
-    return (("a sign and " if sign else "") + f"a factor of {mag:.4g}: a wrong scale, a "
-            "wrong object or signal, or the rig file's model (inertia, couple, gains) is off")
 
 
 def nearest_factor(ratio: float, spread: float) -> str:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from harness.controllers.api import controller_factory
 from harness.state import RigCommand
 from rig_models.schema import Field
 
@@ -56,7 +57,8 @@ def chirp(t: float, duration_s: float, amplitude: float, f0: float, f1: float) -
     return amplitude * taper * math.sin(phase)
 
 
-def _build(c: dict[str, Any], rig: Any, dt_s: float) -> CommissionScript:
+@controller_factory({"segments": Field("any", required=True)})
+def build_commission_script(c: dict[str, Any], rig: Any, dt_s: float) -> CommissionScript:
     segs = c["segments"]
     if not isinstance(segs, list):
         raise ValueError("segments: expected a list")
@@ -77,8 +79,3 @@ def _build(c: dict[str, Any], rig: Any, dt_s: float) -> CommissionScript:
         out.append(dict(s))
     return CommissionScript(out)
 
-
-CONTROLLER_TYPES = {
-    "commission_script": ({"type": Field("str", required=True),
-                           "segments": Field("any", required=True)}, _build),
-}

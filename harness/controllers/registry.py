@@ -42,6 +42,7 @@ ENTRY_POINT_GROUP = "sgsrt_harness.controllers"
 HARNESS_DISTRIBUTION = "sgsrt-harness"
 
 BUILTIN_ENTRY_POINTS: dict[str, str] = {
+    "commission_script": "harness.controllers.commission_script:build_commission_script",
     "hold": "harness.controllers.registry:build_hold",
     "pd_wheel": "harness.controllers.registry:build_pd_wheel",
     "shaped_wheel_slew": "harness.controllers.shaped_wheel_slew:build_shaped_wheel_slew",

@@ -23,10 +23,13 @@ rotor in the default rig file):
 | NMT state (CANopen) | a node's heartbeat says it is not operational | its heartbeat period |
 | heartbeat lost (CANopen) | no heartbeat for 3 periods (or the real-time grace) | 3 periods + 1 |
 | second master | a SYNC, NMT, SDO request, command or heartbeat the harness did not send | 1 |
-| drive disabled | a drive commanded enabled reports otherwise (its CiA 402 state named) | d |
+| drive disabled | a drive commanded enabled reports otherwise (its CiA 402 state named) | 2 d + 2 |
 | frames lost (wall clock) | frames older than the grace g not come (see below) | 2 (g+6) d |
 | duplicate frames | a device's frames beyond what the SYNCs asked for | 20 + s; s |
-| node id used twice | 8 heartbeats of one CANopen node within 5 of its periods | 8 heartbeats |
+| node id used twice | twice 8 heartbeats of a CANopen node within 5 of its periods | 16 beats |
+| physics: hub | the angle's change against its rate's integral over a window | a window |
+| physics: wheel | the speed's change against -(torque sent) dt / rotor inertia | a window |
+| stuck (noise) | a channel equal for longer than its noise and resolution make likely | that |
 | limits | hub angle, rate, wheel speed or tip acceleration beyond the run's `limits` | 1 |
 
 On the real-time clock, frames may arrive a few ticks late with nothing wrong (a busy
@@ -72,6 +75,16 @@ from typing import Any
 
 from drivers.binding.canopen import cia402_state
 from harness.bus.rig_interface import RigInterface
+from harness.core.plausibility import (
+    INTEGRATION_FRACTION,
+    SIGMAS,
+    ChannelQuality,
+    binding_step,
+    healthy_repeats,
+    hub_is_stuck,
+    likely_cause,
+    sensor_quality,
+)
 from harness.state import RigCommand, RigState
 from rig_models.schema import Field
 
@@ -85,6 +98,10 @@ MONITOR_SCHEMA = {
     "max_error_frames": Field("int", default=10, minimum=0),
     "realtime_grace_s": Field("number", "s", default=0.05, minimum=0.0),
     "startup_s": Field("number", "s", default=0.5, minimum=0.0),
+    # the rig's physics every run: hub angle against its rate's integral, wheel speed
+    # against the commanded torque's integral, over windows of this length (docs/faults.md)
+    "plausibility": Field("bool", default=True),
+    "plausibility_window_s": Field("number", "s", default=1.0, exclusive_minimum=0.0),
     # warnings (conditions short of a fault; see the module docstring)
     "warnings": Field("bool", default=True),
     "warn_wheel_speed_fraction": Field("number", "fraction of the wheel speed limit",
@@ -150,6 +167,61 @@ class DeviceWatch:
     def due_by(self, tick: int) -> int:
         """Its frames due at ticks 0..tick."""
         return self.frames * (tick // self.divider + 1) if tick >= 0 else 0
+
+
+class PlausibilityWindow:
+    """What the physics checks gather over one window (``_plausible_window``): the hub's
+    angle and its rate's trapezoid integral, the wheel's speed and the torque sent."""
+
+    __slots__ = ("every", "end", "angle", "rate", "rate_bias", "noise_factor",
+                 "wheel_inertia", "wheel_lag_s", "torque_fraction", "wheel_step",
+                 "wheel_speed_max", "hub_tick", "hub_tick0", "hub_n", "angle0", "angle_last",
+                 "rate_last", "rate_int", "wheel_tick", "wheel_tick0", "wheel_n", "speed0",
+                 "speed_last", "wheel_ok", "torque_int", "torque_abs", "torque_peak",
+                 "rate_tv", "wheel_speed_near")
+
+    def __init__(self, every: int, angle: ChannelQuality | None, rate: ChannelQuality | None,
+                 rate_bias: float, noise_factor: float, wheel_inertia: float,
+                 wheel_lag_s: float, torque_fraction: float, wheel_step: float,
+                 wheel_speed_max: float) -> None:
+        self.every = every
+        self.angle, self.rate = angle, rate
+        self.rate_bias, self.noise_factor = rate_bias, noise_factor
+        self.wheel_inertia, self.wheel_lag_s = wheel_inertia, wheel_lag_s
+        self.torque_fraction, self.wheel_step = torque_fraction, wheel_step
+        self.wheel_speed_max = wheel_speed_max
+        # near its limit the wheel refuses torque: such a window is not judged
+        self.wheel_speed_near = 0.95 * wheel_speed_max
+        self.hub_tick = self.wheel_tick = -1
+        self.rate_last = self.angle_last = self.speed_last = 0.0
+        self.restart(0)
+
+    def restart(self, tick: int) -> None:
+        """A new window from ``tick``, from the last samples of the one before."""
+        self.end = tick + self.every
+        self.hub_tick0, self.angle0, self.rate_int = self.hub_tick, self.angle_last, 0.0
+        self.rate_tv = 0.0
+        self.hub_n = 1 if self.hub_tick >= 0 else 0
+        self.wheel_tick0, self.speed0 = self.wheel_tick, self.speed_last
+        self.wheel_n = 1 if self.wheel_tick >= 0 else 0
+        self.wheel_ok = True
+        self.torque_int = self.torque_abs = 0.0
+        # the torque loop's output at the window's start trails the last window's commands:
+        # their peak bounds it (no torque commanded in this window can still turn the wheel)
+        self.torque_peak = getattr(self, "torque_peak", 0.0)
+
+
+def _cause(measured: float, predicted: float, band: float, still: str) -> str:
+    """The likely cause of a measured change against the physics' prediction."""
+    if abs(predicted) <= band:
+        return (f"a reading that moves where {still}: a wrong object or signal, an offset "
+                "that changes, or a torque the rig file does not know of")
+    return likely_cause(measured / predicted, band / abs(predicted))
+
+
+def _quantity_step(rig: Any, device: str, quantity: str) -> float:
+    """The step of a telemetry quantity as the rig's binding carries it (SI; 0 unknown)."""
+    return binding_step(rig.binding, device, quantity)
 
 
 def _frames_per_due(interface: Any) -> dict[str, int]:
@@ -222,7 +294,8 @@ class FaultMonitor:
                  wheel_max_speed_rad_s: float, accel_range_m_s2: float, valve_close_delay_s: float,
                  dt_s: float, realtime: bool = False, valve_min_on_s: float = 0.0,
                  wheel_max_torque_n_m: float = math.inf,
-                 on_warning: Callable[[MonitorWarning], None] | None = None) -> None:
+                 on_warning: Callable[[MonitorWarning], None] | None = None,
+                 rig: Any = None) -> None:
         self.iface = interface
         # on the wall clock a frame can be a few ticks late without anything being wrong
         self.realtime_grace = math.ceil(monitor["realtime_grace_s"] / dt_s) if realtime else 0
@@ -306,10 +379,108 @@ class FaultMonitor:
         self._rotor_drv = (interface.drivers.get("disturbance_rotor")
                            if "disturbance_rotor" in acting else None)
         self._rotor_enabled_since: int | None = None
+        # the tick since which each drive has reported itself disabled (None: enabled); a
+        # drive that stays off past the command's delay is a fault, one whose own watchdog
+        # blinked it off (a stalled host) and the next command brought back is not
+        self._wheel_off_since: int | None = None
+        self._rotor_off_since: int | None = None
         self._valve_closed_since = 0
         self._seen_tick: dict[str, int] = {}
         self.on_warning = on_warning
         self._init_warnings(monitor, wheel_max_torque_n_m)
+        self._init_plausibility(rig, monitor)
+
+    # ------------------------------------------------------------------ plausibility
+    def _init_plausibility(self, rig: Any, cfg: dict[str, Any]) -> None:
+        """The rig file's sensors (resolution, noise) and model (wheel inertia, torque lag)
+        and its tolerances, for the checks that hold every run to the physics: a channel
+        still for longer than its noise allows, the hub angle against its rate's integral,
+        the wheel speed against the commanded torque's integral (a mis-bound quantity stops
+        the run naming it)."""
+        self._pw: PlausibilityWindow | None = None
+        self._half_dt = 0.5 * self.dt_s
+        self._accel_const_limit = self._piezo_const_limit = 1 << 62
+        self._q: dict[str, ChannelQuality] = {}
+        self._accel_value = self._piezo_value = None
+        self._accel_const = self._piezo_const = 0
+        if rig is None or not cfg.get("enabled", True):
+            return
+        q = self._q = sensor_quality(rig)
+        stuck = int(cfg["stuck_ticks"])
+        def limit(channels: tuple[ChannelQuality, ...]) -> int:
+            # equal samples in a row past which a healthy sensor is improbable (never, for
+            # a sensor whose noise stays well inside one step)
+            healthy = healthy_repeats(channels)
+            return max(stuck, math.floor(healthy) + 1) if math.isfinite(healthy) else 1 << 62
+
+        if "accelerometer.accel" in q:
+            self._accel_const_limit = limit((q["accelerometer.accel"],))
+        piezo = tuple(q[c] for c in ("piezo_amplifier.sensor_ch1",
+                                     "piezo_amplifier.sensor_ch2") if c in q)
+        if len(piezo) == 2 and rig.data.get("piezo_patches"):  # no patches: nothing to sense
+            self._piezo_const_limit = limit(piezo)
+        if not cfg.get("plausibility", True):
+            return
+        tol = rig.data.get("tolerances") or {}
+        wheel = rig.section("reaction_wheel")
+        self._pw = PlausibilityWindow(
+            every=max(1, round(float(cfg.get("plausibility_window_s", 1.0)) / self.dt_s)),
+            angle=q.get("hub_sensor.angle"), rate=q.get("hub_sensor.rate"),
+            rate_bias=float(tol.get("rate_bias_rad_s", 0.0)),
+            noise_factor=float(tol.get("noise_factor", 1.0)),
+            wheel_inertia=float(wheel["rotor_inertia_kg_m2"]),
+            wheel_lag_s=float(wheel.get("torque_lag_s", 0.0)),
+            torque_fraction=float(tol.get("torque_fraction", 0.0))
+            + float(tol.get("inertia_fraction", 0.0)),
+            wheel_step=_quantity_step(rig, "reaction_wheel", "speed"),
+            wheel_speed_max=self.wheel_max)
+
+    def _plausible_window(self, tick: int) -> FaultEvent | None:
+        """At the end of a window: the hub angle's change against its rate's integral, the
+        wheel speed's change against minus the commanded torque's integral over the
+        rotor's inertia, each within the rig file's noise and tolerances."""
+        pw = self._pw
+        assert pw is not None
+        event = None
+        dt = self.dt_s
+        if pw.hub_n >= 2 and pw.angle is not None and pw.rate is not None:
+            moved = pw.angle_last - pw.angle0
+            integral = pw.rate_int
+            span_s = (pw.hub_tick - pw.hub_tick0) * dt
+            sample_dt = span_s / max(1, pw.hub_n - 1)
+            noise = pw.noise_factor * math.sqrt(
+                2.0 * pw.angle.noise_rms ** 2
+                + (pw.hub_n - 1) * (pw.rate.noise_rms * sample_dt) ** 2)
+            # on the wall clock a sample's tick is when it came, up to the grace late: the
+            # trapezoid's weights move by that much against the rate's changes
+            band = (INTEGRATION_FRACTION * max(abs(moved), abs(integral)) + SIGMAS * noise
+                    + pw.rate_bias * span_s + 2.0 * pw.angle.resolution
+                    + pw.rate.resolution * span_s + self.realtime_grace * dt * pw.rate_tv)
+            if abs(moved - integral) > band:
+                cause = _cause(moved, integral, band, "the rate says the hub is still")
+                event = self._event(tick, "hub_sensor", "implausible", (
+                    f"angle and rate disagree: the angle moved {math.degrees(moved):+.4g} deg "
+                    f"in {span_s:.3g} s, the rate's integral says "
+                    f"{math.degrees(integral):+.4g} deg (within "
+                    f"{math.degrees(band):.3g} deg); likely {cause}"))
+        if event is None and pw.wheel_n >= 2 and pw.wheel_ok:
+            changed = pw.speed_last - pw.speed0
+            predicted = -pw.torque_int * dt / pw.wheel_inertia
+            band = (pw.torque_fraction * pw.torque_abs * dt
+                    # the torque loop's lag: its output trails the command by lag x the
+                    # change of its output over the window, at most twice the peak; the
+                    # command acts a tick late (on the wall clock up to the grace later)
+                    + 2.0 * pw.torque_peak * (pw.wheel_lag_s + (1 + self.realtime_grace) * dt)
+                    ) / pw.wheel_inertia + 2.0 * pw.wheel_step
+            if abs(changed - predicted) > band:
+                cause = _cause(changed, predicted, band, "no torque was commanded")
+                span_s = (pw.wheel_tick - pw.wheel_tick0) * dt
+                event = self._event(tick, "reaction_wheel", "implausible", (
+                    f"speed against the commanded torque: it changed by {changed:+.4g} rad/s "
+                    f"in {span_s:.3g} s, the torque's integral over the rotor's inertia says "
+                    f"{predicted:+.4g} rad/s (within {band:.3g}); likely {cause}"))
+        pw.restart(tick)
+        return event
 
     # ------------------------------------------------------------------ warnings
     def _init_warnings(self, cfg: dict[str, Any], wheel_max_torque_n_m: float) -> None:
@@ -558,6 +729,7 @@ class FaultMonitor:
                     return event
             else:
                 self._wheel_tick = tick
+                self._wheel_off_since = None
         if sent.valve_direction != 0 or (valves is not None and valves.last_tick == tick):
             event = self._valves(tick, state, sent)
             if event is not None:
@@ -568,19 +740,88 @@ class FaultMonitor:
                 self._rotor_enabled_since = None
             elif self._rotor_enabled_since is None:
                 self._rotor_enabled_since = tick
-            elif rotor.last_tick == tick and not rotor.values.get("enabled", 1.0) and (
-                    tick - self._rotor_enabled_since > self._enable_lag["disturbance_rotor"]):
-                return self._disabled(tick, "disturbance_rotor", rotor.values)
-        if piezo is not None and piezo.last_tick == tick and piezo.values.get("overcurrent"):
-            event = self._piezo(tick, state, sent)
-            if event is not None:
-                return event
+            elif rotor.last_tick == tick:
+                lag = self._enable_lag["disturbance_rotor"]
+                if rotor.values.get("enabled", 1.0):
+                    self._rotor_off_since = None
+                elif tick - self._rotor_enabled_since > lag:
+                    if self._rotor_off_since is None:
+                        self._rotor_off_since = tick
+                    if tick - self._rotor_off_since >= lag:
+                        return self._disabled(tick, "disturbance_rotor", rotor.values)
+        if piezo is not None and piezo.last_tick == tick:
+            pv = piezo.values
+            if pv.get("overcurrent"):
+                event = self._piezo(tick, state, sent)
+                if event is not None:
+                    return event
+            reading = (pv.get("sensor_ch1"), pv.get("sensor_ch2"))
+            if reading == self._piezo_value:
+                self._piezo_const += 1
+                if self._piezo_const >= self._piezo_const_limit:
+                    return self._constant(tick, "piezo_amplifier", "sensor_ch1/ch2",
+                                          self._piezo_const, reading, "V")
+            else:
+                self._piezo_value, self._piezo_const = reading, 1
+        if accel is not None and accel.last_tick == tick:
+            a = accel.values.get("accel")
+            if a == self._accel_value:
+                self._accel_const += 1
+                if self._accel_const >= self._accel_const_limit:
+                    return self._constant(tick, "accelerometer", "accel", self._accel_const,
+                                          a, "m/s^2")
+            else:
+                self._accel_value, self._accel_const = a, 1
+        pw = self._pw
+        if pw is not None:
+            # the physics checks' window: the hub's rate integrated sample to sample, the
+            # wheel's speed, the torque sent (one multiply-add or two a tick)
+            if hub is not None and hub.last_tick == tick and tick != pw.hub_tick:
+                v = hub.values
+                r = v.get("rate", 0.0)
+                if pw.hub_tick >= 0:
+                    pw.rate_int += (r + pw.rate_last) * (tick - pw.hub_tick) * self._half_dt
+                    pw.rate_tv += abs(r - pw.rate_last)
+                    pw.hub_n += 1
+                else:  # its first sample: the first window starts here
+                    pw.hub_tick0, pw.angle0, pw.hub_n = tick, v.get("angle", 0.0), 1
+                pw.rate_last, pw.angle_last, pw.hub_tick = r, v.get("angle", 0.0), tick
+            if wheel is not None and wheel.last_tick == tick and tick != pw.wheel_tick:
+                v = wheel.values
+                speed = v.get("speed", 0.0)
+                if pw.wheel_tick >= 0:
+                    pw.wheel_n += 1
+                else:
+                    pw.wheel_tick0, pw.speed0, pw.wheel_n = tick, speed, 1
+                if (not abs(speed) <= pw.wheel_speed_near or v.get("speed_limited")
+                        or not v.get("enabled", 1.0)):
+                    pw.wheel_ok = False  # held at its limit or off: torque not applied
+                pw.speed_last, pw.wheel_tick = speed, tick
+            if pw.wheel_n:
+                torque = sent.wheel_torque_n_m
+                pw.torque_int += torque
+                magnitude = abs(torque)
+                pw.torque_abs += magnitude
+                if magnitude > pw.torque_peak:
+                    pw.torque_peak = magnitude
+            if tick >= pw.end:
+                event = self._plausible_window(tick)
+                if event is not None:
+                    return event
         bounds = self._limit_bounds
         if (abs(state.hub_angle_rad) <= bounds[0] and abs(state.hub_rate_rad_s) <= bounds[1]
                 and abs(state.wheel_speed_rad_s) <= bounds[2]
                 and abs(state.tip_accel_m_s2) <= bounds[3]):
             return None
         return self._limits(tick, state, sent)
+
+    def _constant(self, tick: int, device: str, quantity: str, n: int, value: Any,
+                  unit: str) -> FaultEvent:
+        """A channel still for longer than its noise and resolution allow."""
+        return self._event(tick, device, "stuck", (
+            f"{quantity} read {value} {unit} for {n} samples in a row, which its noise and "
+            "resolution in the rig file make improbable: pinned at a constant, or bound to "
+            "an object or signal that does not carry it"))
 
     def _protocol(self, tick: int, state: RigState, sent: RigCommand) -> FaultEvent | None:
         """The bus protocol's own fault reports (CANopen: EMCY, boot-up, NMT state,
@@ -686,9 +927,10 @@ class FaultMonitor:
                 return self._event(tick, w.name, "duplicate frames", (
                     f"{surplus} frames more than its SYNCs asked for since t = "
                     f"{self._base_time(w):.3f} s: a second node answers with its id"))
-            if grace:
+            if grace and tick - w.driver.last_tick <= w.silent_after:
                 # frames asked for and not come, counted in order (a PDO carries no
-                # counter: a lost frame and a late one look alike until the grace is past)
+                # counter: a lost frame and a late one look alike until the grace is past);
+                # a device that stopped answering altogether is the silent rule's
                 window = w.window
                 deficit = w.due_by(tick) - w.base_due - got
                 while window and window[-1][1] >= deficit:
@@ -773,7 +1015,11 @@ class FaultMonitor:
                                f"angle {angle:+.4f} rad, rate {rate:+.4f} rad/s")
         if self._hub_last == (angle, rate):
             self._hub_same += 1
-            if self._hub_same >= self.cfg["stuck_ticks"]:
+            qa, qr = self._q.get("hub_sensor.angle"), self._q.get("hub_sensor.rate")
+            stuck_ticks = self.cfg["stuck_ticks"]
+            if (self._hub_same >= stuck_ticks if qa is None or qr is None else hub_is_stuck(
+                    self._hub_same, rate, self.dt_s * self.div.get("hub_sensor", 1), qa, qr,
+                    stuck_ticks)):
                 return self._event(tick, "hub_sensor", "stuck",
                                    f"angle and rate identical for {self._hub_same} samples")
         else:
@@ -796,9 +1042,15 @@ class FaultMonitor:
         if abs(speed) > self._wheel_overspeed_at:
             return self._event(tick, "reaction_wheel", "overspeed",
                                f"speed {speed:+.1f} rad/s beyond {self.wheel_max:g} rad/s")
-        if (self._watch_wheel_enable and not v.get("enabled", 1.0)
-                and tick > self._enable_lag["reaction_wheel"]):
-            return self._disabled(tick, "reaction_wheel", v)
+        if not v.get("enabled", 1.0):
+            lag = self._enable_lag["reaction_wheel"]
+            if self._watch_wheel_enable and tick > lag:
+                if self._wheel_off_since is None:
+                    self._wheel_off_since = tick
+                if tick - self._wheel_off_since >= lag:
+                    return self._disabled(tick, "reaction_wheel", v)
+        else:
+            self._wheel_off_since = None
         return None
 
     def _disabled(self, tick: int, device: str, values: dict[str, float]) -> FaultEvent:

@@ -15,7 +15,7 @@ Pure logic, no printing: ``harness probe`` is the command.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import can
@@ -88,6 +88,17 @@ class ProbeResult:
             return False
         return (all(d.ok for d in self.devices) and self.unknown == 0
                 and self.error_frames == 0 and not self.bus_off)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The report as ``harness probe --json`` prints it (and a suite's probe item)."""
+        return {
+            "bus": self.bus, "rate_hz": self.rate_hz, "ticks": self.ticks, "ok": self.ok,
+            "unknown_ids": self.unknown, "error_frames": self.error_frames,
+            "bus_off": self.bus_off,
+            "devices": [dict(asdict(d), status=d.status, ok=d.ok) for d in self.devices],
+            "canopen_nodes": self.nodes, "setup_error": self.setup_error,
+            **self.rig,  # rig, rig_sha256, bus (the same), binding
+        }
 
 
 def probe(bus: can.BusABC, rig: RigConfig, rate_hz: float, duration_s: float, *,

@@ -12,16 +12,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from harness.controllers.registry import controller_names, controller_type
+from harness.core.builtin_runs import RUNS_DIR as RUNS_DIR  # where the built-in runs are
+from harness.core.builtin_runs import list_runs, run_path
 from harness.core.monitor import LIMITS_SCHEMA, MONITOR_SCHEMA
 from rig_models.faults import FaultSpec, make_fault
 from rig_models.rig_file import RigConfig, load_rig, rig_from_dict
-from rig_models.schema import ConfigError, Field, validate
+from rig_models.schema import ConfigError, Field, short_repr, validate
 from rig_models.yaml_file import load_yaml
 
-RUNS_DIR = Path(__file__).parent.parent / "runs"
 ACTUATORS = ("reaction_wheel", "thruster_valves", "piezo_amplifier", "disturbance_rotor")
 
 RUN_SCHEMA: dict[str, Any] = {
@@ -78,6 +77,15 @@ RUN_SCHEMA: dict[str, Any] = {
                              choices=("auto", "thread", "process-unix", "process-tcp")),
         "rig_priority": Field("int", default=49, minimum=0, maximum=98),
         "rig_cpu": Field("int", default=-1, minimum=-1),
+        # the bench's health: limits of the timing criteria every real-time run is judged by
+        # (harness.testing.bench; beyond one the run is INCONCLUSIVE). Defaults: the line
+        # 'harness rt-check' draws for a host that cannot hold its rate (docs/criteria.md)
+        "max_overruns_percent": Field("number", "% of ticks", default=1.0, minimum=0.0,
+                                      maximum=100.0),
+        "max_lateness_p99_period_percent": Field("number", "% of the period", default=50.0,
+                                                 minimum=0.0),
+        "max_missing_held_percent": Field("number", "% of the telemetry frames due",
+                                          default=1.0, minimum=0.0, maximum=100.0),
     },
 }
 
@@ -148,21 +156,6 @@ def _deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def list_runs() -> list[tuple[str, str]]:
-    out = []
-    for path in sorted(RUNS_DIR.glob("*.yaml")):
-        raw = yaml.safe_load(path.read_text()) or {}
-        out.append((path.stem, str(raw.get("description", ""))))
-    return out
-
-
-def run_path(name_or_path: str) -> Path:
-    p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") or p.exists():
-        return p
-    return RUNS_DIR / f"{name_or_path}.yaml"
-
-
 def load_run(name_or_path: str, overrides: dict[str, Any] | None = None) -> RunConfig:
     path = run_path(name_or_path)
     if not path.exists():
@@ -195,6 +188,15 @@ def run_from_dict(raw: Any, source: str = "run", base_dir: Path | None = None,
         raise ConfigError(f"{source}: faults: expected a list of {{kind, at_s, ...}}")
     for i, f in enumerate(data["faults"] or []):
         make_fault(f, f"{source}: faults[{i}]")
+    variants = data["variants"]
+    if variants is not None:
+        if not isinstance(variants, dict):
+            raise ConfigError(f"{source}: variants: expected a mapping NAME: {{key: value, "
+                              f"...}}, got {short_repr(variants)}")
+        for vname, over in variants.items():
+            if not isinstance(over, dict):
+                raise ConfigError(f"{source}: variants.{vname}: expected a mapping of the "
+                                  f"run's keys to override, got {short_repr(over)}")
     data["controller"] = validate(ctrl, controller_type(ctrl["type"]).schema, source,
                                   "controller")
     rig = load_rig(data["rig"])

@@ -167,6 +167,20 @@ def execute_run(
             f"({load.frames_per_s:.0f} frames/s; largest: {worst[0]} {worst[2] / 1e3:.0f} kbit/s)"
             "; lower rate_hz or raise the devices' sync_divider")
     controller = build_controller(run)
+    if spec.in_process:
+        from rig_models.virtual_rig import check_virtual_rig
+
+        try:
+            check_virtual_rig(run.rig)  # a device it cannot be: refused, nothing sent
+        except ConfigError as exc:
+            raise RunRefused(str(exc)) from None
+    if show_progress:  # what is wrong in the device files but not in what the rig binds
+        notes = run.rig.binding.warnings
+        for line in notes[:5]:
+            print(f"harness: warning: {line}", file=sys.stderr)
+        if len(notes) > 5:
+            print(f"harness: warning: ... and {len(notes) - 5} more such messages",
+                  file=sys.stderr)
     if not dry_run:  # a dry run sends no command: nothing moves
         refuse_beyond_limits(run, controller)
     SpaceGuard(out_dir).check()  # a folder already (nearly) full: refused, nothing sent
@@ -384,7 +398,8 @@ def make_monitor(run: RunConfig, interface: RigInterface, realtime: bool) -> Fau
         run.rig.section("reaction_wheel")["max_speed_rad_s"], run.rig.accel_range_m_s2,
         run.rig.section("thruster_valves")["close_delay_s"], run.dt_s, realtime=realtime,
         valve_min_on_s=run.rig.section("thruster_valves")["min_on_time_s"],
-        wheel_max_torque_n_m=run.rig.section("reaction_wheel")["max_torque_n_m"])
+        wheel_max_torque_n_m=run.rig.section("reaction_wheel")["max_torque_n_m"],
+        rig=run.rig)
 
 
 def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
@@ -457,7 +472,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
         co_nodes: list[Any] | None = None
         if interface.co is not None:
             co_nodes = canopen_setup(interface, pump, can_log, dry_run, show_progress)
-            interface.watch_heartbeats(dt_s, grace_ticks=monitor.realtime_grace)
+            interface.watch_heartbeats(dt_s, grace_ticks=monitor.realtime_grace,
+                                       quiet_ticks=monitor.startup_ticks)
         monitor.on_warning = _warning_logger(recorder, show_progress)
         reference = getattr(controller, "reference", None)
         # timing on the wire: from here on every frame's time stamp (the set-up's are not)

@@ -36,15 +36,51 @@ class ScatterError(Exception):
     """The run cannot be predicted (no config.yaml, a run the virtual rig refuses)."""
 
 
+MAX_PREDICTED_S = 600.0
+"""The longest run the scatter is predicted for (simulated seconds a virtual run): each seed
+simulates the whole run, so a 30-day run would keep the command busy for hours before it
+said anything. Refused before the first virtual run, with the reason."""
+
+
 def _config(run_dir: Path) -> dict[str, Any]:
+    from harness.record.run_folder import RunFolderError, load_run_folder
+
+    try:  # checked as every reader of a run folder checks it
+        folder = load_run_folder(run_dir)
+    except RunFolderError as exc:
+        raise ScatterError(str(exc)) from exc
+    if not isinstance(folder.config.get("rig"), dict):
+        raise ScatterError(f"{run_dir / 'config.yaml'}: rig: expected the rig file's data "
+                           "(a mapping)")
+    return folder.config
+
+
+def _number(path: Path, where: str, v: Any, nonneg: bool = False) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) \
+            or (nonneg and v < 0):
+        raise ScatterError(f"{path}: {where}: expected a finite number"
+                           f"{' >= 0' if nonneg else ''}, got {v!r} (an edited cache: "
+                           "delete it to predict again)")
+    return float(v)
+
+
+def read_cache(path: Path) -> dict[str, Any]:
+    """A scatter cache file, checked: ``criteria`` a mapping of name -> {mean, std >= 0, n};
+    ScatterError naming the file and the field otherwise."""
     try:
-        cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise ScatterError(f"{run_dir}: config.yaml unreadable ({exc})") from exc
-    if not isinstance(cfg, dict) or not isinstance(cfg.get("run"), dict) \
-            or not isinstance(cfg.get("rig"), dict):
-        raise ScatterError(f"{run_dir}: config.yaml has no run and rig sections")
-    return cfg
+        doc = json.loads(path.read_text(encoding="utf-8", errors="replace"))
+    except (OSError, ValueError, RecursionError) as exc:
+        raise ScatterError(f"{path}: unreadable ({exc}): delete it to predict again") from None
+    crit = doc.get("criteria") if isinstance(doc, dict) else None
+    if not isinstance(crit, dict):
+        raise ScatterError(f"{path}: criteria: expected a mapping (an edited cache: delete "
+                           "it to predict again)")
+    for name, c in crit.items():
+        if not isinstance(c, dict):
+            raise ScatterError(f"{path}: criteria.{name}: expected an object")
+        _number(path, f"criteria.{name}.mean", c.get("mean"))
+        _number(path, f"criteria.{name}.std", c.get("std"), nonneg=True)
+    return doc
 
 
 def _rig_data(cfg: dict[str, Any], model_rig: str | None) -> dict[str, Any]:
@@ -79,10 +115,12 @@ def predict(run: dict[str, Any], rig: dict[str, Any], cache: Path, seeds: int = 
             progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Each criterion's mean and std over ``seeds`` virtual runs (cached in ``cache``)."""
     if cache.is_file():
-        try:
-            return json.loads(cache.read_text())
-        except ValueError:
-            pass  # a damaged cache is made again
+        return read_cache(cache)
+    duration = run.get("duration_s")
+    if isinstance(duration, int | float) and duration > MAX_PREDICTED_S:
+        raise ScatterError(f"run.duration_s {duration:g} s: the scatter is predicted for runs "
+                           f"of at most {MAX_PREDICTED_S:g} s ({seeds} virtual runs of the "
+                           "whole run); predict a shorter run of the same configuration")
     from harness.core.runs import run_from_dict
     from harness.core.session import execute_run
     from harness.testing.judge import judge_run
@@ -143,9 +181,9 @@ def cached_prediction(logs: Path, run_dir: Path, criterion: str) -> dict[str, An
     stem = cache_key(cfg["run"], cfg["rig"], 0).rsplit("-n", 1)[0]
     for path in sorted((Path(logs) / CACHE_DIR).glob(f"{stem}-n*.json")):
         try:
-            c = json.loads(path.read_text())["criteria"].get(criterion)
-        except (OSError, ValueError, KeyError, AttributeError):
-            continue
+            c = read_cache(path)["criteria"].get(criterion)
+        except ScatterError:
+            continue  # an edited cache predicts nothing here (``predict`` names it)
         if c and c["std"] > 0:
             return c
     return None
@@ -173,7 +211,8 @@ def classify(run_dir: Path, prediction: dict[str, Any], k: float = 3.0
         name = str(c.get("name"))
         value = _numbers([c]).get(name)
         p = pred.get(name)
-        row: dict[str, Any] = {"name": name, "value": value, "verdict": c.get("verdict"),
+        row: dict[str, Any] = {"name": name, "value": value, "unit": c.get("unit") or "",
+                               "verdict": c.get("verdict"),
                                "mean": None, "std": None, "z": None,
                                "scatter": "not predicted", "message": ""}
         if value is None or p is None:

@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 COMMANDS = ("/wheel/torque_cmd_n_m", "/thrusters/valve_cmd", "/piezo/cmd_ch1_v",
             "/piezo/cmd_ch2_v", "/rotor/speed_rad_s")
@@ -52,6 +51,63 @@ def _noise_of(rig: dict[str, Any]) -> dict[str, float]:
             "/piezo/sensor_ch2_v": rig["piezo_amplifier"]["sensor_noise_rms_v"]}
 
 
+MAX_RATIO = 3.0
+"""The default alarm threshold: a channel whose residual's rms is more than this many times
+its noise rms (``harness twin --max-ratio``). A rig that matches its model sits at about 1;
+3 leaves room for a noise spec that is a little off, not for a changed rig or a quantity
+bound to the wrong object."""
+
+
+def _canopen(rig: dict[str, Any], device: str) -> dict[str, Any] | None:
+    d = (rig.get("devices") or {}).get(device)
+    return d if isinstance(d, dict) and d.get("binding") == "canopen" else None
+
+
+def _scale(spec: Any) -> tuple[float, float] | None:
+    if not isinstance(spec, dict):
+        return None
+    scale, offset = spec.get("scale"), spec.get("offset", 0.0)
+    if isinstance(scale, int | float) and not isinstance(scale, bool) and scale > 0 \
+            and isinstance(offset, int | float) and math.isfinite(scale):
+        return float(scale), float(offset)
+    return None
+
+
+def command_steps(rig: dict[str, Any]) -> tuple[tuple[float, float] | None, ...]:
+    """(step, offset) of each command a CANopen device takes as an integer of its object
+    (wheel torque, valves, piezo ch1, ch2; None: taken as it is): the drive quantises what the
+    harness sends, so the twin must too (unquantised, a virtual CANopen rig that is exactly
+    its model left the hub angle's residual at 1.9 x its noise)."""
+    wheel, piezo = _canopen(rig, "reaction_wheel"), _canopen(rig, "piezo_amplifier")
+
+    def cmd(d: dict[str, Any] | None, key: str) -> tuple[float, float] | None:
+        return _scale((d.get("commands") or {}).get(key)) if d else None
+
+    return (cmd(wheel, "torque_cmd"), None, cmd(piezo, "voltage_ch1"),
+            cmd(piezo, "voltage_ch2"))
+
+
+def telemetry_steps(rig: dict[str, Any]) -> dict[str, float]:
+    """channel -> the quantisation step a CANopen device reports it in (the rig file's device
+    data): the noise floor of a channel the rig file gives no noise for."""
+    out = {}
+    wheel = _canopen(rig, "reaction_wheel")
+    if wheel:
+        tlm = wheel.get("telemetry") or {}
+        for key, channel in (("speed", "/wheel/speed_rad_s"), ("torque", "/wheel/torque_n_m")):
+            sc = _scale(tlm.get(key))
+            if sc:
+                out[channel] = sc[0]
+    return out
+
+
+def _quantise(v: float, step: tuple[float, float] | None) -> float:
+    if step is None or not math.isfinite(v):
+        return v
+    scale, offset = step
+    return round((v - offset) / scale) * scale + offset
+
+
 class TwinModel:
     """The noise-free twin of a rig file, advanced one tick at a time."""
 
@@ -59,6 +115,7 @@ class TwinModel:
         from rig_models.rig_file import rig_from_dict
         from rig_models.virtual_rig import VirtualRig
 
+        self.steps = command_steps(rig_data)
         quiet = copy.deepcopy(rig_data)
         quiet["accelerometer"]["noise_rms_m_s2"] = 0.0
         quiet["hub_sensor"]["angle_noise_rms_rad"] = 0.0
@@ -88,9 +145,10 @@ class TwinModel:
                rig.wheel.speed_rad_s, rig.wheel.torque_n_m,
                float(gains[0].sensor @ modal) if gains else 0.0,
                float(gains[1].sensor @ modal) if len(gains) > 1 else 0.0)
-        rig.wheel.command(torque_n_m, True)
+        q = self.steps  # as the devices take them (a drive's integer of its object)
+        rig.wheel.command(_quantise(torque_n_m, q[0]), True)
         rig.valves.command(int(round(valve)))
-        rig.piezo.command(ch1_v, ch2_v)
+        rig.piezo.command(_quantise(ch1_v, q[2]), _quantise(ch2_v, q[3]))
         return out
 
 
@@ -143,11 +201,16 @@ class _Residual:
         self.rec_sumsq = 0.0
         self.worst = 0.0
         self.worst_t = 0.0
+        self.step = math.inf  # the smallest change between two recorded samples
 
     def add(self, rec: np.ndarray, twin: np.ndarray, t: np.ndarray) -> None:
         ok = np.isfinite(rec)
         if not ok.any():
             return
+        d = np.abs(np.diff(rec[ok]))
+        d = d[d > 0]
+        if d.size:
+            self.step = min(self.step, float(d.min()))
         r = rec[ok] - twin[ok]
         self.n += int(ok.sum())
         self.sumsq += float(np.sum(r ** 2))
@@ -157,10 +220,13 @@ class _Residual:
             self.worst, self.worst_t = float(r[i]), float(t[ok][i])
 
 
-def twin_residual(run_dir: Path, rig: str | None = None) -> dict[str, Any]:
+def twin_residual(run_dir: Path, rig: str | None = None, max_ratio: float = MAX_RATIO
+                  ) -> dict[str, Any]:
     """The twin's residual of a recorded run (see the module docstring). ``rig``: the rig
     file the twin is built from (default: the run's own, from its config.yaml). One
-    streaming pass over run.rrd: memory does not grow with the run's length."""
+    streaming pass over run.rrd: memory does not grow with the run's length. Every channel
+    is judged against ``max_ratio`` (its residual's rms over its noise rms): ``beyond``
+    lists those past it, worst first; the channels are listed worst first."""
     from harness.testing.evaluate import MissingData
     from harness.testing.judge import ChannelSource
 
@@ -168,20 +234,18 @@ def twin_residual(run_dir: Path, rig: str | None = None) -> dict[str, Any]:
     rrd = run_dir / "run.rrd"
     if not rrd.is_file():
         raise TwinError(f"{run_dir}: no run.rrd (not a run directory)")
-    try:
-        cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise TwinError(f"{run_dir}: config.yaml unreadable ({exc})") from exc
-    if not isinstance(cfg, dict) or not isinstance(cfg.get("run"), dict):
-        raise TwinError(f"{run_dir}: config.yaml has no run section")
+    from harness.record.run_folder import RunFolderError, load_run_folder
+
+    try:  # checked as every reader of a run folder checks it: rate, duration, sections
+        folder = load_run_folder(run_dir)
+    except RunFolderError as exc:
+        raise TwinError(str(exc)) from exc
+    cfg = folder.config
     from rig_models.rig_file import load_rig, rig_from_dict
     from rig_models.schema import ConfigError
 
-    try:
-        rate = float(cfg["run"]["rate_hz"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise TwinError(f"{run_dir}: config.yaml run.rate_hz missing") from exc
-    dt_s = 1.0 / rate
+    rate = folder.rate_hz
+    dt_s = folder.dt_s
     try:
         rig_cfg = load_rig(rig) if rig is not None else rig_from_dict(
             cfg.get("rig"), source=f"{run_dir / 'config.yaml'} rig")
@@ -217,14 +281,17 @@ def twin_residual(run_dir: Path, rig: str | None = None) -> dict[str, Any]:
     try:
         for entity, t, v in ChannelSource(rrd).blocks([*COMMANDS, *SENSORS]):
             seen.add(entity)
-            pending[entity].add(np.rint(t / dt_s).astype(np.int64), v)
+            ticks = np.rint(np.clip(t / dt_s, -1.0, folder.max_ticks + 1.0)).astype(np.int64)
+            if ticks.size:  # bounded before the twin sizes anything on it
+                folder.check_ticks(f"{rrd}: {entity}", int(ticks.max()))
+            pending[entity].add(ticks, v)
             # the loop writes every channel for the same rows: compare up to the tick all
             # have, once all were seen (a channel missing from the recording: once the
             # others have run WAIT_TICKS ahead, it is taken as absent)
             if len(seen) == len(pending) or \
                     max(pending[e].last for e in seen) - k_next > WAIT_TICKS:
                 advance(min(pending[e].last for e in seen))
-    except MissingData as exc:
+    except (MissingData, RunFolderError) as exc:
         raise TwinError(str(exc)) from exc
     if "/tip/accel_m_s2" not in seen:
         raise TwinError(f"{rrd}: no /tip/accel_m_s2 channel")
@@ -234,6 +301,7 @@ def twin_residual(run_dir: Path, rig: str | None = None) -> dict[str, Any]:
         notes.append("the disturbance rotor turned (its command is not recorded): the twin "
                      "runs without it, so its vibration is in the residual")
     noise = _noise_of(rig_cfg.data)
+    device_steps = telemetry_steps(rig_cfg.data)
     rows = []
     for name in SENSORS:
         st = stats[name]
@@ -241,11 +309,23 @@ def twin_residual(run_dir: Path, rig: str | None = None) -> dict[str, Any]:
                          and not rig_cfg.data.get("piezo_patches")):
             continue
         rms = math.sqrt(st.sumsq / st.n)
-        nz = noise.get(name)
+        nz, source = noise.get(name), "rig file noise"
+        if not nz:
+            # no noise in the rig file: the quantisation the device reports the channel in
+            # (its device data), else the smallest step the recording shows, as uniform
+            # quantisation noise (step / sqrt(12))
+            step, source = device_steps.get(name), "device data's resolution"
+            if step is None and math.isfinite(st.step):
+                step, source = st.step, "recorded resolution"
+            nz = step / math.sqrt(12.0) if step else None
         rows.append({"channel": name, "samples": st.n, "rms": rms, "worst": st.worst,
                      "worst_time_s": st.worst_t,
                      "recorded_rms": math.sqrt(st.rec_sumsq / st.n),
-                     "noise_rms": nz, "rms_over_noise": rms / nz if nz else None})
+                     "noise_rms": nz, "noise_from": source if nz else None,
+                     "rms_over_noise": rms / nz if nz else None})
+    rows.sort(key=lambda r: -math.inf if r["rms_over_noise"] is None else -r["rms_over_noise"])
+    beyond = [r["channel"] for r in rows
+              if r["rms_over_noise"] is not None and r["rms_over_noise"] > max_ratio]
     wn, zeta = rig_cfg.plant.hub_free_modal_damping()
     modes = [{"mode": i + 1, "omega_rad_s": float(w), "damping_ratio": float(z)}
              for i, (w, z) in enumerate(zip(wn, zeta, strict=True))]
@@ -253,6 +333,7 @@ def twin_residual(run_dir: Path, rig: str | None = None) -> dict[str, Any]:
                 key=lambda r: r["rms_over_noise"], default=None)
     return {"run_dir": str(run_dir), "rig": rig_cfg.source, "rate_hz": rate, "ticks": k_next,
             "channels": rows, "worst_channel": None if worst is None else worst["channel"],
+            "max_ratio": max_ratio, "beyond": beyond,
             "model_modes": modes, "identified_modes": _identified(run_dir, cfg, modes),
             "notes": notes}
 
@@ -261,17 +342,16 @@ def _identified(run_dir: Path, cfg: dict[str, Any], model: list[dict[str, Any]]
                 ) -> list[dict[str, Any]]:
     """The run's identified modes (its identify.json, else an identification over its
     free-decay windows if it has any) beside the twin's model modes."""
-    import json
+    from harness.record.run_folder import RunFolderError, identified_modes
 
-    ident = None
-    path = run_dir / "identify.json"
-    if path.is_file():
-        try:
-            ident = json.loads(path.read_text())
-        except ValueError:
-            ident = None
+    try:
+        found = identified_modes(run_dir)
+    except RunFolderError as exc:
+        raise TwinError(str(exc)) from exc
+    ident = None if found is None else {"modes": found}
     if ident is None:
-        from harness.commands.identify import analysis_windows, identify_record, load_record
+        # the identification (scipy, Rerun's reader) only when the run has no identify.json
+        from harness.core.identify import analysis_windows, identify_record, load_record
 
         if analysis_windows(cfg) is None:
             return []

@@ -7,6 +7,9 @@ record (a fast-decaying mode excited and left to ring down on its own, repeatedl
 the slow modes' long free decay: repetitions combined, each mode reported from the windows
 that determine it best; see ``windows``). ``cramer_rao`` gives the lower bound to judge
 the fit against; ``csv_input`` reads a time/acceleration CSV.
+
+Pure: arrays in, modes out (numpy and scipy). It imports no other package of the harness;
+reading a run's recording and its free-decay windows is ``harness.core.identify``.
 """
 
 from harness.identification.api import IdentificationResult, identify, sample_rate_hz

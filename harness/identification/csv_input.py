@@ -7,15 +7,34 @@
 - Errors are ``ValueError`` naming the line (1-based, as an editor shows it) and column:
   unparsable or non-finite values, missing columns, time not strictly increasing, and a
   sampling interval that differs from the median interval by more than ``rel_tol``.
+- Bounded: the file is read a line at a time, a line longer than ``MAX_LINE_CHARS`` is
+  refused at once (a 100 MB field took 800 MB and became a 100 MB error line), values are
+  kept as packed floats, and an error quotes at most ``QUOTE_CHARS`` of a value.
 """
 
 from __future__ import annotations
 
 import math
+from array import array
+from collections.abc import Iterator
 from pathlib import Path
 from typing import NamedTuple, TextIO
 
 import numpy as np
+
+MAX_LINE_CHARS = 65536
+"""The longest line read: a time/acceleration row is a few dozen characters."""
+
+QUOTE_CHARS = 80
+"""The most characters of a value an error quotes."""
+
+
+def quote(value: object, limit: int = QUOTE_CHARS) -> str:
+    """``repr(value)`` cut to about ``limit`` characters (the total length said)."""
+    if isinstance(value, str) and len(value) > limit:
+        return f"{value[:limit]!r}... ({len(value)} characters)"
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
 class AccelRecord(NamedTuple):
@@ -52,7 +71,7 @@ def _resolve_column(col: int | str, header: list[str] | None, role: str) -> int:
     if header is None:
         raise ValueError(f"{role}_column {col!r} is a name but the CSV has no header line")
     if col not in header:
-        raise ValueError(f"{role}_column {col!r} not in the header {header}")
+        raise ValueError(f"{role}_column {quote(col)} not in the header {quote(header)}")
     return header.index(col)
 
 
@@ -69,29 +88,45 @@ def read_accel_csv(
         raise ValueError(f"rel_tol must be positive, got {rel_tol!r}")
     if isinstance(source, str | Path):
         with open(source, encoding="utf-8") as fh:
-            text = fh.read()
-        name = str(source)
-    else:
-        text = source.read()
-        name = getattr(source, "name", "<stream>")
-    lines = [
-        (i + 1, ln)
-        for i, ln in enumerate(text.splitlines())
-        if ln.strip() and not ln.lstrip().startswith("#")
-    ]
-    if not lines:
+            return _read(fh, str(source), time_column, accel_column, delimiter, rel_tol)
+    return _read(source, getattr(source, "name", "<stream>"), time_column, accel_column,
+                 delimiter, rel_tol)
+
+
+def _data_lines(fh: TextIO, name: str) -> Iterator[tuple[int, str]]:
+    """(line number, line) of every data line: not blank, not a ``#`` comment; a line
+    longer than ``MAX_LINE_CHARS`` is a ``ValueError`` before more of it is read."""
+    lineno = 0
+    while True:
+        line = fh.readline(MAX_LINE_CHARS + 1)
+        if not line:
+            return
+        lineno += 1
+        if len(line) > MAX_LINE_CHARS and not line.endswith("\n"):
+            raise ValueError(f"{name}: line {lineno}: longer than {MAX_LINE_CHARS} characters "
+                             f"(starts {quote(line)}); a time/acceleration row is short")
+        if line.strip() and not line.lstrip().startswith("#"):
+            yield lineno, line.rstrip("\r\n")
+
+
+def _read(fh: TextIO, name: str, time_column: int | str, accel_column: int | str,
+          delimiter: str | None, rel_tol: float) -> AccelRecord:
+    lines = _data_lines(fh, name)
+    head = next(lines, None)
+    if head is None:
         raise ValueError(f"{name}: no data lines")
-    delim = _detect_delimiter(lines[0][1]) if delimiter is None else delimiter
-    first = _split(lines[0][1], delim)
+    delim = _detect_delimiter(head[1]) if delimiter is None else delimiter
+    first = _split(head[1], delim)
     header: list[str] | None = None
     if not all(_is_number(f) for f in first if f):
         header = first
-        lines = lines[1:]
+        rows: Iterator[tuple[int, str]] = lines
+    else:
+        rows = _chain(head, lines)
     ti = _resolve_column(time_column, header, "time")
     ai = _resolve_column(accel_column, header, "accel")
-    t_vals: list[float] = []
-    a_vals: list[float] = []
-    for lineno, line in lines:
+    t_vals, a_vals, linenos = array("d"), array("d"), array("q")
+    for lineno, line in rows:
         fields = _split(line, delim)
         need = max(ti, ai)
         if len(fields) <= need:
@@ -101,23 +136,25 @@ def read_accel_csv(
         row = []
         for idx, role in ((ti, "time"), (ai, "acceleration")):
             raw = fields[idx]
-            label = f"column {idx + 1} ({role}" + (f", {header[idx]!r})" if header else ")")
+            label = f"column {idx + 1} ({role}" + (f", {quote(header[idx])})" if header
+                                                   else ")")
             try:
                 value = float(raw)
             except ValueError:
                 raise ValueError(
-                    f"{name}: line {lineno}, {label}: cannot read {raw!r} as a number"
+                    f"{name}: line {lineno}, {label}: cannot read {quote(raw)} as a number"
                 ) from None
             if not math.isfinite(value):
-                raise ValueError(f"{name}: line {lineno}, {label}: value {raw!r} is not finite")
+                raise ValueError(f"{name}: line {lineno}, {label}: value {quote(raw)} is not "
+                                 "finite")
             row.append(value)
         t_vals.append(row[0])
         a_vals.append(row[1])
+        linenos.append(lineno)
     if len(t_vals) < 2:
         raise ValueError(f"{name}: need at least 2 data lines, got {len(t_vals)}")
-    t = np.asarray(t_vals)
-    a = np.asarray(a_vals)
-    linenos = [ln for ln, _ in lines]
+    t = np.frombuffer(t_vals, dtype=np.float64).copy()
+    a = np.frombuffer(a_vals, dtype=np.float64).copy()
     dt = np.diff(t)
     bad = np.flatnonzero(dt <= 0.0)
     if bad.size:
@@ -137,3 +174,9 @@ def read_accel_csv(
         )
     names = None if header is None else (header[ti], header[ai])
     return AccelRecord(t=t, accel=a, column_names=names)
+
+
+def _chain(first: tuple[int, str], rest: Iterator[tuple[int, str]]
+           ) -> Iterator[tuple[int, str]]:
+    yield first
+    yield from rest

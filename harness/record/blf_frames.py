@@ -11,7 +11,10 @@ always what ``BLFReader`` gives: ``tests/test_blf_frames.py`` compares them on r
 faults with error frames included.
 
 Memory is one container (and a partial object carried into the next), whatever the log's
-length.
+length, and bounded whatever the file says: an object larger than ``MAX_OBJECT_BYTES``, a
+container that inflates past ``MAX_CONTAINER_BYTES`` (a 1 MB zlib bomb inflated to
+gigabytes) or a partial object carried past that size is refused (``BLFParseError`` naming
+the size) before it is read or inflated further.
 """
 
 from __future__ import annotations
@@ -34,6 +37,12 @@ _MSG = np.dtype([("sig", "S4"), ("header_size", "<u2"), ("header_version", "<u2"
                  ("channel", "<u2"), ("msg_flags", "u1"), ("dlc", "u1"), ("can_id", "<u4"),
                  ("data", "S8")])
 assert _MSG.itemsize == _OBJ_BYTES
+
+MAX_CONTAINER_BYTES = 16 * 1024 * 1024
+"""The most a container may inflate to: python-can writes containers of 128 KiB."""
+
+MAX_OBJECT_BYTES = MAX_CONTAINER_BYTES + 4096
+"""The largest object (a compressed container is smaller than what it inflates to)."""
 _EXACT_NS = 1 << 53  # integer nanoseconds a float64 holds exactly (about 104 days)
 
 
@@ -89,6 +98,10 @@ def _containers(path: str | Path
             signature, _, _, obj_size, obj_type = base.unpack(raw)
             if signature != b"LOBJ":
                 raise _blf.BLFParseError()
+            if obj_size > MAX_OBJECT_BYTES:
+                raise _blf.BLFParseError(f"an object of {obj_size} bytes at byte "
+                                         f"{f.tell() - base.size}, more than the "
+                                         f"{MAX_OBJECT_BYTES} a log object may have")
             obj = f.read(obj_size - base.size)
             f.read(obj_size % 4)
             if obj_type != _blf.LOG_CONTAINER:
@@ -98,9 +111,16 @@ def _containers(path: str | Path
             if method == _blf.NO_COMPRESSION:
                 data = body
             elif method == _blf.ZLIB_DEFLATE:
-                data = zlib.decompressobj().decompress(body)
+                inflate = zlib.decompressobj()
+                data = inflate.decompress(body, MAX_CONTAINER_BYTES + 1)
+                if len(data) > MAX_CONTAINER_BYTES:
+                    raise _blf.BLFParseError(f"a container that inflates past "
+                                             f"{MAX_CONTAINER_BYTES} bytes (a zlib bomb?)")
             else:
                 continue  # python-can warns and skips an unknown compression
+            if len(slow._tail) > MAX_CONTAINER_BYTES:
+                raise _blf.BLFParseError(f"a partial object of {len(slow._tail)} bytes "
+                                         "carried across containers")
             if slow._tail:
                 data = slow._tail + data
                 slow._tail = b""

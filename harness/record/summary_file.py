@@ -32,6 +32,25 @@ FIELD_TYPES: dict[str, tuple[type, ...]] = {
 }
 """Fields the harness's readers rely on, with the types they may have."""
 
+ENTRY_TYPES: dict[str, dict[str, tuple[type, ...]]] = {
+    "faults": {"device": _TEXT, "kind": _TEXT, "message": _TEXT, "time_s": _NUMBER},
+    "injected_faults": {"kind": _TEXT, "device": _TEXT, "at_s": _NUMBER,
+                        "duration_s": _NUMBER, "value": _NUMBER},
+}
+"""The fields of each entry of a list of faults, with the types they may have (a kind that
+is a list cannot be compared with the kinds a criterion expects)."""
+
+
+def _entry_problem(key: str, entries: list[Any]) -> str | None:
+    for i, entry in enumerate(entries):
+        if not isinstance(entry, dict):
+            return f"expected a list of objects, got {_describe(entries)}"
+        for field, kinds in ENTRY_TYPES[key].items():
+            v = entry.get(field)
+            if not isinstance(v, kinds) or isinstance(v, bool):
+                return f"[{i}].{field}: unexpected {_describe(v)}"
+    return None
+
 
 def _describe(v: Any) -> str:
     text = repr(v)
@@ -58,10 +77,10 @@ def read_summary(path: Path) -> tuple[dict[str, Any], list[str]]:
                                   or (isinstance(value, bool) and bool not in kinds)):
             problems.append(f"summary.json: {key}: unexpected {_describe(value)}")
             continue
-        if key in ("faults", "injected_faults") and value is not None and \
-                not all(isinstance(f, dict) for f in value):
-            problems.append(f"summary.json: {key}: expected a list of objects, got "
-                            f"{_describe(value)}")
+        problem = _entry_problem(key, value) if key in ENTRY_TYPES and value else None
+        if problem is not None:
+            problems.append(f"summary.json: {key}{'' if problem[0] == '[' else ': '}"
+                            f"{problem}")
             continue
         out[key] = value
     return out, problems

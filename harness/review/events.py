@@ -232,5 +232,17 @@ def mark_events(rec: rr.RecordingStream, run_rrd: Path,
     if not events:
         return 0
     vals = values_at(run_rrd, [e[0] for e in events])
-    return sum(log_markers(rec, t, kind, name, v)
+    return sum(log_markers(rec, t, kind, name, v, marker_series(kind, name))
                for (t, kind, name), v in zip(events, vals, strict=True))
+
+
+def marker_series(kind: str, name: str) -> str:
+    """A marker's series under ``/markers/<plot>/``: a verdict's per criterion
+    (``verdict/<criterion>``: a legend names the series' last name, so criteria sharing one
+    series all showed the last criterion's), the others per kind."""
+    if kind != "verdict":
+        return kind
+    words = name.split()
+    criterion = words[1] if len(words) > 1 and words[0] == "VERDICT" else name
+    safe = "".join(ch if ch.isalnum() or ch in "_-" else "_" for ch in criterion)
+    return f"verdict/{safe or 'criterion'}"

@@ -198,7 +198,35 @@ def axis_range(plot: Plot, ranges: Mapping[str, Sequence[float]] | None,
     if span <= 0.0:
         span = abs(hi) if hi != 0.0 else 1.0
     pad = AXIS_MARGIN * span
-    return lo - pad, hi + pad
+    return labelled_range(lo - pad, hi + pad)
+
+
+MAX_LABELS = 6.0
+"""The most labels a plot's y axis takes at one step of a power of ten: the viewer labels
+its axis at powers of ten only (0.01, 0.1, ...) and drops a step whose labels would crowd a
+plot of the default layout's height (about 120 points), so a span of 8.5 steps of 0.01
+(a wheel torque of -0.025..0.06 N m) was labelled at 0.1: a single "0"."""
+
+
+def labelled_range(lo: float, hi: float) -> tuple[float, float]:
+    """``lo..hi`` widened as little as needed to hold two labels of the step the viewer
+    will use (``MAX_LABELS``): an axis with a single label (a lone "0") has no scale."""
+    span = hi - lo
+    if not (math.isfinite(lo) and math.isfinite(hi)) or span <= 0.0:
+        return lo, hi
+    step = 10.0 ** math.floor(math.log10(span))
+    if span / step > MAX_LABELS:
+        step *= 10.0
+    first, last = math.ceil(lo / step - 1e-9), math.floor(hi / step + 1e-9)
+    if last - first >= 1:
+        return lo, hi
+    # the two neighbouring labels that widen the range least
+    best = min(((min(lo, k * step), max(hi, (k + 1) * step))
+                for k in range(math.floor(lo / step) - 1, math.ceil(hi / step) + 1)),
+               key=lambda r: r[1] - r[0])
+    edge = 0.03 * (best[1] - best[0])  # a label on the very edge is clipped
+    return best[0] - (edge if best[0] < lo else 0.0), best[1] + (edge if best[1] > hi
+                                                                 else 0.0)
 
 
 def plot_aggregation(plot: Plot) -> str:
@@ -374,7 +402,7 @@ def layout_for_run(run: Mapping[str, Any], channels: Iterable[str] | None = None
     if kind == "free_decay":
         spec = spectrum_views()
         run_page: rrb.Container = rrb.Vertical(
-            _grid(main), rrb.Horizontal(spec[0], spec[1], spec[2], column_shares=[3, 3, 2]),
+            _grid(main), rrb.Horizontal(spec[0], spec[1], spec[2], column_shares=[3, 3, 3]),
             row_shares=[3, 2], name="Run")
     else:
         run_page = rrb.Vertical(_grid(main), name="Run")

@@ -80,40 +80,46 @@ def _pct(a: float, b: float) -> str:
     return f"{100.0 * (a / b - 1.0):+.2f} %" if b else "-"
 
 
+MODES_LEGEND = ("f: undamped natural frequency; fd: damped frequency, f sqrt(1 - zeta^2), where "
+                "the spectrum peaks and the marker `mode_<n>` stands; zeta: damping ratio; "
+                "+-: one standard deviation (1 sigma).")
+
+
 def modes_markdown(modes: Sequence[Mapping[str, Any]], notes: Sequence[str]) -> str:
-    """The modes view: per mode its undamped and damped frequency, damping, 1-sigma
-    uncertainties, the FFT peak, the model's values and the difference, each labelled."""
-    lines = ["# Identified modes", "",
-             "f: undamped natural frequency; fd: damped frequency, f sqrt(1 - zeta^2), where "
-             "the spectrum peaks and the marker `mode_<n>` stands; zeta: damping ratio; "
-             "+-: one standard deviation (1 sigma).", ""]
+    """The modes view, two lines a mode so that it fits its panel: the identified undamped
+    frequency and damping with their 1-sigma uncertainties and the damped frequency; then the
+    difference from the model and the model's values, the FFT peak and the source; the
+    legend and the notes after every mode."""
+    lines = ["# Identified modes", ""]
     for i, m in enumerate(modes):
         f = float(m["freq_hz"])
         zeta = float(m["damping_ratio"])
         fd = f * math.sqrt(max(1.0 - zeta * zeta, 0.0))
         sigma_f = float(m["sigma_omega_rad_s"]) / (2 * math.pi)
-        lines += [f"## Mode {i + 1} (marker `{mode_entity(i)}`)", "",
-                  f"- f = {f:.4f} +- {sigma_f:.4f} Hz ({m['omega_rad_s']:.4f} rad/s)",
-                  f"- fd = {fd:.4f} Hz",
-                  f"- zeta = {zeta:.4f} +- {float(m['sigma_damping']):.4f}"]
-        fft = m.get("fft_peak_omega_rad_s")
-        if fft is not None:
-            lines.append(f"- FFT peak (damped): {fft / (2 * math.pi):.4f} Hz"
-                         + (" (rough)" if m.get("fft_rough") else ""))
+        lines.append(f"- **Mode {i + 1}** `{mode_entity(i)}`: f = {f:.4f} +- {sigma_f:.4f} Hz "
+                     f"({m['omega_rad_s']:.4f} rad/s), zeta = {zeta:.4f} +- "
+                     f"{float(m['sigma_damping']):.4f}, fd = {fd:.4f} Hz")
+        more = []
         model = m.get("model_omega_rad_s")
         if model is not None:
             mf = float(model) / (2 * math.pi)
             mz = m.get("model_damping_ratio")
-            lines.append(f"- model (mode {m.get('model_mode', '?')}): f = {mf:.4f} Hz"
-                         + ("" if mz is None else f", zeta = {float(mz):.4f}"))
-            lines.append(f"- identified - model: f {_pct(f, mf)}"
-                         + ("" if mz is None else f", zeta {_pct(zeta, float(mz))}"))
+            more.append(f"identified - model: f {_pct(f, mf)}"
+                        + ("" if mz is None else f", zeta {_pct(zeta, float(mz))}")
+                        + f" (model mode {m.get('model_mode', '?')}: f = {mf:.4f} Hz"
+                        + ("" if mz is None else f", zeta = {float(mz):.4f}") + ")")
+        fft = m.get("fft_peak_omega_rad_s")
+        if fft is not None:
+            more.append(f"FFT peak {fft / (2 * math.pi):.4f} Hz"
+                        + (" (rough)" if m.get("fft_rough") else ""))
         source = m.get("source") or {}
         if source.get("experiment"):
-            lines.append(f"- from: {source['experiment']}")
-        lines.append("")
+            more.append(f"from: {source['experiment']}")
+        if more:
+            lines.append("  " + "; ".join(more))
+    lines += ["", MODES_LEGEND]
     if notes:
-        lines += ["## Notes", "", *[f"- {n}" for n in notes]]
+        lines += ["", "Notes:", "", *[f"- {n}" for n in notes]]
     return "\n".join(lines) + "\n"
 
 

@@ -27,7 +27,8 @@ from harness.review.units import limit_text, quantity
 
 APPLICATION_ID = "sgsrt-harness"  # harness.record.recording's
 VERDICT_ENTITY = "/run/verdict"
-SEVERITY = {"ERROR": 0, "FAIL": 1, "MARGINAL": 2, "PASS": 3}
+SEVERITY = {"ERROR": 0, "INCONCLUSIVE": 0.5, "FAIL": 1, "MARGINAL": 2, "NOT JUDGED": 3,
+            "PASS": 4}
 
 def seconds(t: Any) -> str:
     """A time on the run's timeline, to the millisecond (a tick at 500 Hz is 2 ms)."""
@@ -65,8 +66,8 @@ def root_cause(verdict: Mapping[str, Any], summary: Mapping[str, Any] | None) ->
 
 
 def ordered(criteria: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
-    """Failing first (ERROR, FAIL, MARGINAL, PASS), the root cause (a fault) first of its
-    verdict, otherwise in the run file's order."""
+    """Failing first (ERROR, FAIL, MARGINAL, NOT JUDGED, PASS), the root cause (a fault)
+    first of its verdict, otherwise in the run file's order."""
     return sorted(criteria, key=lambda c: (SEVERITY.get(str(c.get("verdict")), -1),
                                            c.get("kind") != "fault"))
 
@@ -104,8 +105,11 @@ def verdict_markdown(verdict: Mapping[str, Any], summary: Mapping[str, Any] | No
         lines += [cause + " (as the run expects)", ""]
     if not cause or v == "PASS":  # else the reason names a consequence, not the cause
         lines += [str(verdict.get("reason", "")), ""]
-    failing = sum(1 for c in criteria if c.get("verdict") != "PASS")
-    lines.append(f"{len(criteria)} criteria, {failing} not passed (failing first):")
+    failing = sum(1 for c in criteria if c.get("verdict") not in ("PASS", "NOT JUDGED"))
+    unjudged = sum(1 for c in criteria if c.get("verdict") == "NOT JUDGED")
+    lines.append(f"{len(criteria)} criteria, {failing} not passed"
+                 + (f", {unjudged} not judged (the run stopped early)" if unjudged else "")
+                 + " (failing first):")
     lines.append("")
     consequence = "a consequence of the run stopping early" if cause else None
     for c in criteria:
@@ -118,7 +122,7 @@ def violations(verdict: Mapping[str, Any]) -> list[tuple[float, Mapping[str, Any
     out = []
     for c in verdict.get("criteria") or []:
         t = c.get("worst_time_s")
-        if c.get("verdict") != "PASS" and isinstance(t, int | float):
+        if c.get("verdict") not in ("PASS", "NOT JUDGED") and isinstance(t, int | float):
             out.append((float(t), c))
     return sorted(out, key=lambda x: x[0])
 

@@ -44,8 +44,10 @@ import numpy as np
 from harness.calibration.residual import fit_modal_residual, true_residual
 from harness.controllers.shaped_wheel_slew import Mode, parse_modes
 from harness.controllers.thruster_two_level import damped_residual_percent
+from harness.core.identify import analysis_windows, load_record
 from harness.core.runs import RunConfig, build_controller, load_run
 from harness.core.session import execute_run
+from harness.identification.windows import identify_windows
 
 MARGIN_S = 0.1  # after the manoeuvre's end, before the residual window
 
@@ -198,9 +200,6 @@ def identify_modes(out_dir: Path, n_modes: int | None = None,
     run) and identify its modes as ``harness identify RUN_DIR`` does: every free-decay
     window of the run's burst schedule (``analysis_windows``), ``identify_windows``.
     ``n_modes``: the lowest N (default: every mode identified)."""
-    from harness.commands.identify import analysis_windows, load_record
-    from harness.identification.windows import identify_windows
-
     if free_decay is None:
         free_decay = execute_run(load_run("free-decay"), out_dir=out_dir, show_progress=False)
     # the recording and config.yaml of the run directory, read as `harness identify` reads them

@@ -29,14 +29,14 @@ from typing import Any
 
 import numpy as np
 
-from harness.commands.identify import PAPER_TABLE1, analysis_windows, load_record, model_modes
-from harness.commands.model import PAPER_003, model_report
-from harness.commands.report import PAPER_TABLE2
-from harness.commands.sweep import analyse
+from harness.core.identify import analysis_windows, load_record, model_modes
 from harness.core.runs import RunConfig, load_run
 from harness.core.session import execute_run
 from harness.identification.windows import identify_windows
 from harness.studies.sweep import SweepSpec, run_sweep
+from harness.studies.sweep_report import analyse
+from rig_models.model_report import model_report
+from rig_models.paper003 import PAPER_003, PAPER_TABLE1, PAPER_TABLE2
 from rig_models.rig_file import load_rig
 
 PARTS = ("model", "cases", "identify", "sweep")

@@ -31,7 +31,8 @@ base_dir=None, check_files=True, open_paths=False) -> list[Criterion]``
     forms that need them. Missing data gives that criterion ERROR, never an exception.
 
 ``make_verdict(results, identity=None) -> Verdict``
-    The worst result wins (PASS < MARGINAL < FAIL < ERROR); no results is NO CRITERIA
+    ERROR if any, else INCONCLUSIVE if any (a real-time budget criterion failed: the bench
+    did not hold its time), else the worst (PASS < MARGINAL < FAIL); no results is NO CRITERIA
     (nothing judged: exit 0 for ``harness run``, with a warning; a suite fails it unless
     ``require_criteria: false``).
 
@@ -42,13 +43,15 @@ base_dir=None, check_files=True, open_paths=False) -> list[Criterion]``
     ``write_verdict(verdict, run_dir)`` writes verdict.json and verdict.rrd;
     ``format_block(verdict, path)`` is the text ``harness run`` / ``harness judge`` print.
 
-``Verdict``: ``.verdict`` ("PASS" | "MARGINAL" | "FAIL" | "ERROR" | "NO CRITERIA"), ``.reason``,
+``Verdict``: ``.verdict`` ("PASS" | "MARGINAL" | "INCONCLUSIVE" | "FAIL" | "ERROR" |
+"NO CRITERIA"), ``.reason``,
 ``.criteria`` (CriterionResult: name, kind, value, unit, limit, margin, verdict,
 worst_time_s, message), ``.identity``, ``.exit_code``, ``.to_dict()`` (verdict.json).
 
 Exit codes (``EXIT_CODES``): 0 PASS (or NO CRITERIA), 1 FAIL, 2 bad input / refused before
 anything was sent, 3 ERROR by a fault the run did not expect, 4 ERROR otherwise (exception,
-missing data, real-time budget not held), 5 MARGINAL, 130 interrupted.
+missing data), 5 MARGINAL, 6 INCONCLUSIVE (the bench did not hold real time:
+``harness.testing.bench``), 130 interrupted.
 """
 
 from __future__ import annotations
@@ -64,8 +67,10 @@ from harness.testing.criteria import (
 from harness.testing.evaluate import (
     ERROR,
     FAIL,
+    INCONCLUSIVE,
     MARGINAL,
     NO_CRITERIA,
+    NOT_JUDGED,
     PASS,
     SEVERITY,
     CriterionResult,
@@ -87,10 +92,11 @@ from harness.testing.judge import (
 )
 
 EXIT_CODES = {"PASS": 0, "FAIL": 1, "BAD_INPUT": 2, "ERROR_FAULT": 3, "ERROR": 4,
-              "MARGINAL": 5, "INTERRUPTED": 130}
+              "MARGINAL": 5, "INCONCLUSIVE": 6, "INTERRUPTED": 130}
 
 __all__ = [
-    "ERROR", "EXIT_CODES", "FAIL", "MARGINAL", "NO_CRITERIA", "PASS", "SEVERITY", "Criterion",
+    "ERROR", "EXIT_CODES", "FAIL", "INCONCLUSIVE", "MARGINAL", "NO_CRITERIA", "NOT_JUDGED",
+    "PASS", "SEVERITY", "Criterion",
     "CriterionResult", "Facts", "JudgeInputError", "MissingData", "Verdict", "Window",
     "apply_overrides", "evaluate", "evaluate_scalar", "exit_code", "format_block",
     "judge_run", "make_verdict", "parse_criteria", "parse_criterion", "resolve_baselines",

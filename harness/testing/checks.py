@@ -19,8 +19,10 @@ from harness.testing.criteria import Criterion
 from harness.testing.evaluate import evaluate_scalar
 from harness.testing.measures import FieldMissing, resolve
 
-ORDER = {"PASS": 0, "NO CRITERIA": 0.5, "MARGINAL": 1, "FAIL": 2, "ERROR": 3}
-"""Severity; a test that judged nothing (NO CRITERIA) is worse than one that passed."""
+ORDER = {"PASS": 0, "NO CRITERIA": 0.5, "MARGINAL": 1, "INCONCLUSIVE": 1.5, "FAIL": 2,
+         "ERROR": 3}
+"""Severity across tests; a test that judged nothing (NO CRITERIA) is worse than one that
+passed; INCONCLUSIVE (the bench lost its time) is worse than a pass and hides no FAIL."""
 
 
 def _num(v: Any) -> float | None:
@@ -78,6 +80,11 @@ def combine(criteria: list[dict[str, Any]], empty_reason: str = "completed, no c
     NO CRITERIA without any (nothing judged is not a pass)."""
     if not criteria:
         return "NO CRITERIA", empty_reason
+    # one test's criteria: a run the bench did not hold is INCONCLUSIVE whatever else FAILed
+    # (evaluate.run_verdict); only an ERROR outranks it
+    inconclusive = [c for c in criteria if c["verdict"] == "INCONCLUSIVE"]
+    if inconclusive and not any(c["verdict"] == "ERROR" for c in criteria):
+        return "INCONCLUSIVE", f"{inconclusive[0]['name']}: {inconclusive[0]['message']}"
     worst = max(criteria, key=lambda c: ORDER[c["verdict"]])
     if worst["verdict"] == "PASS":
         return "PASS", f"{len(criteria)} criteria passed"

@@ -12,7 +12,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +32,7 @@ FORMS = ("fault", "left_safe", "settles", "baseline", "modal_residual", "measure
 have a ``channel``)."""
 
 REDUCTIONS = ("each", "rms", "mean", "final")
-COMMON_KEYS = ("why", "budget")
+COMMON_KEYS = ("why", "budget", "applies_to_stopped")
 WINDOW_KEYS = ("after", "from_s", "to_s", "last_s")
 
 
@@ -74,6 +74,9 @@ class Criterion:
     budget: bool = False
     params: dict[str, Any] = field(default_factory=dict)
     why: str = ""
+    applies_to_stopped: bool = False
+    """Judged on a run a fault, an interruption or an error stopped early too (``fault`` and
+    ``left_safe`` criteria always are); otherwise such a run leaves it NOT JUDGED."""
 
     @property
     def marginal(self) -> float | None:
@@ -270,6 +273,22 @@ def parse_criterion(name: str, raw: Any, source: str, key_path: str,
                     known_measures: Iterable[str] | None = None,
                     channels: Iterable[str] | None = None, base_dir: Path | None = None,
                     check_files: bool = True, open_paths: bool = False) -> Criterion:
+    """One criterion (see ``_parse_form``), with its ``applies_to_stopped`` (true: judged on
+    a run stopped early too)."""
+    c = _parse_form(name, raw, source, key_path, known_measures, channels, base_dir,
+                    check_files, open_paths)
+    stopped = raw.get("applies_to_stopped", False)
+    if not isinstance(stopped, bool):
+        raise _err(source, f"{key_path}.applies_to_stopped",
+                   f"expected true or false, got {stopped!r}")
+    always = c.kind in ("fault", "left_safe")
+    return replace(c, applies_to_stopped=stopped or always) if stopped or always else c
+
+
+def _parse_form(name: str, raw: Any, source: str, key_path: str,
+                known_measures: Iterable[str] | None = None,
+                channels: Iterable[str] | None = None, base_dir: Path | None = None,
+                check_files: bool = True, open_paths: bool = False) -> Criterion:
     """One criterion (see docs/criteria.md). ``known_measures``: extra scalar measure paths
     accepted beside summary.json's (their unit from their name); ``channels``: the recorded
     channels (None: any entity path); ``open_paths``: a ``measure:`` may be any field path

@@ -4,8 +4,10 @@ A criterion's result is a record that is data (OpenHTF's measurement record): it
 unit, its limits (keys with their unit, as in the run file), its margin (distance to the
 nearest limit in the value's unit, positive inside), its verdict, the time of the worst
 sample and a one-line message. Verdicts: PASS, MARGINAL (passed, inside the marginal band),
-FAIL, ERROR (the run or the harness broke, the data is missing, or a real-time budget
-criterion failed). The worst wins.
+INCONCLUSIVE (a real-time budget criterion failed: the bench did not hold its time, so the
+run measured nothing trustworthy), FAIL, ERROR (the run or the harness broke, the data is
+missing). A run's verdict is ``run_verdict`` of its criteria: ERROR, else INCONCLUSIVE, else
+the worst.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections import deque
-from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
+from collections.abc import Callable, Generator, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -30,7 +32,18 @@ from harness.testing.measures import (
 )
 
 PASS, MARGINAL, FAIL, ERROR = "PASS", "MARGINAL", "FAIL", "ERROR"
-SEVERITY = {PASS: 0, MARGINAL: 1, FAIL: 2, ERROR: 3}
+INCONCLUSIVE = "INCONCLUSIVE"
+"""A run the bench could not hold in time (a budget criterion failed: overruns, lateness,
+telemetry missing in ticks the loop held): neither a pass nor a FAIL of what was tested."""
+SEVERITY = {PASS: 0, MARGINAL: 1, INCONCLUSIVE: 2, FAIL: 3, ERROR: 4}
+"""Across tests (a suite's worst): INCONCLUSIVE is worse than a pass and never hides a
+FAIL. Within one run ``run_verdict`` applies instead (a FAIL measured on a bench that lost
+its time is not trusted)."""
+INCONCLUSIVE_EXIT = 6
+NOT_JUDGED = "NOT JUDGED"
+"""A criterion's verdict on a run stopped early (a fault, an interruption, an error) when it
+does not say ``applies_to_stopped: true``: its value, measured against a run that never got
+where it was going, says nothing. It never decides the run's verdict (the stop does)."""
 NO_CRITERIA = "NO CRITERIA"
 """A run's verdict when nothing was judged: no criterion, and none of the run's own checks
 found a problem. Not PASS (a run whose ``expect:`` was lost must not read as a passing
@@ -176,7 +189,7 @@ def _result(c: Criterion, value: Any, margin: float | None, verdict: str,
             worst: float | None, message: str, violations: Sequence[float] = ()) -> \
         CriterionResult:
     if c.budget and verdict == FAIL:
-        verdict = ERROR
+        verdict = INCONCLUSIVE
         message = "real-time budget not held: " + message
     return CriterionResult(c.name, c.kind, value, c.unit, limit_dict(c), margin, verdict,
                            worst, message, c.why, violations_s=list(violations)[:MAX_EVENTS])
@@ -873,17 +886,60 @@ def run_checks(criteria: Sequence[Criterion], measures: Mapping[str, Any]
     return out
 
 
+def run_verdict(verdicts: Iterable[str]) -> str:
+    """One run's verdict from its criteria's: ERROR if any (the run or the judge broke),
+    else INCONCLUSIVE if any (the bench lost its time: a FAIL measured then is not
+    trusted, nor is a pass), else the worst (PASS < MARGINAL < FAIL)."""
+    seen = set(verdicts)
+    if ERROR in seen:
+        return ERROR
+    if INCONCLUSIVE in seen:
+        return INCONCLUSIVE
+    return max(seen, key=SEVERITY.__getitem__, default=PASS)
+
+
 def worst_verdict(results: Sequence[CriterionResult]) -> str:
-    return max((r.verdict for r in results), key=SEVERITY.__getitem__, default=PASS)
+    """A run's verdict (``run_verdict``) from its criteria's judged results; nothing but
+    NOT JUDGED is an ERROR (the run stopped)."""
+    judged = [r.verdict for r in results if r.verdict != NOT_JUDGED]
+    if results and not judged:
+        return ERROR
+    return run_verdict(judged)
+
+def stopped_early(measures: Mapping[str, Any]) -> str | None:
+    """Why the run stopped before its end (a fault, an interruption, an error), or None."""
+    stopped = measures.get("stopped_by")
+    if stopped == "fault":
+        faults = [f for f in measures.get("faults") or [] if isinstance(f, Mapping)]
+        if faults:
+            f = faults[0]
+            t = f.get("time_s")
+            at = f" at t = {float(t):.3f} s" if isinstance(t, int | float) else ""
+            return f"a fault ({f.get('device')}: {f.get('kind')}){at} stopped the run"
+        return "a fault stopped the run"
+    if stopped == "interrupted":
+        return "the run was interrupted"
+    if stopped == "error":
+        return "the run raised an error"
+    return None
+
+
+def not_judged(c: Criterion, why: str) -> CriterionResult:
+    """A criterion left unjudged on a run stopped early (see NOT_JUDGED)."""
+    return CriterionResult(c.name, c.kind, None, c.unit, limit_dict(c), None, NOT_JUDGED,
+                           None, f"not judged: {why} before its end; this criterion does "
+                           "not apply to a stopped run (applies_to_stopped: true judges it)",
+                           c.why)
 
 
 def exit_code(verdict: str, results: Sequence[CriterionResult]) -> int:
     """0 PASS (or NO CRITERIA), 1 FAIL, 3 ERROR by an unexpected fault, 4 ERROR otherwise,
-    5 MARGINAL, 130 interrupted."""
+    5 MARGINAL, 6 INCONCLUSIVE, 130 interrupted."""
     if verdict == ERROR:
         causes = {r.cause for r in results if r.verdict == ERROR}
         return 130 if "interrupted" in causes else 3 if "fault" in causes else 4
-    return {PASS: 0, MARGINAL: 5, FAIL: 1, NO_CRITERIA: 0}[verdict]
+    return {PASS: 0, MARGINAL: 5, FAIL: 1, INCONCLUSIVE: INCONCLUSIVE_EXIT,
+            NO_CRITERIA: 0}[verdict]
 
 
 def reason(verdict: str, results: Sequence[CriterionResult]) -> str:
@@ -893,4 +949,10 @@ def reason(verdict: str, results: Sequence[CriterionResult]) -> str:
     if verdict == PASS:
         return f"all {len(results)} criteria passed"
     first = f"{worst[0].name}: {worst[0].message}"
-    return first if len(worst) == 1 else f"{len(worst)} criteria {verdict}; first: {first}"
+    text = first if len(worst) == 1 else f"{len(worst)} criteria {verdict}; first: {first}"
+    if verdict == INCONCLUSIVE:
+        failed = [r.name for r in results if r.verdict == FAIL]
+        text = "the bench did not hold real time: " + text + (
+            f"; not trusted, measured on that bench: {', '.join(failed)} FAIL" if failed
+            else "")
+    return text

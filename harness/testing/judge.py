@@ -21,17 +21,22 @@ from typing import Any
 import numpy as np
 
 from harness.record.streams import save_with_blueprint, sweep_orphans
+from harness.testing.bench import attribute, describe, is_realtime, timing_criteria
 from harness.testing.criteria import Criterion, apply_overrides, parse_criteria
 from harness.testing.evaluate import (
     ERROR,
+    INCONCLUSIVE,
+    MAX_EVENTS,
     NO_CRITERIA,
     CriterionResult,
     Facts,
     MissingData,
     evaluate,
     exit_code,
+    not_judged,
     reason,
     run_checks,
+    stopped_early,
     worst_verdict,
 )
 from harness.testing.measures import unit_text
@@ -57,8 +62,11 @@ class Verdict:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"verdict": self.verdict, "reason": self.reason, "exit_code": self.exit_code,
-                "criteria": [c.to_dict() for c in self.criteria], "identity": self.identity}
+        d = {"verdict": self.verdict, "reason": self.reason, "exit_code": self.exit_code,
+             "criteria": [c.to_dict() for c in self.criteria], "identity": self.identity}
+        if "bench" in self.extra:  # an INCONCLUSIVE run: whose the lost time was
+            d["bench"] = self.extra["bench"]
+        return d
 
 
 def make_verdict(results: list[CriterionResult], identity: Mapping[str, Any] | None = None,
@@ -406,6 +414,29 @@ def _load_yaml(path: Path) -> Any:
         raise JudgeInputError(str(exc)) from exc
 
 
+def _run_config(cfg_path: Path, loaded: Any, own_criteria: bool) -> Mapping[str, Any]:
+    """config.yaml as the harness wrote it (``run:`` and ``rig:`` mappings); else
+    ``JudgeInputError`` naming the key: a ``run:`` of another shape (a number) would read
+    as a run without criteria (NO CRITERIA, exit 0) when its criteria were lost."""
+    from rig_models.schema import short_repr
+
+    if not isinstance(loaded, Mapping):
+        raise JudgeInputError(f"{cfg_path}: expected a mapping with run: and rig: (as the "
+                              f"harness writes it), got {short_repr(loaded)}")
+    run = loaded.get("run")
+    if run is None and own_criteria:
+        raise JudgeInputError(f"{cfg_path}: run: missing; the run's criteria are under it "
+                              "(or give --expect FILE)")
+    if run is not None and not isinstance(run, Mapping):
+        raise JudgeInputError(f"{cfg_path}: run: expected the run's mapping (as the harness "
+                              f"writes it), got {short_repr(run)}")
+    rig = loaded.get("rig")
+    if rig is not None and not isinstance(rig, Mapping):
+        raise JudgeInputError(f"{cfg_path}: rig: expected the rig's mapping (as the harness "
+                              f"writes it), got {short_repr(rig)}")
+    return loaded
+
+
 def criteria_of(run_dir: Path, cfg: Mapping[str, Any], expect: Any = None
                 ) -> tuple[list[Criterion], Path | None]:
     """The criteria to judge ``run_dir`` by: ``expect`` (a file with an ``expect:`` section,
@@ -442,8 +473,7 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
     cfg: Mapping[str, Any] = {}
     results: list[CriterionResult] = []
     if cfg_path.is_file():
-        loaded = _load_yaml(cfg_path)
-        cfg = loaded if isinstance(loaded, Mapping) else {}
+        cfg = _run_config(cfg_path, _load_yaml(cfg_path), own_criteria=expect is None)
     elif expect is None:
         raise JudgeInputError(f"{cfg_path}: no such file (not a run directory)")
     criteria, expect_file = criteria_of(run_dir, cfg, expect)
@@ -477,11 +507,22 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
         criteria = [c for c in criteria if c.kind in ("fault", "left_safe")]
         note = "fault test: only its fault expectations, left_safe and the run's own checks " \
                "judged"
-    results = evaluate(criteria, facts) + results + (run_checks(criteria, summary)
-                                                     if summary else [])
+    if is_realtime(summary):  # the bench's own timing, in every real-time run
+        run = cfg.get("run") if isinstance(cfg.get("run"), Mapping) else {}
+        criteria = criteria + timing_criteria(run, {c.name for c in criteria})
+    why = stopped_early(summary) if not note else None
+    judged = [c for c in criteria if not why or c.applies_to_stopped]
+    done = dict(zip((id(c) for c in judged), evaluate(judged, facts), strict=True))
+    results = [done[id(c)] if id(c) in done else not_judged(c, str(why))
+               for c in criteria] + results + (run_checks(criteria, summary)
+                                               if summary else [])
     verdict = make_verdict(results, identity_of(run_dir, cfg, summary, expect_file), run_dir)
     if note and verdict.verdict == "PASS":
         verdict.reason = f"{note}; {verdict.reason}"
+    if verdict.verdict == INCONCLUSIVE:
+        bench = attribute(summary, source.blocks if source.rrd.is_file() else None)
+        verdict.extra["bench"] = bench
+        verdict.reason = f"{verdict.reason}; {describe(bench)}"
     return verdict
 
 
@@ -525,11 +566,10 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
     save_with_blueprint(rec, fresh_output_path(run_dir / "verdict.rrd"), _run_layout(run_dir))
     rec.log("/run/verdict", rr.TextDocument(_verdict_text(v, run_dir),
                                             media_type="text/markdown"), static=True)
-    # by time only: two criteria violated at the same instant must not be compared
-    events = sorted(((t, c) for c in v.criteria for t in c.violations_s), key=lambda e: e[0])
+    events = verdict_events(v)
     for t, c in events:
         rec.set_time("time", duration=t)
-        rec.log("/events/verdict", rr.TextLog(f"{c.name} {c.verdict}: {c.message}",
+        rec.log("/events/verdict", rr.TextLog(event_text(c),
                                               level="ERROR" if c.verdict == ERROR else "WARN"))
     _mark_on_plots(rec, run_dir, [(t, f"VERDICT {c.name} {c.verdict}") for t, c in events])
     try:
@@ -539,8 +579,29 @@ def write_verdict(v: Verdict, run_dir: Path | None = None) -> Path:
         del rec
         sweep_orphans()  # the stream dropped: its threads end
     _into_run_rrd(run_dir, v, [(t, "ERROR" if c.verdict == ERROR else "WARN",
-                                f"{c.name} {c.verdict}: {c.message}") for t, c in events])
+                                event_text(c)) for t, c in events])
     return out
+
+
+def verdict_events(v: Verdict) -> list[tuple[float, CriterionResult]]:
+    """One event per criterion that failed, at its worst sample (else its first violation),
+    in time order (by time only: two criteria violated at one instant are not compared)."""
+    out = []
+    for c in v.criteria:
+        t = c.worst_time_s if c.worst_time_s is not None else (
+            c.violations_s[0] if c.violations_s else None)
+        if c.violations_s and t is not None:
+            out.append((float(t), c))
+    return sorted(out, key=lambda e: e[0])
+
+
+def event_text(c: CriterionResult) -> str:
+    """A failed criterion's event: its name, verdict and message, and how often it was
+    violated when more than once (each start is in ``violations_s``)."""
+    n = len(c.violations_s)
+    starts = "" if n < 2 else (f" ({n}{'+' if n >= MAX_EVENTS else ''} violations, from "
+                               f"t = {min(c.violations_s):.3f} s)")
+    return f"{c.name} {c.verdict}: {c.message}{starts}"
 
 
 def _into_run_rrd(run_dir: Path, v: Verdict, events: list[tuple[float, str, str]]) -> None:
@@ -600,6 +661,7 @@ def format_block(v: Verdict, path: Path | None = None) -> str:
     """The verdict as printed at the end of ``harness run`` and by ``harness judge``."""
     lines = [f"VERDICT {v.verdict} (exit {v.exit_code}): {v.reason}"]
     w = max([len(c.name) for c in v.criteria] + [9])
+    wv = max([len(c.verdict) for c in v.criteria] + [8])  # INCONCLUSIVE is 12 wide
     for c in v.criteria:
         val = "-" if c.value is None else (f"{c.value:.4g}" if isinstance(c.value, float)
                                            else str(c.value))
@@ -608,10 +670,10 @@ def format_block(v: Verdict, path: Path | None = None) -> str:
         margin = "" if c.margin is None else f"  margin {c.margin:.4g}"
         at = "" if c.worst_time_s is None else f"  worst at t = {c.worst_time_s:.3f} s"
         unit = unit_text(c.unit)
-        lines.append(f"  {c.verdict:<8} {c.name:<{w}}  {val} {unit}".rstrip()
+        lines.append(f"  {c.verdict:<{wv}} {c.name:<{w}}  {val} {unit}".rstrip()
                      + (f"  limit {lim}" if lim else "") + margin + at)
         if c.verdict != "PASS":
-            lines.append(f"  {'':<8} {'':<{w}}  {c.message}")
+            lines.append(f"  {'':<{wv}} {'':<{w}}  {c.message}")
     if path is not None:
         lines.append(f"  verdict in {path}")
     return "\n".join(lines)

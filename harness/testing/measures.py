@@ -89,6 +89,10 @@ SUMMARY_MEASURES: dict[str, str] = {
     "steady_angle_amplitude_deg": "deg",
     # computed by the judge from summary.json's lists
     "faults.count": "count",
+    # computed by the judge from summary.json's timing (BENCH_MEASURES): the bench's health
+    "timing.overruns_percent": "percent",
+    "timing.lateness_p99_period_percent": "percent",
+    "timing.missing_held_percent": "percent",
     # the fault monitor's warnings, per kind (harness.core.monitor.WARNING_KINDS)
     "monitor_warnings.wheel_speed": "count",
     "monitor_warnings.torque_saturated": "count",
@@ -104,9 +108,11 @@ OPEN_PREFIXES = ("controller_design.",)
 its unit read from its name (``ratio`` without a suffix); a path the run did not write is
 missing data at judge time (ERROR)."""
 
-BUDGET_MEASURES = ("overruns", "lateness_ms.", "work_ms.", "real_time_factor", "frames.missing")
-"""Measures of the real-time budget: a criterion on them that fails makes the verdict ERROR
-(the test was not valid), not FAIL. A criterion's ``budget: true|false`` overrides this."""
+BUDGET_MEASURES = ("overruns", "lateness_ms.", "work_ms.", "real_time_factor", "frames.missing",
+                   "timing.")
+"""Measures of the real-time budget: a criterion on them that fails makes the verdict
+INCONCLUSIVE (the bench did not hold its time: the test measured nothing trustworthy), not
+FAIL. A criterion's ``budget: true|false`` overrides this."""
 
 TIME_EVENTS = ("slew_profile_end_s", "settle_time_s", "fault", "injected_fault")
 """Events a window can start ``after``: summary times, the first detected fault's time, the
@@ -243,7 +249,36 @@ def find(measures: Mapping[str, Any], path: str) -> list[tuple[str, Any]]:
         if not isinstance(faults, list):
             raise FieldMissing("faults: no faults list")
         return [(path, len(faults))]
+    if path in BENCH_MEASURES:
+        return [(path, BENCH_MEASURES[path](measures))]
     return resolve(measures, path)
+
+
+def _number(measures: Mapping[str, Any], path: str) -> float:
+    found = resolve(measures, path)
+    v = found[0][1] if len(found) == 1 else None
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        raise FieldMissing(f"{path}: not a number ({v!r})")
+    return float(v)
+
+
+def _share(part: float, whole: float) -> float:
+    return 100.0 * part / whole if whole > 0 else 0.0
+
+
+BENCH_MEASURES: dict[str, Any] = {
+    # overruns: ticks whose work ended after the next tick's deadline, of all ticks
+    "timing.overruns_percent": lambda m: _share(_number(m, "overruns"), _number(m, "ticks")),
+    # the loop's lateness (how long after its deadline a tick started), p99, of the period
+    "timing.lateness_p99_period_percent": lambda m: _share(
+        _number(m, "lateness_ms.p99"), 1e3 / _number(m, "rate_hz")),
+    # telemetry frames missing in ticks the loop held, of the frames due (received + missing)
+    "timing.missing_held_percent": lambda m: _share(
+        _number(m, "frames.missing_in_ticks_on_time"),
+        _number(m, "frames.received") + _number(m, "frames.missing")),
+}
+"""The bench's health as shares, computed by the judge from summary.json: the measures of
+the timing criteria every real-time run gets (``harness.testing.bench``)."""
 
 
 def numeric_leaves(data: Mapping[str, Any], prefix: str = "") -> Iterable[str]:

@@ -13,11 +13,12 @@ from harness.testing.evaluate import NO_CRITERIA
 # NO CRITERIA: a test that judged nothing. Not a PASS: a suite fails it unless the suite
 # says ``require_criteria: false`` (``require_criteria``).
 
-EXIT = {"PASS": 0, "FAIL": 1, "MARGINAL": 5, "ERROR": 4, NO_CRITERIA: 0}
+EXIT = {"PASS": 0, "FAIL": 1, "MARGINAL": 5, "ERROR": 4, "INCONCLUSIVE": 6, NO_CRITERIA: 0}
 
-EXIT_ORDER = (130, 2, 3, 4, 1, 5, 0)
+EXIT_ORDER = (130, 2, 3, 4, 1, 6, 5, 0)
 """Most severe first (as ``harness run``'s variants, with 2: refused before anything was
-sent, e.g. the pre-flight probe failed)."""
+sent, e.g. the pre-flight probe failed). INCONCLUSIVE (6: a test the bench could not hold in
+time) is worse than a pass and never hides another test's FAIL."""
 
 
 def item_result(verdict: str, reason: str, criteria: list[dict[str, Any]] | None = None,
@@ -42,7 +43,8 @@ def require_criteria(items: dict[str, dict[str, Any]], required: bool) -> dict[s
 
 def exit_code(records: list[dict[str, Any]]) -> int:
     """The exit code of the most severe test: interrupted 130, refused 2, ERROR by a fault
-    nobody expected 3, ERROR 4, FAIL 1, MARGINAL 5, PASS (or NO CRITERIA allowed) 0."""
+    nobody expected 3, ERROR 4, FAIL 1, INCONCLUSIVE 6, MARGINAL 5, PASS (or NO CRITERIA
+    allowed) 0."""
     codes = [r.get("exit_code") if r.get("exit_code") is not None else EXIT[r["verdict"]]
              for r in records if r["verdict"] != "SKIPPED" and r.get("reported", True)]
     return min(codes, key=lambda c: EXIT_ORDER.index(c) if c in EXIT_ORDER else 3,

@@ -19,7 +19,11 @@ is only active when passed this way; the project's own tests never collect it.
   the JUnit properties and the exit code), and so does NO CRITERIA in a suite with
   ``require_criteria: false`` (otherwise the job made it FAIL: ``outcome.require_criteria``);
   FAIL fails with the failed criterion as the
-  message, ERROR errors (JUnit ``<error>``).
+  message, ERROR errors (JUnit ``<error>``). INCONCLUSIVE (the bench did not hold real time)
+  is skipped with its reason (JUnit ``<skipped message="INCONCLUSIVE: ...">``): CI readers
+  show a skipped test as neither passed nor failed, with the message, which is what an
+  inconclusive test is; ``<error>`` would read as a broken test. The exit code (6) still
+  makes the job fail.
 - ``pytest_sessionfinish``: stops the engine (``-x``, Ctrl-C: running runs end at their next
   tick with the rig safe), then writes results.json, report.md and report.html in the
   suite's output folder.
@@ -448,6 +452,8 @@ class SuiteItem(pytest.Item):
         self.user_properties.extend(self._rig_properties())  # after the verdict, the first
         if res["verdict"] == "FAIL":
             raise SuiteFailure(res["reason"])
+        if res["verdict"] == "INCONCLUSIVE":
+            pytest.skip(f"INCONCLUSIVE: {res['reason']}")
 
     def repr_failure(self, excinfo: pytest.ExceptionInfo[BaseException],
                      style: Any = None) -> str:

@@ -26,8 +26,9 @@ from harness.testing.checks import worst
 from harness.testing.outcome import exit_code
 
 OVERVIEW = ("/attitude/angle_deg", "/tip/accel_m_s2")
-COLORS = {"PASS": "#1a7f37", "MARGINAL": "#9a6700", "FAIL": "#cf222e", "ERROR": "#8250df",
-          "SKIPPED": "#6e7781", "NO CRITERIA": "#bc4c00"}
+COLORS = {"PASS": "#1a7f37", "MARGINAL": "#9a6700", "INCONCLUSIVE": "#0550ae",
+          "FAIL": "#cf222e", "ERROR": "#8250df",
+          "SKIPPED": "#6e7781", "NO CRITERIA": "#bc4c00", "NOT JUDGED": "#6e7781"}
 
 
 def _fmt(v: Any) -> str:
@@ -43,13 +44,14 @@ def _fmt(v: Any) -> str:
 def channel_specs(run_dir: Path, criteria_results: list[dict[str, Any]]
                   ) -> list[dict[str, Any]]:
     """The run's channel criteria (verdict layer): channel, band (lo, hi) and window."""
-    import yaml
-
+    from harness.record.run_folder import load_run_folder
+    from harness.record.summary_file import read_summary
     from harness.testing.evaluate import window_mask
     from harness.testing.judge import criteria_of
 
-    cfg = yaml.safe_load((run_dir / "config.yaml").read_text()) or {}
-    summary = json.loads((run_dir / "summary.json").read_text())
+    # read as every reader of a run folder reads it: a damaged file is named (ValueError)
+    cfg = load_run_folder(run_dir).config
+    summary, _ = read_summary(run_dir / "summary.json")
     verdicts = {c["name"]: c for c in criteria_results}
     out = []
     for c in criteria_of(run_dir, cfg)[0]:
@@ -217,6 +219,78 @@ def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dic
     return plots
 
 
+def scalar_bounds(limit: Any) -> tuple[float | None, float | None]:
+    """A scalar criterion's pass band (lo, hi) from its limit as written (``max_abs_deg``,
+    ``max_n_m``, ``min_s``, ``equals_count``); (None, None) without a numeric one."""
+    lo = hi = None
+    if not isinstance(limit, dict):
+        return lo, hi
+    for k, v in limit.items():
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            continue
+        if k.startswith("max_abs_"):
+            lo, hi = -float(v), float(v)
+        elif k.startswith("equals_"):
+            lo = hi = float(v)
+        elif k.startswith("max_"):
+            hi = float(v)
+        elif k.startswith("min_"):
+            lo = float(v)
+    return lo, hi
+
+
+def scalar_plot(criteria: list[dict[str, Any]]) -> dict[str, str] | None:
+    """{title, png}: each scalar criterion with a number and a numeric limit, one row each
+    in its own unit: the pass band (green), its edges and the value (coloured by verdict);
+    failing first. None when no criterion has both."""
+    from harness.review.units import unit_text
+    from harness.review.verdict import ordered
+
+    rows = []
+    for c in ordered(criteria):
+        v = c.get("value")
+        if c.get("kind") != "scalar" or isinstance(v, bool) or not isinstance(v, int | float) \
+                or not math.isfinite(v):
+            continue
+        lo, hi = scalar_bounds(c.get("limit"))
+        if lo is None and hi is None:
+            continue
+        rows.append((c, float(v), lo, hi))
+    if not rows:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(rows), 1, figsize=(FIGSIZE[0], 0.55 + 0.75 * len(rows)),
+                             squeeze=False)
+    for ax, (c, v, lo, hi) in zip(axes[:, 0], rows, strict=True):
+        ends = [x for x in (v, lo, hi) if x is not None]
+        a, b = min(ends), max(ends)
+        span = (b - a) or (abs(b) or 1.0)
+        left, right = a - 0.15 * span, b + 0.15 * span
+        ax.axvspan(left if lo is None else lo, right if hi is None else hi,
+                   color="#2da44e", alpha=0.25)
+        for edge in (lo, hi):
+            if edge is not None:
+                ax.axvline(edge, color="#2da44e", lw=1.0)
+        ax.plot([v], [0], "o", ms=9, color=COLORS.get(str(c.get("verdict")), "#1f2328"))
+        ax.set_xlim(left, right)
+        ax.set_yticks([])
+        unit = unit_text(str(c.get("unit") or ""))
+        ax.set_ylabel(f"{c.get('name')}\n{c.get('verdict')}", rotation=0, ha="right",
+                      va="center", fontsize=LABEL_PT - 1)
+        ax.set_xlabel(f"{c.get('target') or c.get('name')} ({unit or 'no unit'}): value "
+                      f"{v:.4g}", fontsize=LABEL_PT - 1, labelpad=1)
+        ax.tick_params(axis="x", labelsize=LABEL_PT - 2)
+        ax.grid(axis="x", alpha=0.3)
+    axes[0, 0].set_title("scalar criteria: value (dot) against its limit (green: passes)",
+                         fontsize=LABEL_PT + 1)
+    fig.tight_layout()
+    return {"title": "scalar criteria: value against its limit", "png": _png(fig)}
+
+
 def channel_label(channel: str, unit: bool = False) -> str:
     """``/tip/accel_m_s2`` -> ``tip acceleration`` (with ``unit``: ``... (m/s²)``)."""
     from harness.review.names import series_name, strip_unit
@@ -370,9 +444,10 @@ def _criteria_rows(criteria: list[dict[str, Any]]) -> list[list[str]]:
     the worst sample."""
     from harness.history.record import trend_text
     from harness.review.units import limit_text, quantity
+    from harness.review.verdict import ordered
 
     rows = []
-    for c in criteria:
+    for c in ordered(criteria):  # failing first, then in the run file's order
         unit = c.get("unit", "")
         limit = c.get("limit")
         value = quantity(c.get("value"), unit)
@@ -521,6 +596,16 @@ def _html(doc: dict[str, Any], out_dir: Path) -> str:
                                       for i, m in enumerate(r["modes"])],
                                      ["mode", "rad/s", "model rad/s", "error %", "zeta",
                                       "model zeta", "error %"]))
+        if r["criteria"]:
+            try:
+                scalars = scalar_plot(r["criteria"])
+            except Exception as exc:  # noqa: BLE001 - a report must not die on one plot
+                scalars = None
+                parts.append(f"<p>scalar plot not drawn: {html.escape(type(exc).__name__)}: "
+                             f"{html.escape(str(exc))}</p>")
+            if scalars:
+                parts.append(f"<figure><img alt='{html.escape(scalars['title'])}' "
+                             f"src='data:image/png;base64,{scalars['png']}'></figure>")
         if r.get("run_dir") and r["kind"] == "run":
             try:
                 plots = run_plots(out_dir / r["run_dir"], r["criteria"])

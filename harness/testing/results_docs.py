@@ -12,6 +12,8 @@ import re
 from typing import Any
 
 from harness.testing.measures import unit_text
+from rig_models.paper003 import PAPER_TABLE1 as PAPER003_TABLE1
+from rig_models.paper003 import PAPER_TABLE2 as PAPER003_TABLE2
 
 PAPER_SUITES = ("paper001", "paper002", "paper003", "paper004")
 TITLES = {
@@ -19,13 +21,6 @@ TITLES = {
     "paper002": "Paper 002 (Parman 2022): LHHL / HLLH two-amplitude shapers",
     "paper003": "Paper 003 (Xu 2018): the SGSRT, square-wave compensation, modes, sweep",
     "paper004": "Paper 004 (Wang 2022): variable-amplitude ZV / ZVD shapers",
-}
-# Paper 003 (Xu 2018) Table 1 (rad/s) and Table 2 (m/s^2): comparison only.
-PAPER003_TABLE1 = {"measured_fft": [2.7382, 13.9487], "calculated": [2.8081, 13.643]}
-PAPER003_TABLE2 = {
-    "case-a": {0.6: 0.020, 0.8: 0.025, 1.0: 0.041},
-    "case-b": {0.6: 0.043, 0.8: 0.046, 1.0: 0.072},
-    "case-c": {0.6: 0.018, 0.8: 0.023, 1.0: 0.037},
 }
 _BETA = re.compile(r"beta-(\d+(?:\.\d+)?)")
 
@@ -178,7 +173,8 @@ def suite_markdown(doc: dict[str, Any], suite: str, source: str) -> str:
     counts: dict[str, int] = {}
     for r in records:
         counts[r["verdict"]] = counts.get(r["verdict"], 0) + 1
-    worst = next((v for v in ("ERROR", "FAIL", "MARGINAL", "PASS") if counts.get(v)), "-")
+    worst = next((v for v in ("ERROR", "FAIL", "INCONCLUSIVE", "MARGINAL", "PASS")
+                  if counts.get(v)), "-")
     title = TITLES.get(suite, suite)
     desc = next((s.get("description", "") for s in doc.get("suites", [])
                  if s.get("name") == suite), "")
@@ -202,7 +198,8 @@ def suite_markdown(doc: dict[str, Any], suite: str, source: str) -> str:
         by_test.setdefault(key, []).append(r)
     for test, recs in by_test.items():
         verdicts = {r["verdict"] for r in recs}
-        v = next((x for x in ("ERROR", "FAIL", "MARGINAL", "PASS") if x in verdicts), "-")
+        v = next((x for x in ("ERROR", "FAIL", "INCONCLUSIVE", "MARGINAL", "PASS")
+                  if x in verdicts), "-")
         desc = next((r.get("description") for r in recs if r.get("description")), "")
         lines += [f"## {test}: {v}", ""]
         if desc:

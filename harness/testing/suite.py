@@ -71,7 +71,7 @@ from harness.core.paths import safe_name
 from harness.core.runs import _deep_merge, load_run, run_path
 from harness.testing.criteria import FORMS, Criterion, _items, parse_criterion
 from harness.testing.measures import path_error, unit_of_path
-from rig_models.schema import ConfigError
+from rig_models.schema import ConfigError, short_repr
 from rig_models.yaml_file import load_yaml
 
 SUITES_DIR = Path(__file__).resolve().parent.parent / "suites"
@@ -196,7 +196,7 @@ def translate_old_checks(raw: list[Any], source: str, key: str) -> dict[str, Any
         if not isinstance(c, dict) or "field" not in c:
             raise _err(f"{source}: {w}", "mixes the deprecated {field: ...} form with the run "
                        "file's form: write every criterion as NAME: {measure: PATH, ...}")
-        unknown = sorted(set(c) - {"field", "name", "unit", *OLD_RULES})
+        unknown = sorted(set(c) - {"field", "name", "unit", *OLD_RULES}, key=str)
         if unknown:
             raise _err(f"{source}: {w}.{unknown[0]}", "unknown key (the deprecated form takes "
                        f"field, name, unit, {', '.join(OLD_RULES)})")
@@ -264,12 +264,41 @@ def parse_checks(raw: Any, source: str, key: str) -> tuple[Criterion, ...]:
     return tuple(out)
 
 
-def _set_path(data: dict[str, Any], dotted: str, value: Any) -> None:
+MAX_SUITE_CASES = 10_000
+"""The most cases (runs) a suite expands to, every test's variants times its matrix
+points: the built-in suites have a few dozen; a matrix of 10^9 points ran until killed."""
+
+PROBE_LIMITS = {"rate_hz": ("Hz", 10_000.0), "duration_s": ("s", 30 * 24 * 3600.0),
+                "settle_s": ("s", 30 * 24 * 3600.0),
+                "receive_timeout_ms": ("ms", 30 * 24 * 3600.0 * 1e3)}
+"""A probe test's options, their units and their largest values, as ``harness probe``'s
+own options (``harness.cli``): a 1 Mbit/s bus carries about 8000 frames a second, a probe
+at 10^9 Hz ran until killed."""
+
+
+def _set_path(data: dict[str, Any], dotted: str, value: Any, where: str = "matrix") -> None:
     node = data
     parts = dotted.split(".")
-    for p in parts[:-1]:
+    for i, p in enumerate(parts[:-1]):
         node = node.setdefault(p, {})
+        if not isinstance(node, dict):
+            raise _err(f"{where}.{dotted}", f"{'.'.join(parts[:i + 1])} is "
+                       f"{short_repr(node)}, not a mapping with keys under it")
     node[parts[-1]] = value
+
+
+def _check_matrix_keys(matrix: dict[str, Any], where: str) -> None:
+    """Each key a dotted path of names; none the path of another's parent (``duration_s``
+    and ``duration_s.x`` cannot both be set)."""
+    for k in matrix:
+        if not all(k.split(".")):
+            raise _err(f"{where}.matrix.{k}", "expected a key path such as controller.beta "
+                       "(names joined by dots)")
+    for k in sorted(matrix):
+        for other in matrix:
+            if other.startswith(k + "."):
+                raise _err(f"{where}.matrix", f"keys {k} and {other}: {k} cannot be both a "
+                           f"value and a mapping holding {other[len(k) + 1:]}")
 
 
 def _merge_expect(base: Any, extra: Any) -> Any:
@@ -289,7 +318,8 @@ def _fmt(v: Any) -> str:
 
 
 def _run_cases(t: dict[str, Any], where: str, suite: str, base_dir: Path, source: str,
-               key: str) -> list[Case]:
+               key: str, budget: int = MAX_SUITE_CASES) -> list[Case]:
+    """The cases of a run test; ``budget``: the most it may expand to (checked before)."""
     run_ref = _str(t["run"], f"{where}.run", "a run name or path")
     path = run_path(run_ref)
     if not path.exists() and not path.is_absolute():
@@ -315,7 +345,7 @@ def _run_cases(t: dict[str, Any], where: str, suite: str, base_dir: Path, source
         for i, v in enumerate(sel):
             if v not in available:
                 raise _err(f"{where}.variants[{i}]", f"{path.name} has variants "
-                           f"{sorted(available) or 'none'}, not {v!r}")
+                           f"{sorted(available, key=str) or 'none'}, not {v!r}")
         variants = list(sel)
     else:
         raise _err(f"{where}.variants", f"expected 'all' or a list of variant names, got {sel!r}")
@@ -324,6 +354,12 @@ def _run_cases(t: dict[str, Any], where: str, suite: str, base_dir: Path, source
             isinstance(k, str) and isinstance(v, list) and v for k, v in matrix.items()):
         raise _err(f"{where}.matrix", "expected a mapping KEY.PATH: [values, ...] (e.g. "
                    f"controller.beta: [0.6, 1.0]), got {matrix!r}")
+    _check_matrix_keys(matrix, where)
+    n_cases = len(variants) * math.prod(len(v) for v in matrix.values())
+    if n_cases > budget:
+        raise _err(f"{where}.matrix", f"{n_cases} cases ({len(variants)} variant(s) x "
+                   f"{' x '.join(str(len(v)) for v in matrix.values())} matrix values), more "
+                   f"than the {budget} left of the {MAX_SUITE_CASES} cases a suite may have")
     sets = t.get("set") or {}
     if not isinstance(sets, dict):
         raise _err(f"{where}.set", f"expected a mapping of run-file overrides, got {sets!r}")
@@ -343,7 +379,7 @@ def _run_cases(t: dict[str, Any], where: str, suite: str, base_dir: Path, source
             identify = {}
         if not isinstance(identify, dict):
             raise _err(f"{where}.identify", "expected a mapping {n_modes?, f_max_hz?, check}")
-        unknown = sorted(set(identify) - {"n_modes", "f_max_hz", "check"})
+        unknown = sorted(set(identify) - {"n_modes", "f_max_hz", "check"}, key=str)
         if unknown:
             raise _err(f"{where}.identify.{unknown[0]}",
                        "unknown key (expected one of: check, f_max_hz, n_modes)")
@@ -364,7 +400,7 @@ def _run_cases(t: dict[str, Any], where: str, suite: str, base_dir: Path, source
                                "mapping of overrides")
                 labels.append(variant)
             for k, v in point.items():
-                _set_path(over, k, v)
+                _set_path(over, k, v, f"{where}.matrix")
                 labels.append(f"{k.rsplit('.', 1)[-1]}={_fmt(v)}")
             over = _deep_merge(over, sets)
             if "duration_s" in t:
@@ -405,7 +441,8 @@ def _compare(t: dict[str, Any], where: str, suite: str, cases: list[Case]) -> Co
         w = f"{where}.compare[{i}]"
         if not isinstance(r, dict):
             raise _err(w, f"expected a mapping {{measure, largest|smallest}}, got {r!r}")
-        unknown = sorted(set(r) - {"measure", "largest", "smallest", "name", "unit", "why"})
+        unknown = sorted(set(r) - {"measure", "largest", "smallest", "name", "unit", "why"},
+                         key=str)
         if unknown:
             raise _err(f"{w}.{unknown[0]}",
                        "unknown key (expected one of: largest, measure, name, smallest, unit, "
@@ -455,7 +492,7 @@ def load_suite(name_or_path: str) -> Suite:
         raw = run_file_suite(path, raw)
     if not isinstance(raw, dict):
         raise ConfigError(f"suite file {src}: expected a mapping with name and tests")
-    unknown = sorted(set(raw) - {"name", "description", "tests", "require_criteria"})
+    unknown = sorted(set(raw) - {"name", "description", "tests", "require_criteria"}, key=str)
     if unknown:
         raise ConfigError(f"suite file {src}: {unknown[0]}: unknown key (expected one of: "
                           "description, name, require_criteria, tests)")
@@ -480,25 +517,29 @@ def load_suite(name_or_path: str) -> Suite:
         if len(kinds) != 1:
             raise _err(where, "expected exactly one of run, probe, study")
         kind = kinds[0]
-        unknown = sorted(set(t) - set(TEST_KEYS[kind]))
+        unknown = sorted(set(t) - set(TEST_KEYS[kind]), key=str)
         if unknown:
             raise _err(f"{where}.{unknown[0]}", f"unknown key for a {kind} test (expected one "
                        f"of: {', '.join(sorted(TEST_KEYS[kind]))})")
         if kind == "run":
-            new = _run_cases(t, where, name, path.parent, source, f"tests[{i}]")
+            new = _run_cases(t, where, name, path.parent, source, f"tests[{i}]",
+                             MAX_SUITE_CASES - len(cases))
             cmp = _compare(t, where, name, new)
             if cmp is not None:
                 compares.append(cmp)
         elif kind == "probe":
             opts = t["probe"] if t["probe"] not in (None, True) else {}
-            keys = {"rate_hz": "Hz", "duration_s": "s", "settle_s": "s",
-                    "receive_timeout_ms": "ms"}
-            if not isinstance(opts, dict) or set(opts) - set(keys):
+            if not isinstance(opts, dict) or set(opts) - set(PROBE_LIMITS):
                 raise _err(f"{where}.probe", "expected a mapping {rate_hz?, duration_s?, "
-                           f"settle_s?, receive_timeout_ms?}}, got {opts!r}")
+                           f"settle_s?, receive_timeout_ms?}}, got {short_repr(opts)}")
             for k, v in opts.items():
-                if _number(v, f"{where}.probe.{k}", keys[k]) <= 0 and k != "settle_s":
+                unit, largest = PROBE_LIMITS[k]
+                x = _number(v, f"{where}.probe.{k}", unit)
+                if x <= 0 and k != "settle_s":
                     raise _err(f"{where}.probe.{k}", f"expected a number > 0, got {v!r}")
+                if x < 0 or x > largest:
+                    raise _err(f"{where}.probe.{k}", f"expected at most {largest:g} {unit}, "
+                               f"got {v!r}")
             test = _str(t.get("name", "probe"), f"{where}.name")
             new = [Case(id=test, kind="probe", suite=name, test=test, where=where,
                         description=str(t.get("description", "")), probe=dict(opts),
@@ -515,6 +556,9 @@ def load_suite(name_or_path: str) -> Suite:
                         study_args=tuple(str(a) for a in args),
                         timeout_s=_number(t.get("timeout_s", 1800.0), f"{where}.timeout_s", "s"),
                         checks=parse_checks(t.get("check"), source, f"tests[{i}].check"))]
+        if len(cases) + len(new) > MAX_SUITE_CASES:
+            raise _err(where, f"the suite expands to more than the {MAX_SUITE_CASES} cases "
+                       "a suite may have")
         for c in new:
             for item in c.item_names:
                 if item in seen:

@@ -106,7 +106,7 @@ def _run(case: Case, out_dir: Path, bus: str | None,
             items[name] = _error(f"the run did not complete ({summary.get('stopped_by')})")
         else:
             try:
-                from harness.commands.identify import identify_run
+                from harness.core.identify import identify_run  # an identify item only
 
                 ident = identify_run(run_dir, **case.identify)
                 (run_dir / "identify.json").write_text(json.dumps(ident, indent=2,
@@ -143,7 +143,6 @@ def run_probe(opts: dict[str, Any], bus: str | None, rig: str = "sgsrt",
     """The pre-flight probe (``harness probe``) as a JSON document; ``clock`` "lockstep" on
     a bus: against a virtual rig in lockstep (``harness virtual-rig --lockstep``)."""
     from harness.bus import open_bus, parse_bus
-    from harness.commands.probe import to_dict
     from harness.core.probe import probe
     from rig_models.rig_file import load_rig
     from rig_models.virtual_rig import VirtualRig
@@ -167,7 +166,7 @@ def run_probe(opts: dict[str, Any], bus: str | None, rig: str = "sgsrt",
     finally:
         for b in buses:
             b.shutdown()
-    return to_dict(res)
+    return res.to_dict()
 
 
 def probe_verdict(report: dict[str, Any]) -> dict[str, Any]:

@@ -28,10 +28,10 @@ from operator import itemgetter
 from pathlib import Path
 from typing import Any
 
-import canopen
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable
 from canopen.objectdictionary import datatypes as dt
 
+from drivers.binding.canopen import parse_od
 from drivers.canopen_pdo import MAX_PDO_BITS, PdoCodec, PdoMappingError, compile_mapping
 from drivers.dbc import FrameError
 
@@ -72,6 +72,17 @@ ERR_MANUFACTURER = 0x80
 
 MAX_STRING_BYTES = 255
 _EMCY = struct.Struct("<HB5s")
+
+
+_NUMBER_TYPES = frozenset(dt.INTEGER_TYPES) | {dt.BOOLEAN}
+
+
+def _interpreted(index: int) -> bool:
+    """The communication objects the node computes with (error register and history, SYNC,
+    EMCY, heartbeats, error behaviour, PDO parameters): an EDS giving one of them a type
+    that is not an integer cannot be emulated."""
+    return index in (0x1001, 0x1003, 0x1005, 0x1014, 0x1016, 0x1017, 0x1029) or \
+        0x1400 <= index <= 0x1BFF
 
 
 class NmtState(IntEnum):
@@ -123,6 +134,7 @@ class _Pdo:
     last_payload: bytes | None = None
     # values -> payload: the mapped objects' raw values packed (compiled with the codec)
     payload: Callable[[dict[Key, Any]], bytes] | None = None
+    problem: str | None = None  # why its current mapping cannot be carried (no codec)
 
 
 def _payload_function(codec: PdoCodec, keys: tuple[Key, ...]) -> Callable[[dict[Key, Any]], bytes]:
@@ -168,10 +180,7 @@ class VirtualNode:
         self.id = node_id
         self.eds_path = path
         self.send = send
-        try:
-            self.od = canopen.import_od(str(path), node_id)
-        except Exception as exc:  # configparser, KeyError, ValueError: all "not an EDS"
-            raise ValueError(f"{path.name}: not a loadable EDS/DCF file ({exc})") from None
+        self.od = parse_od(path, node_id, ValueError)
         self.name = str(self._od_default(0x1008, 0) or path.stem)
         self._vars: dict[Key, ODVariable] = {}
         for index in self.od:
@@ -181,6 +190,11 @@ class VirtualNode:
             elif isinstance(obj, (ODRecord, ODArray)):
                 for sub, v in obj.subindices.items():
                     self._vars[(index, sub)] = v
+        for key, var in self._vars.items():
+            if _interpreted(key[0]) and var.data_type not in _NUMBER_TYPES:
+                raise ValueError(f"{path.name}: 0x{key[0]:04X}:{key[1]:02X} ({var.name}) has "
+                                 f"data type 0x{var.data_type or 0:X}, CiA 301 makes it an "
+                                 "integer")
         self.values: dict[Key, Any] = {}
         self.state = NmtState.INITIALISING
         # hooks: the owner (physics) and the profiles
@@ -212,10 +226,7 @@ class VirtualNode:
         self.sync_count = 0
         self.emcy_sent = 0
         self._load_defaults(0x0000, 0xFFFF)
-        try:
-            self._reconfigure()
-        except PdoMappingError as exc:
-            raise ValueError(f"{path.name}: {exc}") from None
+        self._reconfigure()
 
     # ---------------------------------------------------------------- object dictionary
     def _od_default(self, index: int, sub: int) -> Any:
@@ -225,10 +236,23 @@ class VirtualNode:
         v = obj if isinstance(obj, ODVariable) else obj.subindices.get(sub)
         return None if v is None else (v.value if v.value is not None else v.default)
 
+    def _identity_default(self, sub: int, value: Any) -> Any:
+        """0x1018's value as such a device reports it: vendor files often leave 0x1018's
+        defaults empty (or 0) and name the device in ``[DeviceInfo]`` (VendorNumber,
+        ProductNumber, RevisionNumber); the device itself reports its real identity."""
+        if value:
+            return value
+        info = getattr(self.od, "device_information", None)
+        attr = {1: "vendor_number", 2: "product_number", 3: "revision_number"}.get(sub)
+        from_info = getattr(info, attr, None) if attr and info is not None else None
+        return from_info if isinstance(from_info, int) and from_info else value
+
     def _load_defaults(self, first: int, last: int) -> None:
         for key, var in self._vars.items():
             if first <= key[0] <= last:
                 value = var.value if var.value is not None else var.default
+                if key[0] == 0x1018 and key[1] in (1, 2, 3):
+                    value = self._identity_default(key[1], value)
                 if value is None:
                     if var.data_type in (dt.VISIBLE_STRING, dt.UNICODE_STRING):
                         value = ""
@@ -534,10 +558,20 @@ class VirtualNode:
                 p.valid = not cob & 0x80000000
                 p.trans_type = self.values.get((com_base + n, 2), 255)
                 count = self.values.get((map_base + n, 0), 0)
-                entries = [self.values[(map_base + n, i)] for i in range(1, count + 1)]
-                p.keys = tuple((w >> 16, (w >> 8) & 0xFF) for w in entries)
                 name = f"{'T' if is_tpdo else 'R'}PDO{n + 1} of node {self.id}"
-                p.codec = compile_mapping(name, self.od, entries) if entries else None
+                entries = [self.values.get((map_base + n, i)) for i in range(1, count + 1)]
+                p.problem = None
+                try:
+                    if any(not isinstance(w, int) for w in entries):
+                        raise PdoMappingError(f"{name}: {count} entries, the EDS declares "
+                                              "fewer")
+                    p.codec = compile_mapping(name, self.od, entries) if entries else None
+                    p.keys = tuple((w >> 16, (w >> 8) & 0xFF) for w in entries)
+                except PdoMappingError as exc:
+                    # a default mapping this node cannot carry (over 64 bits, an object
+                    # the file lacks, a dummy entry): such a PDO sends and takes nothing
+                    # until the master maps it anew, as it does during set-up
+                    p.codec, p.keys, p.problem = None, (), str(exc)
                 pdos.append(p)
         self._pdos = pdos
         self._rpdo_by_cob = {p.cob_id: p for p in pdos

@@ -21,11 +21,15 @@ from rig_models.canopen.node import (
     error_register_bits,
 )
 
+MODE_PV = 3
 MODE_CSV = 9
 MODE_CST = 10
-_MODE_NAMES = {"csv": MODE_CSV, "cst": MODE_CST}
+_MODE_NAMES = {"pv": MODE_PV, "csv": MODE_CSV, "cst": MODE_CST}
 # 0x6502 bit of each mode (CiA 402 6.2.4)
-_MODE_BITS = {MODE_CSV: 1 << 8, MODE_CST: 1 << 9}
+_MODE_BITS = {MODE_PV: 1 << 2, MODE_CSV: 1 << 8, MODE_CST: 1 << 9}
+# the modes that follow the target velocity 0x60FF (profile velocity ramps to it by the
+# drive's own profile acceleration; the rig's physics has its own speed lag instead)
+_VELOCITY_MODES = (MODE_PV, MODE_CSV)
 
 
 class DriveState(Enum):
@@ -56,12 +60,28 @@ def _require(node: VirtualNode, objects: list[tuple[int, int]], profile: str) ->
                          + ", ".join(missing))
 
 
+# the profile objects the profiles compute with: an integer type each, or no emulation
+_PROFILE_OBJECTS = (0x6000, 0x6004, 0x6007, 0x6030, 0x603F, 0x6040, 0x6041, 0x6060, 0x6061,
+                    0x606C, 0x6071, 0x6072, 0x6077, 0x60FF, 0x6200, 0x6206, 0x6207, 0x6401,
+                    0x6411, 0x6443, 0x6444, 0x6502)
+
+
+def _integers(node: VirtualNode, profile: str) -> None:
+    for (index, sub), value in node.values.items():
+        if index in _PROFILE_OBJECTS and (isinstance(value, bool | float | str | bytes)):
+            var = node.variable(index, sub)
+            raise ValueError(f"{node.eds_path.name}: 0x{index:04X}:{sub:02X} ({var.name}) has "
+                             f"data type 0x{var.data_type or 0:X}, {profile} makes it an "
+                             "integer")
+
+
 def _clamp(v: int, lo: int, hi: int) -> int:
     return lo if v < lo else hi if v > hi else v
 
 
 class Cia402Drive:
-    """CiA 402 drive in cyclic synchronous torque ('cst', 10) or velocity ('csv', 9) mode.
+    """CiA 402 drive in cyclic synchronous torque ('cst', 10), cyclic synchronous velocity
+    ('csv', 9) or profile velocity ('pv', 3) mode.
 
     The controlword state machine runs on every master write of 0x6040 (SDO or RPDO). A
     fault passes through 'fault reaction active' (drive already torque-free) to 'fault' at
@@ -71,29 +91,45 @@ class Cia402Drive:
     """
 
     def __init__(self, node: VirtualNode, mode: str | int) -> None:
-        _require(node, [(0x6040, 0), (0x6041, 0), (0x6060, 0), (0x6061, 0), (0x603F, 0),
-                        (0x6007, 0), (0x6502, 0)], "CiA 402")
+        # what the emulation cannot do without: the state machine's two words and the
+        # mode's target object. Everything else CiA 402 makes optional, and a drive without
+        # it behaves as such a drive does: no 0x6060/0x6061, it runs its one mode; no
+        # 0x6502, it takes the mode it is told; no 0x603F, the fault is in the status word
+        # and the EMCY only; no 0x6007, CiA 402's default reaction (1: fault); no 0x6072,
+        # no torque limit beyond the target's own range
+        _require(node, [(0x6040, 0), (0x6041, 0)], "CiA 402")
+        _integers(node, "CiA 402")
         if isinstance(mode, str):
             if mode.lower() not in _MODE_NAMES:
-                raise ValueError(f"mode: {mode!r} is not 'cst' or 'csv'")
+                raise ValueError(f"mode: {mode!r} is not 'cst', 'csv' or 'pv'")
             mode = _MODE_NAMES[mode.lower()]
-        supported = node.get(0x6502)
-        if mode not in _MODE_BITS or not supported & _MODE_BITS[mode]:
+        if mode not in _MODE_BITS:
+            raise ValueError(f"mode: {mode}: the virtual drive emulates profile velocity "
+                             f"({MODE_PV}), cyclic synchronous velocity ({MODE_CSV}) and "
+                             f"torque ({MODE_CST}) only")
+        supported = node.get(0x6502) if node.has(0x6502) else None
+        if supported is not None and not supported & _MODE_BITS[mode]:
             raise ValueError(f"mode: {mode} is not supported by {node.eds_path.name} "
                              f"(0x6502 = 0x{supported:X})")
-        objects = [(0x6071, 0), (0x6072, 0), (0x6077, 0)] if mode == MODE_CST else [(0x60FF, 0)]
-        _require(node, objects + [(0x606C, 0)], f"CiA 402 mode {mode}")
+        _require(node, [(0x6071, 0)] if mode == MODE_CST else [(0x60FF, 0)],
+                 f"CiA 402 mode {mode}")
         self.node = node
         self.mode = mode
+        self._has_mode = node.has(0x6060) and node.has(0x6061)
+        self._has_error_code = node.has(0x603F)
         self._last_cw = 0
         self._reset()
         node.add_write_listener(0x6040, 0, self._on_controlword)
-        node.add_write_listener(0x6060, 0, self._on_mode)
-        node.add_validator(0x6060, 0, self._check_mode)
+        if self._has_mode:
+            node.add_write_listener(0x6060, 0, self._on_mode)
+            node.add_validator(0x6060, 0, self._check_mode)
         node.add_reset_listener(self._reset)
         node.add_sync_listener(self._on_sync)
         node.on_comm_error.append(lambda _producer: self._abort_connection())
         node.add_nmt_listener(self._on_nmt)
+
+    def _mode_display(self) -> int:
+        return self.node.get(0x6061) if self._has_mode else self.mode
 
     # ------------------------------------------------------------------ state
     def _reset(self) -> None:
@@ -101,14 +137,15 @@ class Cia402Drive:
         self.state = DriveState.SWITCH_ON_DISABLED
         self._last_cw = self.node.get(0x6040)
         self._settled: DriveState | None = None  # a state the last controlword left as it was
-        self.node.set(0x6061, 0, self.node.get(0x6060))
+        if self._has_mode:
+            self.node.set(0x6061, 0, self.node.get(0x6060))
         self._publish()
 
     def _publish(self) -> None:
         sw = self.state.value | _REMOTE
         if self.state in _POWERED or self.state == DriveState.FAULT_REACTION_ACTIVE:
             sw |= _VOLTAGE_ENABLED
-        if self.state == DriveState.OPERATION_ENABLED and self.node.get(0x6061) == self.mode:
+        if self.state == DriveState.OPERATION_ENABLED and self._mode_display() == self.mode:
             sw |= _FOLLOWS_COMMAND
         self.node.set(0x6041, 0, sw)
 
@@ -130,7 +167,7 @@ class Cia402Drive:
 
     def _check_mode(self, value: int) -> int | None:
         bit = _MODE_BITS.get(value)
-        if bit is None or not self.node.get(0x6502) & bit:
+        if bit is None or (self.node.has(0x6502) and not self.node.get(0x6502) & bit):
             return ABORT_VALUE_RANGE
         return None
 
@@ -185,7 +222,7 @@ class Cia402Drive:
     def _abort_connection(self) -> None:
         if self.state not in _POWERED:
             return
-        option = self.node.get(0x6007)
+        option = self.node.get(0x6007) if self.node.has(0x6007) else 1
         if option == 1:
             self.inject_fault(EMCY_HEARTBEAT)
         elif option == 2:
@@ -211,32 +248,34 @@ class Cia402Drive:
         if self.faulted:
             return
         self.state = DriveState.FAULT_REACTION_ACTIVE
-        self.node.set(0x603F, 0, error_code)
+        if self._has_error_code:
+            self.node.set(0x603F, 0, error_code)
         self.node.set_error_bits(error_register_bits(error_code) | ERR_PROFILE)
         self._publish()
         self.node.emcy(error_code)
 
     def _clear_fault(self) -> None:
         self.state = DriveState.SWITCH_ON_DISABLED
-        self.node.set(0x603F, 0, 0)
+        if self._has_error_code:
+            self.node.set(0x603F, 0, 0)
         self.node.clear_error_bits(0xFF & ~ERR_GENERIC & ~0x10)
         self.node.emcy(EMCY_RESET)
 
     # ------------------------------------------------------------------ commands/actuals
     def _commanding(self) -> bool:
         return (self.state == DriveState.OPERATION_ENABLED
-                and self.node.get(0x6061) == self.mode)
+                and self._mode_display() == self.mode)
 
     def torque_command_per_mille(self) -> int:
         """Target torque 0x6071 limited to +-0x6072, or 0 unless operation enabled in CST."""
         if self.mode != MODE_CST or not self._commanding():
             return 0
-        limit = self.node.get(0x6072)
+        limit = self.node.get(0x6072) if self.node.has(0x6072) else 32767
         return _clamp(self.node.get(0x6071), -limit, limit)
 
     def target_velocity_raw(self) -> int:
-        """Target velocity 0x60FF, or 0 unless operation enabled in CSV."""
-        if self.mode != MODE_CSV or not self._commanding():
+        """Target velocity 0x60FF, or 0 unless operation enabled in CSV or PV."""
+        if self.mode not in _VELOCITY_MODES or not self._commanding():
             return 0
         return self.node.get(0x60FF)
 
@@ -245,7 +284,8 @@ class Cia402Drive:
         to their types."""
         if self.node.has(0x6077):
             self.node.set(0x6077, 0, _clamp(int(torque_per_mille), -32768, 32767))
-        self.node.set(0x606C, 0, _clamp(int(velocity_raw), -(1 << 31), (1 << 31) - 1))
+        if self.node.has(0x606C):
+            self.node.set(0x606C, 0, _clamp(int(velocity_raw), -(1 << 31), (1 << 31) - 1))
 
 
 class Cia401Io:
@@ -257,16 +297,25 @@ class Cia401Io:
     dictionary; the master's next write replaces them."""
 
     def __init__(self, node: VirtualNode) -> None:
-        _require(node, [(0x6200, 1), (0x6206, 1), (0x6207, 1), (0x6401, 1), (0x6411, 1),
-                        (0x6443, 1), (0x6444, 1)], "CiA 401")
+        # every CiA 401 object is optional: a module has the channels its EDS lists, and an
+        # output without an error mode / value object (0x6206/0x6207, 0x6443/0x6444) keeps
+        # its value on an error, as such a module does
+        _integers(node, "CiA 401")
         self.node = node
-        self.n_digital_out = node.get(0x6200, 0)
-        self.n_analog_in = node.get(0x6401, 0)
-        self.n_analog_out = node.get(0x6411, 0)
-        self.n_digital_in = node.get(0x6000, 0) if node.has(0x6000, 1) else 0
+        self.n_digital_out = self._count(0x6200)
+        self.n_analog_in = self._count(0x6401)
+        self.n_analog_out = self._count(0x6411)
+        self.n_digital_in = self._count(0x6000)
         self.error_applied = 0
         node.on_comm_error.append(lambda _producer: self.apply_error_values())
         node.add_nmt_listener(self._on_nmt)
+
+    def _count(self, index: int) -> int:
+        """Channels of an array object: the subs 1.. the EDS declares."""
+        n = 0
+        while self.node.has(index, n + 1):
+            n += 1
+        return n
 
     def _on_nmt(self, old: NmtState, new: NmtState) -> None:
         if old == NmtState.OPERATIONAL and new in (NmtState.STOPPED, NmtState.PRE_OPERATIONAL,
@@ -276,10 +325,12 @@ class Cia401Io:
     def apply_error_values(self) -> None:
         node = self.node
         for i in range(1, self.n_digital_out + 1):
+            if not (node.has(0x6206, i) and node.has(0x6207, i)):
+                continue
             mask = node.get(0x6206, i)
             node.set(0x6200, i, (node.get(0x6200, i) & ~mask) | (node.get(0x6207, i) & mask))
         for i in range(1, self.n_analog_out + 1):
-            if node.get(0x6443, i):
+            if node.has(0x6443, i) and node.has(0x6444, i) and node.get(0x6443, i):
                 node.set(0x6411, i, _clamp(node.get(0x6444, i), -32768, 32767))
         self.error_applied += 1
 
@@ -308,7 +359,8 @@ class Cia406Encoder:
     """CiA 406 multi-turn absolute rotary encoder: position 0x6004, speed 0x6030:1."""
 
     def __init__(self, node: VirtualNode) -> None:
-        _require(node, [(0x6004, 0), (0x6030, 1)], "CiA 406")
+        _require(node, [(0x6004, 0)], "CiA 406")  # the speed 0x6030 is optional
+        _integers(node, "CiA 406")
         self.node = node
         self._signed = node.variable(0x6004).data_type in (0x2, 0x3, 0x4)
 
@@ -322,4 +374,6 @@ class Cia406Encoder:
 
     def set_speed(self, counts_per_s: int) -> None:
         """Speed in position counts per second, saturated to INTEGER32."""
+        if not self.node.has(0x6030, 1):
+            return
         self.node.set(0x6030, 1, _clamp(int(counts_per_s), -(1 << 31), (1 << 31) - 1))

@@ -18,6 +18,7 @@ from typing import Any, cast
 from drivers.binding.canopen import CanopenBus, Conversion, ObjRef, QuantityRef
 from rig_models.canopen.node import NmtState, VirtualNode
 from rig_models.canopen.profiles import Cia401Io, Cia402Drive, Cia406Encoder
+from rig_models.schema import ConfigError
 
 STATUSWORD = 0x6041  # CiA 402: the drive's own; the profile publishes it
 
@@ -29,20 +30,43 @@ def _write_nothing(*values: float) -> None:
     """A device with no CANopen telemetry."""
 
 
+class EmulationError(ConfigError):
+    """The virtual rig cannot be this device (names the rig file's key and the EDS's
+    object); the run is refused before anything is sent."""
+
+
+def _emulate(nid: int, spec: Any, send: Send) -> tuple[VirtualNode, Any]:
+    """The node and its profile, or EmulationError naming the key and the file's object."""
+    key = f"devices.{spec.devices[0]}"
+    try:
+        node = VirtualNode(nid, spec.eds, send)
+    except (ValueError, OSError) as exc:
+        raise EmulationError(f"{key}.eds: the virtual rig cannot emulate it: {exc}") from None
+    try:
+        if spec.profile == "cia402":
+            return node, Cia402Drive(node, spec.mode_of_operation or 10)
+        if spec.profile == "cia401":
+            return node, Cia401Io(node)
+        return node, Cia406Encoder(node)
+    except ValueError as exc:
+        where = ".mode_of_operation" if str(exc).startswith("mode:") else ".profile"
+        raise EmulationError(f"{key}{where}: the virtual rig cannot emulate "
+                             f"{node.eds_path.name} as {spec.profile}: {exc}") from None
+
+
+def check_emulation(co: CanopenBus) -> None:
+    """EmulationError if the virtual rig cannot be one of the rig file's CANopen devices
+    (before a run on the virtual bus, so it is refused with nothing sent)."""
+    CanopenDevices(co, lambda _can_id, _data: None)
+
+
 class CanopenDevices:
     def __init__(self, co: CanopenBus, send: Send) -> None:
         self.co = co
         self.nodes: dict[int, VirtualNode] = {}
         self.profiles: dict[int, Any] = {}
         for nid, spec in co.nodes.items():
-            node = VirtualNode(nid, spec.eds, send)
-            self.nodes[nid] = node
-            if spec.profile == "cia402":
-                self.profiles[nid] = Cia402Drive(node, spec.mode_of_operation or 10)
-            elif spec.profile == "cia401":
-                self.profiles[nid] = Cia401Io(node)
-            else:
-                self.profiles[nid] = Cia406Encoder(node)
+            self.nodes[nid], self.profiles[nid] = _emulate(nid, spec, send)
         # device -> (node, its telemetry writes, its command reads)
         self._tlm: dict[str, tuple[VirtualNode, tuple[tuple[str, ObjRef, Conversion], ...]]] = {}
         self._cmd: dict[str, tuple[VirtualNode, tuple[QuantityRef, ...]]] = {}

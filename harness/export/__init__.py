@@ -1,0 +1,37 @@
+"""A run folder in open formats (``harness export``): MATLAB .mat, Parquet, ASAM MDF4, CSV.
+
+A run's recording is ``run.rrd`` from a pinned Rerun version, which later Rerun versions
+need not open; a lab's archive and its MATLAB and automotive tools need open formats. The
+export carries every channel the loop recorded (``harness.core.loop.CHANNELS``: one row a
+tick) in SI with its unit (degrees to radians, milliseconds to seconds; the name's unit
+suffix follows), the raw CAN frames of ``can.blf``, and the run's configuration
+(config.yaml), summary (summary.json) and verdict (verdict.json) as metadata. The decoded
+bus view in run.rrd (``/bus/...``) is can.blf decoded for the viewer: the raw frames are
+exported instead, which any tool with the rig's DBC or EDS decodes the same way.
+
+Streaming: run.rrd is read chunk by chunk and can.blf a few containers at a time; each
+writer takes blocks (Parquet row groups, MDF4 data blocks, CSV lines, MAT variables spooled
+to temporary files beside the output and assembled at the end), so memory does not grow
+with the run's length (``benchmarks/bench_export_memory.py``).
+
+May import ``harness.record`` (reading run.rrd and can.blf), ``harness.core.loop`` (the
+channel list) and ``rig_models`` (YAML loading); nothing imports it but
+``harness.commands.export``. ``scipy`` (mat, a core dependency), ``pyarrow`` (parquet) and
+``asammdf`` (mf4, the ``export`` extra) are imported only by their writer.
+
+Public API
+----------
+``export_run(run_dir, fmt, out_dir=None) -> list[Path]``
+    Writes ``<out_dir>/<run folder name>.<ext>`` (and, per format, the CAN frames and the
+    metadata beside it); ``out_dir`` defaults to ``<run_dir>/export``. Raises
+    ``ExportError`` (a bad run folder, naming the file), ``MissingExtra`` (the format's
+    library is not installed; the message names the pip command) or ``OutputFailed``
+    (writing into the output folder failed).
+``FORMATS``: the format names and their file extensions.
+"""
+
+from __future__ import annotations
+
+from harness.export.run import FORMATS, ExportError, MissingExtra, OutputFailed, export_run
+
+__all__ = ["FORMATS", "ExportError", "MissingExtra", "OutputFailed", "export_run"]
