@@ -4,6 +4,7 @@ says on each kind of bus (in process, over socketcand) it can and cannot measure
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -260,3 +261,35 @@ def test_a_bus_without_a_broadcast_manager_and_a_kernel_sync_that_never_comes():
         clock.start()
     with pytest.raises(KernelSyncLost, match="no SYNC from the kernel"):
         clock.wait(3)
+
+
+def test_the_suite_report_shows_the_wire_timing_beside_the_loops_lateness(tmp_path):
+    """report.md / report.html: each run's timing line, the loop's lateness and what the
+    frames' time stamps say (or, in lockstep in process, that there is no wire)."""
+    from harness.testing.report import timing_line
+
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    measured = {"lateness_ms": {"p50": 0.1, "p99": 0.4, "max": 2.0},
+                "wire_timing": {"source": "kernel", "sync_sent_by": "kernel", "note": "n",
+                                "sync_period_jitter_ms": {"p50": 0.02, "p99": 0.3, "max": 1.0},
+                                "answer_latency_ms": {
+                                    "hub_sensor": {"p50": 0.1, "p99": 0.2, "max": 0.3},
+                                    "reaction_wheel": {"p50": 0.3, "p99": 0.9, "max": 1.1}},
+                                "command_margin_ms": {"p50": 1.5, "p99": 1.9, "max": 1.95,
+                                                      "min": 0.7,
+                                                      "commands_after_next_sync": 0}}}
+    (run_dir / "summary.json").write_text(json.dumps(measured))
+    line = timing_line(tmp_path, "run")
+    assert line is not None and "loop lateness p50/p99/max 0.1/0.4/2 ms" in line
+    assert "SYNC jitter p50/p99/max 0.02/0.3/1 ms" in line
+    assert "slowest answer after SYNC reaction_wheel" in line and "min 0.7 ms" in line
+    (run_dir / "summary.json").write_text(json.dumps({
+        "lateness_ms": {"p50": 0.0, "p99": 0.0, "max": 0.0},
+        "wire_timing": {"source": "none", "note": "in-process lockstep: no wire",
+                        "sync_period_jitter_ms": None, "answer_latency_ms": None,
+                        "command_margin_ms": None}}))
+    assert "on the wire: not measured (in-process lockstep: no wire)" in timing_line(
+        tmp_path, "run")
+    (run_dir / "summary.json").write_text("[1, 2")
+    assert timing_line(tmp_path, "run") is None
