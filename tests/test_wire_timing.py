@@ -293,3 +293,37 @@ def test_the_suite_report_shows_the_wire_timing_beside_the_loops_lateness(tmp_pa
         tmp_path, "run")
     (run_dir / "summary.json").write_text("[1, 2")
     assert timing_line(tmp_path, "run") is None
+
+
+def test_the_kernels_drop_count_is_read_from_each_frames_ancillary_data(monkeypatch):
+    """SO_RXQ_OVFL: each received frame carries the socket's running count of frames the
+    kernel dropped (its queue full); the bus keeps the latest, beside the time stamp."""
+    import socket
+    import struct
+
+    from can.interfaces.socketcan import constants
+
+    from harness.bus.socketcan_echo import SO_RXQ_OVFL, EchoSocketcanBus
+
+    frame = struct.pack("=IB3x8s", 0x123, 2, b"\x01\x02")
+    stamp = struct.pack("@ll", 1700000000, 250_000_000)
+
+    class FakeSocket:
+        drops = 0
+
+        def recvmsg(self, size, ancillary_size):
+            assert ancillary_size >= socket.CMSG_SPACE(16) + socket.CMSG_SPACE(4)
+            return frame, [(socket.SOL_SOCKET, constants.SO_TIMESTAMPNS, stamp),
+                           (socket.SOL_SOCKET, SO_RXQ_OVFL, struct.pack("@I", self.drops))], 0, None
+
+    bus = EchoSocketcanBus.__new__(EchoSocketcanBus)
+    bus.socket, bus.channel, bus._is_filtered, bus.kernel_drops = FakeSocket(), "vcan0", False, 0
+    import select as select_module
+
+    monkeypatch.setattr(select_module, "select", lambda r, w, x, t: (r, [], []))
+    msg, _ = bus._recv_internal(0.1)
+    assert msg.arbitration_id == 0x123 and bytes(msg.data) == b"\x01\x02"
+    assert msg.timestamp == pytest.approx(1700000000.25) and bus.kernel_drops == 0
+    bus.socket.drops = 17
+    bus._recv_internal(0.1)
+    assert bus.kernel_drops == 17

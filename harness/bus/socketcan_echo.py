@@ -9,6 +9,11 @@ for that echo only, so the harness's bus watch can take it as its own frame and 
 another master's. The echo is off until ``enable_echo`` (the CANopen set-up before the run
 does not see it).
 
+The socket also asks the kernel how many frames it dropped because the socket's receive
+queue was full (``SO_RXQ_OVFL``: a loop that fell behind on a busy host), counted in
+``kernel_drops``, and asks for a receive queue of ``RECEIVE_BUFFER_BYTES`` (the kernel
+grants at most its ``net.core.rmem_max`` to a process without CAP_NET_ADMIN).
+
 Also: ``broadcast_manager_missing`` says whether a bus can have the kernel send SYNC.
 """
 
@@ -16,6 +21,7 @@ from __future__ import annotations
 
 import select
 import socket
+import struct
 from typing import Any
 
 import can
@@ -28,6 +34,14 @@ from can.interfaces.socketcan.socketcan import (
 )
 
 MSG_CONFIRM = getattr(socket, "MSG_CONFIRM", 0x800)
+SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
+DROPS = struct.Struct("@I")
+ANCILLARY_BYTES = RECEIVED_ANCILLARY_BUFFER_SIZE + socket.CMSG_SPACE(DROPS.size)
+RECEIVE_BUFFER_BYTES = 4 << 20
+"""The receive queue asked for: at 500 Hz a tick's answers take a few kB of the kernel's
+memory (a frame's buffer is several hundred bytes), so 4 MiB holds seconds of a stalled
+loop's traffic where the default (about 200 kB) holds a few hundred frames."""
 
 
 class EchoSocketcanBus(SocketcanBus):  # type: ignore[misc]
@@ -37,6 +51,25 @@ class EchoSocketcanBus(SocketcanBus):  # type: ignore[misc]
     def __init__(self, channel: str, **kwargs: Any) -> None:
         super().__init__(channel=channel, receive_own_messages=False, **kwargs)
         self.echo = False
+        self.kernel_drops = 0  # frames the kernel dropped: this socket's queue was full
+        self.receive_buffer_bytes = self._grow_receive_buffer()
+        try:
+            self.socket.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+            self.drops_counted = True
+        except OSError:  # a kernel without it: drops are not counted (said in the summary)
+            self.drops_counted = False
+
+    def _grow_receive_buffer(self) -> int:
+        """Ask for ``RECEIVE_BUFFER_BYTES`` of receive queue (forced when privileged);
+        the size the kernel granted (it reports twice what it accounts for)."""
+        sock = self.socket
+        for option in (SO_RCVBUFFORCE, socket.SO_RCVBUF):
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, option, RECEIVE_BUFFER_BYTES)
+                break
+            except OSError:  # not privileged: the plain option, capped at rmem_max
+                continue
+        return int(sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF))
 
     def enable_echo(self, on: bool = True) -> None:
         """The kernel's echo of this socket's frames on (or off) from now on."""
@@ -54,7 +87,7 @@ class EchoSocketcanBus(SocketcanBus):  # type: ignore[misc]
             return None, self._is_filtered
         try:
             cf, ancillary, flags, _addr = self.socket.recvmsg(constants.CANFD_MTU,
-                                                              RECEIVED_ANCILLARY_BUFFER_SIZE)
+                                                              ANCILLARY_BYTES)
         except OSError as error:
             raise can.CanOperationError(f"Error receiving: {error.strerror}",
                                         error.errno) from error
@@ -64,6 +97,9 @@ class EchoSocketcanBus(SocketcanBus):  # type: ignore[misc]
             if level == socket.SOL_SOCKET and kind == constants.SO_TIMESTAMPNS:
                 sec, nsec = RECEIVED_TIMESTAMP_STRUCT.unpack_from(cdata)
                 timestamp = sec + nsec * 1e-9
+            elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(cdata) >= 4:
+                # the socket's running count of frames dropped before this one was queued
+                self.kernel_drops = DROPS.unpack_from(cdata)[0]
         ext = bool(can_id & constants.CAN_EFF_FLAG)
         msg = can.Message(
             timestamp=timestamp, channel=self.channel,

@@ -787,6 +787,10 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
             "missing_in_ticks_held_by_both": stats.missing_frames_on_time,
             "missing_rig_answered_after_window": 0,
             "error_frames": interface.counters.error_frames,
+            # frames the host's kernel dropped because the harness's socket queue was full
+            # (a loop behind on a busy host); null where the bus cannot say (not SocketCAN)
+            "dropped_by_kernel": (interface.bus.kernel_drops
+                                  if getattr(interface.bus, "drops_counted", False) else None),
         },
         "wall_time_s": round(stats.wall_s, 3),
         "simulated_time_s": round(sim_time, 6),

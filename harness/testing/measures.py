@@ -65,6 +65,7 @@ SUMMARY_MEASURES: dict[str, str] = {
     "frames.missing_in_ticks_held_by_both": "count",
     "frames.missing_rig_answered_after_window": "count",
     "frames.error_frames": "count",
+    "frames.dropped_by_kernel": "count",
     "wall_time_s": "s",
     "simulated_time_s": "s",
     "real_time_factor": "ratio",
@@ -119,6 +120,7 @@ its unit read from its name (``ratio`` without a suffix); a path the run did not
 missing data at judge time (ERROR)."""
 
 BUDGET_MEASURES = ("overruns", "lateness_ms.", "work_ms.", "real_time_factor", "frames.missing",
+                   "frames.dropped_by_kernel",
                    "timing.", "wire_timing.sync_period_jitter_ms.",
                    "wire_timing.command_margin_ms.")
 """Measures of the real-time budget: a criterion on them that fails makes the verdict
