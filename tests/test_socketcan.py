@@ -355,8 +355,10 @@ def test_slew_over_vcan0_ends_on_target_and_candump_matches_the_can_log(
     # the answers to its last SYNCs (after its last read) and any its socket dropped while the
     # loop ran late (the kernel drops when the socket's buffer is full: a busy machine)
     lost = _match_in_order(recv_log, recv_bus)
-    dropped = s["frames"]["dropped_by_kernel"]  # counted by the socket (SO_RXQ_OVFL)
-    assert dropped is not None and dropped <= len(lost), (dropped, len(lost))
+    # the frames the kernel dropped for a full queue (SO_RXQ_OVFL: the rig's and the echo
+    # of the harness's own) are counted; beyond them only the last answers may be unread
+    dropped = s["frames"]["dropped_by_kernel"]
+    assert dropped is not None, s["frames"]
     assert len(lost) - dropped <= 50 + len(recv_log) // 100, (dropped, lost[:20])
     assert s["frames"]["sent"] == len(sent_log) and s["frames"]["received"] == len(recv_log)
     assert len(sent_log) >= 2 * s["ticks"] and len(recv_log) >= s["ticks"]
@@ -402,7 +404,11 @@ WIRE_CHANNELS = ("/timing/sync_jitter_ms", "/timing/answer_latency_ms",
 def _check_wire_timing(s: dict[str, Any], sent_by: str) -> dict[str, Any]:
     w = s["wire_timing"]
     assert w["source"] == "kernel" and w["sync_sent_by"] == sent_by, w
-    assert w["syncs_time_stamped"] >= s["ticks"] - 1, w
+    # every SYNC's echo time-stamps its tick, but for echoes the kernel dropped (queue full)
+    # and, in a stalled VM, an echo the guest's kernel delivered only after the tick's read
+    # ended (two then come in one tick): at most 1 % of the ticks
+    dropped = s["frames"]["dropped_by_kernel"] or 0
+    assert w["syncs_time_stamped"] >= s["ticks"] - 1 - dropped - s["ticks"] // 100, (w, dropped)
     jitter = w["sync_period_jitter_ms"]
     assert jitter is not None and 0.0 <= jitter["p50"] <= jitter["max"], w
     assert set(w["answer_latency_ms"]) == set(DEVICES), w
@@ -659,6 +665,12 @@ def test_frames_the_kernel_drops_for_a_full_queue_are_counted():
             except can.CanOperationError:  # the sender's own queue: wait for vcan to drain
                 time.sleep(0.01)
         read = 0
+        while harness_bus.recv(timeout=0.5) is not None:
+            read += 1
+        # a frame carries the drops counted before it was queued: those read were queued
+        # before the queue filled, so one more frame brings the count
+        sender.send(can.Message(arbitration_id=0x123, data=b"\xff\xff", is_extended_id=False))
+        sent += 1
         while harness_bus.recv(timeout=0.5) is not None:
             read += 1
         print(f"sent {sent}, read {read}, dropped by the kernel {harness_bus.kernel_drops}")
