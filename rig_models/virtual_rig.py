@@ -639,7 +639,8 @@ class VirtualRig:
         for cmap in cmaps:
             names, defaults, apply_args = self._command_args[cmap.device]
             counted = cmap.checksum is not None and cmap.counter is not None
-            decoders.append((cmap.decoder(names, defaults), apply_args, counted, [None]))
+            decoders.append((cmap.decoder(names, defaults, counted), apply_args, counted,
+                             [None]))
         counters = self.counters
 
         def handler(data: bytes) -> None:

@@ -306,7 +306,7 @@ def test_multiplexed_frame_carries_only_its_mux_values_signals():
     assert not any(k.startswith("THR_") for k in out)
     out = codec.decode(codec.encode({"AuxMux": 0, "THR_OnTime_s": 999.9999}))
     assert set(out) == {"AuxMux", "THR_PosOpen", "THR_NegOpen", "THR_Flt", "THR_TlmAlive",
-                        "THR_FireCnt", "THR_OnTime_s"}
+                        "THR_FireCnt", "THR_OnTime_s", "AUX_Crc"}  # the checksum: every page
     assert out["THR_OnTime_s"] == pytest.approx(999.9999)
     with pytest.raises(FrameError, match="AuxMux"):
         codec.encode({"ROT_Spd_rpm": 1.0})

@@ -241,19 +241,15 @@ class CommandMap:
                 raise FrameError(f"{self.device}: {why}")
         return {q: v[s] * a + b for q, s, a, b in self._dec if s in v}
 
-    def counter_value(self, data: bytes | bytearray) -> int | None:
-        """The frame's alive counter (None: the map has none)."""
-        if self.counter is None:
-            return None
-        return int(self.codec.decode(data)[self.counter[0]])
-
-    def decoder(self, quantities: tuple[str, ...], defaults: tuple[float, ...]
+    def decoder(self, quantities: tuple[str, ...], defaults: tuple[float, ...],
+                with_counter: bool = False
                 ) -> Callable[[bytes | bytearray], tuple[float, ...] | None]:
         """A positional decoder: ``decoder(quantities, defaults)(data)`` is the tuple of
         ``decode(data).get(q, default)`` for each quantity (None for another mux page),
-        without a dict of quantities (the virtual rig's commands, every tick). With a
-        checksum and a counter, the frame's counter follows the quantities (the receiver
-        checks it); a wrong checksum raises FrameError as ``decode`` does."""
+        without a dict of quantities (the virtual rig's commands, every tick). A wrong
+        checksum raises FrameError as ``decode`` does. ``with_counter`` (a map with a
+        counter): the frame's alive counter follows the quantities (the receiver checks
+        it)."""
         exprs = []
         for q, default in zip(quantities, defaults, strict=True):
             expr = repr(default)
@@ -267,8 +263,8 @@ class CommandMap:
         if self.checksum is not None:
             lines += ["    why = _error(data)",
                       f"    if why is not None: raise _FrameError({self.device + ': '!r} + why)"]
-            if self.counter is not None:
-                exprs.append(f"int(v[{self.counter[0]!r}])")
+        if with_counter and self.counter is not None:
+            exprs.append(f"int(v[{self.counter[0]!r}])")
         lines.append(f"    return ({''.join(e + ', ' for e in exprs)})")
         namespace: dict[str, Any] = {
             "_codec": self.codec.decode, "_FrameError": FrameError,
