@@ -60,6 +60,26 @@ def test_tables_agree_with_the_crc_library(data, pos):
     assert Checksum("xor8", "c", pos).compute(data) == x
 
 
+@settings(max_examples=200, deadline=None)
+@given(data=st.binary(min_size=2, max_size=64), pos=st.integers(0, 63),
+       scheme=st.sampled_from(["sum8", "xor8", "crc8_sae_j1850", "autosar_p1", "autosar_p2"]),
+       covers=st.sampled_from(["payload", "others"]), data_id=st.integers(0, 0xFF),
+       ids=st.booleans())
+def test_the_code_generated_for_a_message_length_is_the_loop(data, pos, scheme, covers,
+                                                              data_id, ids):
+    """A bound message's checksum is straight-line code for its length: the same value as
+    the loop over the bytes, whatever the payload and the checksum's position."""
+    pos = 0 if scheme == "autosar_p2" and ids else pos % len(data)
+    kw = {"data_id": list(range(data_id % 16, data_id % 16 + 16)) if ids else data_id}
+    if not scheme.startswith("autosar"):
+        kw = {"covers": covers}
+    loop = Checksum(scheme, "c", pos, **kw)
+    fixed = Checksum(scheme, "c", pos, length=len(data), **kw)
+    assert fixed.compute(data) == loop.compute(data)
+    sealed = fixed.seal(data)
+    assert len(sealed) == len(data) and fixed.error(sealed) is None
+
+
 def test_sum_and_xor():
     assert Checksum("sum8", "c", 2).compute(bytes([0x10, 0xF0, 0xAA, 0x05])) == 0x05
     assert Checksum("xor8", "c", 0).compute(bytes([0xAA, 0xF0, 0x0F, 0x01])) == 0xFE

@@ -385,7 +385,7 @@ def _checksums(device: str, raw: Any, key: str, protocol: Protocol,
         elif data_id is not None:
             raise BindingError(f"{mkey}.data_id: {scheme} takes no data id (only autosar_p1 "
                                "and autosar_p2 do)")
-        out[name] = Checksum(scheme, signal, byte, name, data_id, covers)
+        out[name] = Checksum(scheme, signal, byte, name, data_id, covers, codec.length)
     return out
 
 

@@ -24,8 +24,10 @@ profiles do). For ``sum8`` and ``xor8`` the two are the same.
 
 The CRCs' polynomials, start and final values are those of ``crccheck`` (the CRC catalogue
 cantools itself uses for its AUTOSAR end-to-end helpers); each CRC's byte table is derived
-from ``crccheck`` once, at import, so a frame's checksum is a table look-up per byte (the
-tick's frames: a few hundred nanoseconds each).
+from ``crccheck`` once, at import, so a frame's checksum is a table look-up per byte. For a
+message of known length (every bound one) the computation is generated once as straight-line
+code, a look-up per byte with the positions and constants inlined (no loop, no slice): about
+0.2 us for an 8-byte frame, half what a loop over the bytes costs.
 
 May import: ``crccheck``. Nothing of the project's.
 """
@@ -51,6 +53,7 @@ def _table(crc: type[Crc8Base]) -> bytes:
 
 J1850 = _table(Crc8SaeJ1850)  # polynomial 0x1D
 H2F = _table(Crc8Autosar)  # polynomial 0x2F
+BYTE = tuple(bytes((b,)) for b in range(256))  # a checksum as the one byte it is sent as
 
 
 def _crc(table: bytes, register: int, data: bytes | bytearray) -> int:
@@ -64,10 +67,14 @@ class Checksum:
     encoded payload, ``error`` says what is wrong with a received one (None: nothing)."""
 
     __slots__ = ("scheme", "signal", "byte", "data_id", "data_ids", "covers", "message",
-                 "compute")
+                 "length", "compute")
 
     def __init__(self, scheme: str, signal: str, byte: int, message: str = "",
-                 data_id: int | Sequence[int] | None = None, covers: str = "payload") -> None:
+                 data_id: int | Sequence[int] | None = None, covers: str = "payload",
+                 length: int | None = None) -> None:
+        """``length``: the message's payload length, if fixed (a DBC message's): the
+        computation is then generated for it (a payload of another length must not reach
+        ``compute``: the codec refuses it first)."""
         if scheme not in SCHEMES:
             raise ValueError(f"unknown checksum scheme {scheme!r}")
         if covers not in COVERS:
@@ -83,7 +90,8 @@ class Checksum:
             self.data_ids = bytes(data_id)
         elif data_id is not None:
             self.data_id = int(data_id)
-        self.compute = self._compiled()
+        self.length = length
+        self.compute = self._compiled() if length is None else self._generated(length)
 
     def _compiled(self):  # type: ignore[no-untyped-def]
         """The scheme as one closure of the payload, constants bound (the hot path)."""
@@ -122,12 +130,48 @@ class Checksum:
         data_id = self.data_id & 0xFF
         return lambda data: t[_crc(t, _crc(t, 0xFF, data[:i]), data[j:]) ^ data_id] ^ 0xFF
 
+    def _generated(self, n: int):  # type: ignore[no-untyped-def]
+        """The scheme for a payload of ``n`` bytes as straight-line code: each byte's
+        position inlined, the checksum's own byte skipped (or taken as 0)."""
+        i = self.byte
+        if not 0 <= i < n:
+            raise ValueError(f"checksum byte {i} outside a payload of {n} bytes")
+        scheme = self.scheme
+        others = [k for k in range(n) if k != i]
+        if scheme == "sum8":
+            return self._compiled()  # sum() runs in C already
+        if scheme == "xor8":
+            lines = [f"    return {' ^ '.join(f'd[{k}]' for k in others) or '0'}"]
+        else:
+            if scheme == "autosar_p1":
+                start = _crc(J1850, 0x00, bytes([self.data_id & 0xFF,
+                                                 (self.data_id >> 8) & 0xFF]))
+            else:
+                start = 0xFF
+            lines = [f"    r = {start}"]
+            zeroed = scheme == "crc8_sae_j1850" and self.covers == "payload"
+            for k in range(n):
+                if k != i:
+                    lines.append(f"    r = T[r ^ d[{k}]]")
+                elif zeroed:
+                    lines.append("    r = T[r]")
+            if scheme == "autosar_p2":
+                tail = "ids[d[1] & 15]" if self.data_ids is not None else str(self.data_id & 0xFF)
+                lines.append(f"    r = T[r ^ {tail}]")
+            final = " ^ 255" if scheme in ("crc8_sae_j1850", "autosar_p2") else ""
+            lines.append(f"    return r{final}")
+        namespace: dict[str, object] = {"T": H2F if scheme == "autosar_p2" else J1850,
+                                        "ids": self.data_ids}
+        source = "def compute(d):\n" + "\n".join(lines) + "\n"
+        exec(compile(source, f"<checksum {self.message} {scheme}>", "exec"),  # noqa: S102
+             namespace)
+        return namespace["compute"]
+
     def seal(self, data: bytes) -> bytes:
         """The payload with its checksum byte set (computed over what else it holds: the
         counter is already in it)."""
-        out = bytearray(data)
-        out[self.byte] = self.compute(out)
-        return bytes(out)
+        i = self.byte
+        return data[:i] + BYTE[self.compute(data)] + data[i + 1:]
 
     def error(self, data: bytes | bytearray) -> str | None:
         """None if the payload's checksum is right, else what is wrong (for a driver's

@@ -15,7 +15,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, cast
 
-from drivers.binding.e2e import Checksum
+from drivers.binding.e2e import BYTE, Checksum
 from drivers.dbc import FrameCodec, FrameError
 
 
@@ -163,16 +163,16 @@ def _compiled_encoder(name: str, params: str, signals: list[str], exprs: list[st
                       ) -> Callable[..., bytes]:
     """``def encode(PARAMS): return codec.encoder(signals)(*exprs)`` compiled once: the
     maps' positional encoders (each expression is a quantity's conversion to its signal).
-    With a checksum, its byte is set last, over the payload as encoded (counter included):
-    the payload as a bytearray, the byte computed and set in place."""
+    With a checksum, its byte is set last, over the payload as encoded (counter included,
+    the checksum's own byte 0 as the codec leaves a signal it is not given)."""
     call = f"_codec({', '.join(exprs)})"
     if checksum is None:
         source = f"def encode({params}):\n    return {call}\n"
     else:
-        source = (f"def encode({params}):\n    d = _bytearray({call})\n"
-                  f"    d[{checksum.byte}] = _sum(d)\n    return bytes(d)\n")
-    namespace: dict[str, Any] = {"_codec": codec.encoder(tuple(signals)),
-                                 "_bytearray": bytearray,
+        i = checksum.byte
+        source = (f"def encode({params}):\n    d = {call}\n"
+                  f"    return d[:{i}] + _BYTE[_sum(d)] + d[{i + 1}:]\n")
+    namespace: dict[str, Any] = {"_codec": codec.encoder(tuple(signals)), "_BYTE": BYTE,
                                  "_sum": checksum.compute if checksum is not None else None}
     exec(compile(source, name, "exec"), namespace)  # noqa: S102
     return cast(Callable[..., bytes], namespace["encode"])
