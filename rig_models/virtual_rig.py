@@ -39,6 +39,7 @@ from rig_models.devices import (
 )
 from rig_models.faults import FaultInjector, FaultSpec
 from rig_models.rig_file import RigConfig
+from rig_models.schema import ConfigError
 
 UNKNOWN_ID = 0x6A5  # used by no device of the DBC
 CAN_ERR_BUSERROR = 0x080  # SocketCAN error classes (linux/can/error.h)
@@ -179,10 +180,20 @@ class TruthSample:
     modal: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-def check_virtual_rig(rig: RigConfig) -> None:
+def check_virtual_rig(rig: RigConfig, faults: list[FaultSpec] | tuple[FaultSpec, ...] = ()
+                      ) -> None:
     """``ConfigError`` (naming the rig file's key and the device file's object) if the
-    virtual rig cannot be one of the rig's devices: called before a run on the virtual bus,
-    so such a rig is refused with nothing sent rather than failing mid-set-up."""
+    virtual rig cannot be one of the rig's devices, or cannot inject one of ``faults`` (a
+    ``bad_checksum`` on a device whose telemetry declares no checksum): called before a run
+    on the virtual bus, so such a rig is refused with nothing sent rather than failing
+    mid-set-up or running a fault that never happens."""
+    for f in faults:
+        if f.kind == "bad_checksum" and not any(
+                getattr(m, "checksum", None) is not None
+                for m in rig.binding.telemetry.get(f.device, ())):
+            raise ConfigError(f"fault bad_checksum:{f.device}: the {f.device}'s telemetry "
+                              f"declares no checksum (a DBC binding's devices.{f.device}."
+                              "checksums)")
     co = rig.binding.canopen
     if co is not None:
         from rig_models.canopen.rig_devices import check_emulation

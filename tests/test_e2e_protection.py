@@ -270,3 +270,13 @@ def test_the_cli_refuses_an_unknown_scheme_before_the_run(tmp_path):
     assert "devices.reaction_wheel.checksums.RW_Tlm.scheme" in out.stderr
     assert "crc4" in out.stderr and "Traceback" not in out.stderr
     assert not (tmp_path / "logs").exists() or not any((tmp_path / "logs").iterdir())
+
+
+def test_a_bad_checksum_fault_on_a_device_without_one_is_refused(tmp_path):
+    """The fault could not happen there: refused before the run rather than run unseen."""
+    out = harness_in_process("run", "slew-rw", "--rig", "sgsrt-dbc2", "--duration-s", "1",
+                             "--quiet", "--out", str(tmp_path / "logs"),
+                             "--fault", "bad_checksum@0.5:hub_sensor")
+    assert out.returncode == 2, out.stderr
+    assert "bad_checksum:hub_sensor" in out.stderr
+    assert "devices.hub_sensor.checksums" in out.stderr and "Traceback" not in out.stderr
