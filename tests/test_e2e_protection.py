@@ -129,6 +129,7 @@ def test_protected_rig_runs_pass_and_its_commands_carry_checksums(tmp_path):
     rig = res.virtual_rig
     # the rig accepted every command: none refused for its checksum or counter
     assert rig.counters.malformed == 0 and rig.counters.repeated == 0
+    assert s["virtual_rig"]["malformed"] == 0 and s["virtual_rig"]["repeated"] == 0
     b = load_rig("sgsrt-dbc2").binding
     (cmap,) = b.commands["reaction_wheel"]
     frames = [f for f in can.LogReader(str(res.run_dir / "can.blf"))

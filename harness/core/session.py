@@ -764,6 +764,8 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
             "steps": rig.counters.steps,
             "malformed": rig.counters.malformed,
             "unknown": rig.counters.unknown,
+            # protected commands dropped for repeating the last alive counter (docs/lab.md)
+            "repeated": rig.counters.repeated,
         },
     }
 
