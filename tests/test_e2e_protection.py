@@ -8,6 +8,7 @@ rig file's key."""
 from __future__ import annotations
 
 import copy
+import pickle
 from pathlib import Path
 
 import can
@@ -78,6 +79,18 @@ def test_the_code_generated_for_a_message_length_is_the_loop(data, pos, scheme, 
     assert fixed.compute(data) == loop.compute(data)
     sealed = fixed.seal(data)
     assert len(sealed) == len(data) and fixed.error(sealed) is None
+
+
+def test_a_protected_rig_pickles():
+    """A rig goes to other processes (a suite's workers): its checksums regenerate there."""
+    binding = pickle.loads(pickle.dumps(load_rig("sgsrt-dbc2").binding))
+    for device, maps in binding.commands.items():
+        for m in maps:
+            payload = m.encode({}, 5)
+            assert m.checksum.error(payload) is None, device
+    p2 = Checksum("autosar_p2", "c", 0, "M", list(range(16)), length=8)
+    again = pickle.loads(pickle.dumps(p2))
+    assert again.compute(bytes([0, 2, 2, 3, 4, 5, 6, 7])) == 0xBC
 
 
 def test_sum_and_xor():

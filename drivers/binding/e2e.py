@@ -34,9 +34,12 @@ May import: ``crccheck``. Nothing of the project's.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import cast
 
 from crccheck.crc import Crc8Autosar, Crc8Base, Crc8SaeJ1850
+
+Compute = Callable[[bytes | bytearray], int]
 
 SCHEMES = ("sum8", "xor8", "crc8_sae_j1850", "autosar_p1", "autosar_p2")
 COVERS = ("payload", "others")
@@ -93,8 +96,15 @@ class Checksum:
         self.length = length
         self.compute = self._compiled() if length is None else self._generated(length)
 
-    def _compiled(self):  # type: ignore[no-untyped-def]
-        """The scheme as one closure of the payload, constants bound (the hot path)."""
+    def __reduce__(self) -> tuple[type[Checksum], tuple[object, ...]]:
+        # generated functions do not pickle: a process receiving a checksum regenerates it
+        data_id = list(self.data_ids) if self.data_ids is not None else self.data_id
+        return Checksum, (self.scheme, self.signal, self.byte, self.message, data_id,
+                          self.covers, self.length)
+
+    def _compiled(self) -> Compute:
+        """The scheme as one closure of a payload of any length, constants bound (sum8's
+        always; the others' for a payload of no fixed length)."""
         i = self.byte
         j = i + 1
         scheme = self.scheme
@@ -130,7 +140,7 @@ class Checksum:
         data_id = self.data_id & 0xFF
         return lambda data: t[_crc(t, _crc(t, 0xFF, data[:i]), data[j:]) ^ data_id] ^ 0xFF
 
-    def _generated(self, n: int):  # type: ignore[no-untyped-def]
+    def _generated(self, n: int) -> Compute:
         """The scheme for a payload of ``n`` bytes as straight-line code: each byte's
         position inlined, the checksum's own byte skipped (or taken as 0)."""
         i = self.byte
@@ -165,7 +175,7 @@ class Checksum:
         source = "def compute(d):\n" + "\n".join(lines) + "\n"
         exec(compile(source, f"<checksum {self.message} {scheme}>", "exec"),  # noqa: S102
              namespace)
-        return namespace["compute"]
+        return cast(Compute, namespace["compute"])
 
     def seal(self, data: bytes) -> bytes:
         """The payload with its checksum byte set (computed over what else it holds: the
