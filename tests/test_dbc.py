@@ -125,6 +125,11 @@ def _draw_values(data: st.DataObject, msg: cantools.database.Message) -> dict[st
         if s.multiplexer_ids is not None and mux_id not in s.multiplexer_ids:
             continue
         raw = data.draw(_raw_strategy(s))
+        if not s.is_float and abs(raw) >= 2**53:
+            # a float holds integers exactly only up to 2^53: a wider raw value plus an
+            # offset rounds to a neighbour that may lie outside the signal (2^58 in a 59-bit
+            # signed one), which cantools, the oracle, cannot encode
+            raw = int(math.copysign(2**52, raw))
         v = raw * s.scale + s.offset
         if s.is_float:
             v = raw  # scale 1, offset 0 (see _random_dbc): the value as drawn
