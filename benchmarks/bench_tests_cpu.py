@@ -1,12 +1,16 @@
 """The CPU time of test files, every process they start counted, interleaved across trees.
 
     python benchmarks/bench_tests_cpu.py [--tree NAME=PATH ...] [--rounds N] [-m EXPR]
-        [--by-file N] GROUP ...
+        [--by-file N] [--workers N ...] GROUP ...
 
 A GROUP is one pytest session: a test file or node id, or several joined by commas (session
 fixtures are shared within a group, as in the README's whole run). Each round runs every group
 in every tree, alternating trees (same load for both), with this interpreter
 (``sys.executable``; run it with the project's ``.venv/bin/python``), ``-p no:cacheprovider``.
+
+``--workers N`` (repeatable): each group also with pytest-xdist's ``-n N`` (0: without
+xdist), interleaved with the others like the trees: the inner loop's wall time against the
+CPU it costs.
 
 Why not ``/usr/bin/time``: it counts the processes the command waited for. ``harness test``'s
 workers come from a multiprocessing forkserver, which the harness never waits for (it ends
@@ -49,12 +53,14 @@ PLUGIN_DIR = Path(__file__).resolve().parent
 
 
 def measure(tree: Path, group: str, marker: str | None,
-            per_test: Path | None = None) -> tuple[float, float, float, str]:
+            per_test: Path | None = None, workers: int = 0) -> tuple[float, float, float, str]:
     """(all CPU s, waited-for CPU s, wall s, pytest's last line) of one pytest session;
     with ``per_test``, each test's CPU is written there as JSON (_test_cpu_plugin)."""
     args = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *group.split(",")]
     if marker:
         args += ["-m", marker]
+    if workers:
+        args += ["-n", str(workers)]
     # the tree's code in every process the tests start, whatever the venv's editable
     # install points at (python -m harness, a suite's workers, a study's process)
     path = os.pathsep.join(p for p in (str(tree), os.environ.get("PYTHONPATH", "")) if p)
@@ -90,17 +96,25 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("-m", dest="marker", help="pytest -m EXPR")
     p.add_argument("--by-file", type=int, default=0, metavar="N",
                    help="also where the CPU goes: the N test files that take the most")
+    p.add_argument("--workers", type=int, action="append", metavar="N",
+                   help="pytest-xdist workers (-n N; 0: no xdist); repeatable, each a variant "
+                        "interleaved with the others (default: 0)")
     args = p.parse_args(argv)
     if args.rounds < 1:
         p.error("--rounds: expected >= 1")
     if args.by_file < 0:
         p.error("--by-file: expected N >= 0 (files listed)")
+    workers = args.workers or [0]
+    if min(workers) < 0:
+        p.error("--workers: expected N >= 0")
     trees: list[tuple[str, Path]] = []
     for spec in args.tree or [f"here={Path(__file__).resolve().parent.parent}"]:
         name, sep, path = spec.partition("=")
         if not sep or not Path(path).is_dir():
             p.error(f"--tree {spec}: expected NAME=PATH of a directory")
         trees.append((name, Path(path)))
+    variants = [(f"{name}" + (f" -n {w}" if w else ""), path, w)
+                for name, path in trees for w in workers]
     libc = ctypes.CDLL(None, use_errno=True)
     if libc.prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0) != 0:
         print("cannot become a sub-reaper (Linux only)", file=sys.stderr)
@@ -110,14 +124,14 @@ def main(argv: list[str] | None = None) -> int:
     tmp = Path(tempfile.mkdtemp(prefix="bench-tests-cpu-"))
     for r in range(args.rounds):
         for group in args.groups:
-            order = trees if r % 2 == 0 else list(reversed(trees))
-            for name, path in order:
-                per_test = tmp / f"{len(rows)}-{r}.json" if args.by_file else None
-                res = measure(path, group, args.marker, per_test)
+            order = variants if r % 2 == 0 else list(reversed(variants))
+            for name, path, w in order:
+                per_test = tmp / f"{len(rows)}-{r}.json" if args.by_file and not w else None
+                res = measure(path, group, args.marker, per_test, w)
                 rows.setdefault((group, name), []).append(res)
                 if per_test is not None and per_test.exists():
                     tests[(group, name)] = json.loads(per_test.read_text())
-                print(f"round {r + 1} {name:>8} {res[0]:7.1f} s CPU ({res[1]:.1f} s waited) "
+                print(f"round {r + 1} {name:>12} {res[0]:7.1f} s CPU ({res[1]:.1f} s waited) "
                       f"{res[2]:6.1f} s wall  {group}: {res[3]}", file=sys.stderr, flush=True)
     print("\n| group | tree | CPU s (all processes) | CPU s /usr/bin/time sees | wall s | "
           "result |\n|---|---|---|---|---|---|")

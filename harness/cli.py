@@ -13,8 +13,8 @@ imported to register itself, which is always right, only slower.
 from __future__ import annotations
 
 import argparse
-import ast
 import importlib
+import inspect
 import math
 import os
 import pkgutil
@@ -23,6 +23,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from harness import commands
+from harness.commands import ParserLines, parsers_in
 from harness.record.output import OutputError, is_output_failure
 
 MAX_RATE_HZ = 10_000.0
@@ -94,56 +95,19 @@ def check_numbers(parser: argparse.ArgumentParser) -> None:
             action.type = _checked_number(option, action.dest, action.type)
 
 
-CommandLines = list[tuple[str, dict[str, str]]]
+CommandLines = ParserLines
 """A module's commands: (name, ``add_parser`` keywords other than the name: only ``help``)."""
-
-
-def _commands_in(path: Path) -> CommandLines | None:
-    """The commands a command module's ``register(sub)`` adds with ``sub.add_parser("NAME",
-    help="...")``, read from its source without importing it; [] for a module with no
-    ``register``; None when they cannot be read so (a computed name or help, aliases, no
-    ``add_parser`` call): the module is then imported."""
-    try:
-        tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
-    except (OSError, SyntaxError, ValueError):
-        return None
-    register = next((n for n in tree.body if isinstance(n, ast.FunctionDef)
-                     and n.name == "register"), None)
-    if register is None:
-        return []
-    if not register.args.args:
-        return None
-    sub = register.args.args[0].arg
-    found: CommandLines = []
-    for node in ast.walk(register):
-        if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
-                and node.func.attr == "add_parser" and isinstance(node.func.value, ast.Name)
-                and node.func.value.id == sub):
-            continue
-        if not node.args or not isinstance(node.args[0], ast.Constant) \
-                or not isinstance(node.args[0].value, str):
-            return None
-        keywords: dict[str, str] = {}
-        for kw in node.keywords:
-            if kw.arg is None or kw.arg == "aliases":
-                return None
-            if kw.arg == "help":
-                if not (isinstance(kw.value, ast.Constant) and isinstance(kw.value.value, str)):
-                    return None
-                keywords["help"] = kw.value.value
-        found.append((node.args[0].value, keywords))
-    return found or None
 
 
 def command_index() -> list[tuple[str, CommandLines | None]]:
     """Every module of ``harness/commands/`` (sorted by name) with the commands it adds
-    (``_commands_in``), read without importing any of them."""
+    (``parsers_in``), read without importing any of them."""
     out = []
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
         folder = getattr(info.module_finder, "path", None)
         lines = None
         if folder is not None and not info.ispkg:
-            lines = _commands_in(Path(folder) / f"{info.name}.py")
+            lines = parsers_in(Path(folder) / f"{info.name}.py")
         out.append((info.name, lines))
     return out
 
@@ -171,7 +135,10 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
             register = getattr(importlib.import_module(f"harness.commands.{name}"),
                                "register", None)
             if register is not None:
-                register(sub)
+                if "argv" in inspect.signature(register).parameters:
+                    register(sub, argv=argv)  # it imports only what argv chooses
+                else:
+                    register(sub)
         else:
             for cmd, keywords in lines:  # not chosen: listed by its help line, not imported
                 sub.add_parser(cmd, **keywords)

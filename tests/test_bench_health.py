@@ -108,6 +108,7 @@ def test_bad_limit_in_the_run_file_is_refused(tmp_path):
 
 
 # ------------------------------------------------------------------------------ real time
+@pytest.mark.slow
 def test_clean_realtime_run_passes_with_its_timing_criteria_shown(tmp_path):
     # this machine is shared (2 CPUs, other work beside the tests): the limits are generous
     # and stated, a clean 2 s run keeps well inside them (measured 0-0.3 % overruns)
@@ -157,6 +158,7 @@ class _StallingController:
         return getattr(self._inner, name)
 
 
+@pytest.mark.slow
 def test_a_stalled_loop_is_inconclusive_and_the_harness_s(tmp_path, monkeypatch):
     real = session.build_controller
     monkeypatch.setattr(session, "build_controller",
@@ -184,6 +186,7 @@ def _rig_pid() -> int:
     raise AssertionError("no rig process")
 
 
+@pytest.mark.slow
 def test_a_stalled_rig_process_is_inconclusive_and_the_host_s(tmp_path):
     state = {"ticks": 0, "stopped": False}
 
@@ -206,6 +209,7 @@ def test_a_stalled_rig_process_is_inconclusive_and_the_host_s(tmp_path):
     assert "time lost by host:" in v.reason
 
 
+@pytest.mark.slow
 def test_an_inconclusive_suite_test_in_junit_results_and_reports(tmp_path):
     """A suite's real-time test the bench cannot hold (a lateness limit of 0 % of the period:
     no loop starts every tick exactly on its deadline) is INCONCLUSIVE everywhere a suite's

@@ -142,6 +142,7 @@ def logs(tmp_path_factory) -> list[tuple[Path, bool]]:  # type: ignore[type-arg]
     return made
 
 
+@pytest.mark.slow
 def test_the_vectorised_bus_view_is_the_frame_by_frame_one(logs, monkeypatch):
     dividers = {"hub_sensor": 1, "accelerometer": 1, "reaction_wheel": 1,
                 "thruster_valves": 5, "piezo_amplifier": 1, "disturbance_rotor": 5}

@@ -341,6 +341,7 @@ def _check_calibration_rrd(path: Path, data: dict) -> None:
     assert {SPECTRUM_VIEW, VERIFIED_VIEW, CANDIDATES_VIEW + ": predicted"} <= names
 
 
+@pytest.mark.slow
 def test_calibrate_sgsrt_wheel_end_to_end(tmp_path: Path, sgsrt_wheel_calibration) -> None:
     # `harness calibrate --json --max-verify 2`, run once a session (tests/conftest.py)
     cal = sgsrt_wheel_calibration

@@ -38,6 +38,28 @@ def test_help_and_cases_import_nothing_heavy():
     assert loaded_after(["cases"]) == ["yaml"]  # the run files' descriptions, nothing else
 
 
+@pytest.mark.parametrize("command", ["history", "rt-check", "study"])
+def test_help_of_commands_with_heavy_work_imports_no_numpy(command):
+    """Their work needs numpy, scipy or the loop; their ``--help`` needs none of it."""
+    assert not {"numpy", "scipy", "can"} & set(loaded_after([command, "--help"]))
+
+
+def test_study_help_lists_every_study_as_importing_them_does():
+    """``harness study --help`` read from the studies' source equals the one built by
+    importing every study, and a chosen study's own options are there."""
+    def study_help(argv: list[str] | None) -> str:
+        action = next(a for a in build_parser(argv)._actions
+                      if isinstance(a, argparse._SubParsersAction))
+        return action.choices["study"].format_help()
+
+    assert study_help(["study", "--help"]) == study_help(None)
+    chosen = build_parser(["study", "wang2022", "--help"])
+    study = next(a for a in chosen._actions if isinstance(a, argparse._SubParsersAction))
+    inner = next(a for a in study.choices["study"]._actions
+                 if isinstance(a, argparse._SubParsersAction))
+    assert "--json" in inner.choices["wang2022"].format_help()
+
+
 def test_the_listing_read_from_source_is_the_one_the_modules_register():
     """``harness --help`` built from the modules' source equals the one built by importing
     every command (and every module's commands were read from source, none imported)."""

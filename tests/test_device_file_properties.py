@@ -110,6 +110,7 @@ WHEEL_LINES = WHEEL_EDS.splitlines()
 VALUE_LINES = [i for i, line in enumerate(WHEEL_LINES) if "=" in line]
 
 
+@pytest.mark.slow
 @settings(max_examples=80, **SETTINGS)
 @given(kind=st.sampled_from(["value", "drop", "cut", "duplicate"]),
        line=st.sampled_from(VALUE_LINES), value=st.sampled_from(ODD_TEXT))
@@ -139,6 +140,7 @@ def test_a_mutated_eds_binds_or_is_refused_naming_the_file(tmp_path, kind, line,
 DBC_TOKENS = [m.span() for m in re.finditer(r"-?\d+(\.\d+)?|@\d[+-]|\|", DBC2)]
 
 
+@pytest.mark.slow
 @settings(max_examples=80, **SETTINGS)
 @given(kind=st.sampled_from(["token", "cut"]), where=st.sampled_from(DBC_TOKENS),
        value=st.sampled_from(ODD_TEXT + ["@2+", "0|0", "64", "-64", "999999999999"]))
@@ -180,6 +182,7 @@ SECTIONS = re.findall(r"^\[([0-9A-Fa-f]{4}(?:sub[0-9A-Fa-f]+)?)\]", WHEEL_EDS, f
 DATA_TYPES = ["0x0001", "0x0002", "0x0007", "0x0008", "0x0009", "0x000F", "0x0011", "0x0040"]
 
 
+@pytest.mark.slow
 @settings(max_examples=80, **SETTINGS)
 @given(section=st.sampled_from(SECTIONS), data_type=st.sampled_from(DATA_TYPES))
 @example(section="6502", data_type="0x0009")  # a string of supported modes: was a ValueError

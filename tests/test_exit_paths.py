@@ -97,6 +97,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_rig_in_its_own_process_over_socketcand(tmp_path):
     port = _free_port()
     rig = subprocess.Popen([sys.executable, "-m", "harness", "virtual-rig",
@@ -116,6 +117,7 @@ def test_rig_in_its_own_process_over_socketcand(tmp_path):
     assert "stopped after" in out
 
 
+@pytest.mark.slow
 def test_rig_process_dying_mid_run_ends_in_an_error_verdict_without_traceback(tmp_path):
     """The virtual rig's own process is killed during a real-time run: the run ends with
     exit 4 and a one-line reason naming the bus (not a traceback), the recording and the

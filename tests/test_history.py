@@ -182,6 +182,7 @@ def many_writers(location: str, writers: int = 6, each: int = 25) -> None:
         assert p.exitcode == 0
 
 
+@pytest.mark.slow
 def test_parallel_writers_lose_nothing(tmp_path):
     location = str(tmp_path / "history.sqlite")
     many_writers(location, writers=4, each=30)

@@ -216,6 +216,7 @@ def test_view_to_another_host_is_refused_whatever_the_url_says(url):
 
 # -- a bus that cannot be reached -----------------------------------------------------------
 
+@pytest.mark.slow
 def test_socketcand_with_nothing_listening_is_one_line_in_bounded_time(tmp_path):
     import socket
     import subprocess

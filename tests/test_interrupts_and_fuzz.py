@@ -22,6 +22,7 @@ from rig_models.virtual_rig import VirtualRig
 P = load_protocol()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_signal_during_a_realtime_run(tmp_path, sig):
     # the in-process rig thread can stall on a loaded machine: relax the monitor's grace

@@ -360,6 +360,7 @@ def _recorded_run(run_dir: Path, seconds: float) -> Path:
     return run_dir
 
 
+@pytest.mark.slow
 def test_judging_memory_does_not_grow_with_recording_length(tmp_path: Path) -> None:
     """In fresh processes: judging a 4000 s recording after a 20 s one grows no more than
     judging the 20 s one again (whole channels read into arrays: 139 MB more; streamed: 0)."""

@@ -11,6 +11,7 @@ import sys
 import time
 
 import can
+import pytest
 from in_process import harness_in_process
 
 from harness.core.runs import load_run
@@ -32,6 +33,7 @@ def _frames(run_dir) -> list[tuple[int, bytes]]:  # noqa: ANN001
             if not m.is_error_frame]
 
 
+@pytest.mark.slow
 def test_a_canopen_run_over_a_bus_in_lockstep_is_the_in_process_run_frame_for_frame(tmp_path):
     """The same short slew on sgsrt-canopen, once in process and once over socketcand against
     the rig's own process in lockstep: the CANopen set-up (NMT, SDO), every SYNC, PDO and
@@ -107,6 +109,7 @@ devices:
 """
 
 
+@pytest.mark.slow
 def test_a_rig_mixing_canopen_and_dbc_devices_runs_over_a_bus_and_is_left_safe(tmp_path):
     """CANopen nodes and a vendor-DBC accelerometer on one bus, the rig in its own process:
     set up, run, judged (every criterion of the slew, left safe among them) as in process."""

@@ -29,6 +29,7 @@ def _one_run(out: Path) -> Path:
     return res.run_dir
 
 
+@pytest.mark.slow
 def test_threads_and_memory_flat_over_runs(tmp_path):
     # Python threads other tests of the session left (a Dask cluster's) are not the runs'
     threads_before = set(threading.enumerate())

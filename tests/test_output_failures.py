@@ -162,6 +162,7 @@ def test_judge_writes_through_no_link(short_run, tmp_path):
 
 # -- a run whose folder fails ------------------------------------------------------------
 
+@pytest.mark.slow
 @pytest.mark.parametrize("clock", ["lockstep", "realtime"])
 def test_guard_stops_the_run_safe_and_never_completed(tmp_path, monkeypatch, clock):
     """The disk fills during the run (a fake statvfs): the loop stops at the next block,
@@ -257,6 +258,7 @@ sys.exit(main(sys.argv[2:]))
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size,reserve", [("5m", None), ("5m", 0), ("64k", 0)])
 def test_run_on_a_small_filesystem(size, reserve):
     """A real full disk: with the guard (default reserve) and without it (reserve 0: the
@@ -320,6 +322,7 @@ sys.exit(code)
 """
 
 
+@pytest.mark.slow
 def test_view_to_a_mute_viewer_ends_in_bounded_time(tmp_path):
     """A viewer that accepts and never answers held the end of the run forever (Rerun's
     flush and disconnect wait for its sink): now the run ends with exit 4 and never says

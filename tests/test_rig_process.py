@@ -18,6 +18,7 @@ def _run(tmp_path, **kw):
                        rig_process=True, **kw)
 
 
+@pytest.mark.slow
 def test_real_time_run_against_a_rig_process(tmp_path):
     res = _run(tmp_path)
     s = res.summary
@@ -38,6 +39,7 @@ def test_faults_reach_the_rig_process(tmp_path):
     assert "--fault" not in (res.run_dir / "rig.log").read_text()  # parsed, not echoed
 
 
+@pytest.mark.slow
 def test_a_timed_fault_reaches_the_default_rig_process_and_ends(tmp_path):
     # the hub sensor silent for 0.4 s of a 2 s real-time run, the monitor off so the run
     # goes on: about 200 of its frames are missing (all 750 from 0.5 s on, were the

@@ -38,6 +38,7 @@ import yaml
 from drivers.dbc import DBC_PATH
 from harness.core.runs import load_run, run_path
 from harness.record.can_log import read_can_log
+from harness.record.reader import read_scalar_channels
 from rig_models.rig_file import load_rig
 
 pytestmark = pytest.mark.socketcan
@@ -48,6 +49,8 @@ DB = cantools.database.load_file(str(DBC_PATH))
 MSG = {m.name: m for m in DB.messages}
 HARNESS_IDS = {m.frame_id for m in DB.messages if "HARNESS" in m.senders}
 COMMAND_IDS = {MSG[n].frame_id for n in ("WHEEL_CMD", "VALVE_CMD", "PIEZO_CMD", "ROTOR_CMD")}
+DEVICES = ("hub_sensor", "accelerometer", "reaction_wheel", "thruster_valves",
+           "piezo_amplifier", "disturbance_rotor")
 MARKER_ID = 0x7FE  # the test's own probe frame around each capture; no device uses it
 assert MARKER_ID not in {m.frame_id for m in DB.messages}
 
@@ -352,9 +355,14 @@ def test_slew_over_vcan0_ends_on_target_and_candump_matches_the_can_log(
     # the answers to its last SYNCs (after its last read) and any its socket dropped while the
     # loop ran late (the kernel drops when the socket's buffer is full: a busy machine)
     lost = _match_in_order(recv_log, recv_bus)
-    assert len(lost) <= 50 + len(recv_log) // 100, lost[:20]
+    dropped = s["frames"]["dropped_by_kernel"]  # counted by the socket (SO_RXQ_OVFL)
+    assert dropped is not None and dropped <= len(lost), (dropped, len(lost))
+    assert len(lost) - dropped <= 50 + len(recv_log) // 100, (dropped, lost[:20])
     assert s["frames"]["sent"] == len(sent_log) and s["frames"]["received"] == len(recv_log)
     assert len(sent_log) >= 2 * s["ticks"] and len(recv_log) >= s["ticks"]
+    # timing on the wire: the kernel's time stamps, its echo of the harness's own SYNC and
+    # commands taken as the harness's (not counted as received, not another master's)
+    _check_wire_timing(s, "loop")
 
     # the capture decoded by cantools says what the harness says it did
     decoded = [decode(f) for f in bus]
@@ -385,6 +393,79 @@ def test_slew_over_vcan0_ends_on_target_and_candump_matches_the_can_log(
           f"{peak:.5f} N m; {len(bus)} frames on the bus = {len(sent_log)} sent + "
           f"{len(recv_log)} received in the CAN log + {len(lost)} never read by the harness; "
           f"{s['overruns']} overruns, {s['real_time_factor']}x real time")
+
+
+WIRE_CHANNELS = ("/timing/sync_jitter_ms", "/timing/answer_latency_ms",
+                 "/timing/command_margin_ms")
+
+
+def _check_wire_timing(s: dict[str, Any], sent_by: str) -> dict[str, Any]:
+    w = s["wire_timing"]
+    assert w["source"] == "kernel" and w["sync_sent_by"] == sent_by, w
+    assert w["syncs_time_stamped"] >= s["ticks"] - 1, w
+    jitter = w["sync_period_jitter_ms"]
+    assert jitter is not None and 0.0 <= jitter["p50"] <= jitter["max"], w
+    assert set(w["answer_latency_ms"]) == set(DEVICES), w
+    for p in w["answer_latency_ms"].values():
+        assert 0.0 <= p["p50"] <= p["max"], w
+    assert w["command_margin_ms"] is not None, w
+    assert s["frames"]["unknown"] == 0
+    ch = read_scalar_channels(Path(s["run_dir"]) / "run.rrd", list(WIRE_CHANNELS))
+    for name in WIRE_CHANNELS:
+        v = ch[name][1]
+        assert len(v) == s["ticks"] and sum(1 for x in v if not math.isnan(x)) > s["ticks"] // 2
+    print(f"on the wire (SYNC sent by {sent_by}): SYNC jitter {jitter}, hub sensor answer "
+          f"{w['answer_latency_ms']['hub_sensor']}, command margin {w['command_margin_ms']}; "
+          f"loop lateness {s['lateness_ms']}")
+    return w
+
+
+def test_kernel_sent_sync_paces_the_run_and_is_timed_on_the_wire(rig, rate_and_run,
+                                                               tmp_path):
+    """``sync_source: kernel``: the broadcast manager sends SYNC, each tick starts when the
+    loop reads it back, and the loop puts the next SYNC's counter into the kernel's task.
+    The kernel's SYNC goes on while the loop stalls (under emulation for a good part of a
+    second), so the rig's devices count SYNCs without the harness's heartbeat: their
+    watchdog waits longer here than the lab's 0.25 s."""
+    rate, run = rate_and_run
+    rig_file = tmp_path / "sgsrt-patient.yaml"
+    rig_file.write_text(yaml.safe_dump({"extends": "sgsrt", "name": "sgsrt-patient",
+                                        "watchdog": {"heartbeat_timeout_s": 5.0}}))
+    raw: dict[str, Any] = yaml.safe_load(run_path(run).read_text())
+    raw.update(name="slew-rw-kernel-sync", sync_source="kernel", rig=str(rig_file))
+    path = tmp_path / "kernel-sync.yaml"
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    rig.stop()  # the other tests' rig: one rig on vcan0 (two would both answer each SYNC)
+    rig = RigProcess(rate, tmp_path, rig=str(rig_file))
+    rig.start()
+    try:
+        with Capture(tmp_path / "candump.log") as cap:
+            proc = subprocess.run(_harness_cmd(str(path), tmp_path / "out"),
+                                  capture_output=True, text=True, timeout=RUN_TIMEOUT_S)
+    finally:
+        log = rig.stop()
+    # 6: INCONCLUSIVE, the bench's timing not held (a stalled VM); the slew's own criteria
+    # and what follows are still checked
+    assert proc.returncode in (0, 6), proc.stderr[-4000:] + log[-2000:]
+    s = json.loads(proc.stdout)
+    assert s["stopped_by"] == "completed", s
+    assert abs(s["final_angle_error_deg"]) < 0.1, s
+    _check_wire_timing(s, "kernel")
+    sync_id = MSG["SYNC"].frame_id
+    on_bus = [int(decode(f)[1]["tick"]) for f in cap.frames if f[0] == sync_id]
+    # the counter is the SYNC's index on the wire, as far as the loop has read them: it
+    # repeats where the kernel sent before the loop updated it, then catches up; never back
+    steps = [b - a for a, b in zip(on_bus, on_bus[1:], strict=False)]
+    assert on_bus[0] == 0 and min(steps) >= 0, on_bus[:50]
+    assert on_bus[-1] <= len(on_bus) - 1, on_bus[-20:]
+    assert len(on_bus) >= s["ticks"]
+    # the harness's CAN log has the kernel's SYNCs it read, as its own transmissions
+    logged = [m for m in read_can_log(Path(s["run_dir"]) / "can.blf")
+              if m.arbitration_id == sync_id]
+    assert len(logged) >= s["ticks"] and not any(m.is_rx for m in logged)
+    repeats = steps.count(0)
+    print(f"kernel-sent SYNC over {CHANNEL} at {rate:g} Hz: {len(on_bus)} SYNCs on the bus, "
+          f"{repeats} with a repeated counter; {s['overruns']} overruns")
 
 
 def test_dry_run_over_vcan0_sends_no_command_frame(rig, rate_and_run, tmp_path):
@@ -489,7 +570,7 @@ def test_probe_over_vcan0_hears_every_device_and_arms_nothing(rig, rate_and_run,
 
 
 @pytest.mark.slow
-def test_canopen_rig_over_vcan0_sets_up_runs_and_is_left_safe(rate_and_run, tmp_path):
+def test_canopen_rig_over_vcan0_sets_up_runs_and_is_left_safe(rig, rate_and_run, tmp_path):
     """The CANopen rig (sgsrt-canopen) as its own process on vcan0: the harness sets its nodes
     up over the kernel's bus (NMT, SDO through the canopen library), runs a short slew in
     real time with its own SYNC and PDO codecs, and leaves every node pre-operational."""
@@ -499,6 +580,7 @@ def test_canopen_rig_over_vcan0_sets_up_runs_and_is_left_safe(rate_and_run, tmp_
     rig_file = tmp_path / "co-vcan.yaml"
     rig_file.write_text(yaml.safe_dump({"extends": "sgsrt-canopen", "name": "co-vcan",
                                         "bus": {"heartbeat_consumer_ms": 60000}}))
+    rig.stop()  # the other tests' rig: one rig on vcan0
     rig = RigProcess(rate, tmp_path, rig=str(rig_file))
     run_file = tmp_path / "co-run.yaml"
     run_file.write_text(yaml.safe_dump({
@@ -525,20 +607,24 @@ def test_canopen_rig_over_vcan0_sets_up_runs_and_is_left_safe(rate_and_run, tmp_
     assert any(cid == 0x202 for cid, _ in frames)  # the wheel drive's RPDO
 
 
-def test_acceptance_suite_on_the_canopen_rig_over_vcan0_in_lockstep(tmp_path):
+def test_acceptance_suite_on_the_canopen_rig_over_vcan0_in_lockstep(rig, tmp_path):
     """The lab's daily check (`harness test acceptance`) against the CANopen rig over the
     kernel's bus: the virtual rig as its own process on vcan0 in lockstep (its nodes' timers
     on the rig's time; an emulated CPU cannot hold 500 Hz in real time), the harness as the
     CANopen master setting each node up again for every run. The verdicts must be those of
-    the suite in process (tests/test_acceptance_rigs.py): the probe, the slew, the free decay
-    and its identification PASS; the two fault tests inject in the harness's own virtual rig
-    and are skipped on a bus."""
+    the suite in process (tests/test_acceptance_rigs.py): the probe and the slew PASS. The
+    free decay and its identification are not run here: 70 s of the rig's time, 35 000 ticks
+    at about 10 ms each under emulation, six minutes of CI for a run whose frames over a bus
+    in lockstep are the in-process run's frame for frame (tests/test_lockstep_bus.py); the
+    vcan path they would add is the slew's."""
+    rig.stop()  # the other tests' rig: one rig on vcan0
     rig = RigProcess(500.0, tmp_path, rig="sgsrt-canopen", lockstep=True)
     rig.start()
     try:
         out = subprocess.run(
             [sys.executable, "-m", "harness", "test", "acceptance", "--rig", "sgsrt-canopen",
              "--bus", f"socketcan:{CHANNEL}", "--clock", "lockstep", "--quiet",
+             "-k", "probe or slew",
              "--out", str(tmp_path / "logs")],
             capture_output=True, text=True, timeout=RUN_TIMEOUT_S)
     finally:
@@ -549,6 +635,35 @@ def test_acceptance_suite_on_the_canopen_rig_over_vcan0_in_lockstep(tmp_path):
     verdicts = {t["nodeid"].split("::")[-1]: t["verdict"] for t in results["tests"]}
     print(f"acceptance over {CHANNEL} in lockstep: {verdicts}, wall {results['wall_time_s']} s")
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:] + log[-2000:]
-    assert verdicts == {"probe": "PASS", "slew-rw": "PASS", "free-decay": "PASS",
-                        "identify[free-decay]": "PASS", "fault-hub-silent": "SKIPPED",
-                        "fault-accel-malformed": "SKIPPED"}, verdicts
+    assert verdicts == {"probe": "PASS", "slew-rw": "PASS"}, verdicts
+
+
+def test_frames_the_kernel_drops_for_a_full_queue_are_counted():
+    """A harness socket that is not read while the bus is busy loses frames in the kernel
+    (its receive queue is full); the socket's drop count (SO_RXQ_OVFL) says how many, so
+    the frames read plus the frames dropped are the frames sent."""
+    from harness.bus.socketcan_echo import EchoSocketcanBus
+
+    harness_bus = EchoSocketcanBus(CHANNEL)
+    sender = can.Bus(interface="socketcan", channel=CHANNEL)
+    try:
+        assert harness_bus.drops_counted and harness_bus.receive_buffer_bytes > 0
+        harness_bus.set_filters([{"can_id": 0x123, "can_mask": 0x7FF}])  # this test's only
+        harness_bus.socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # tiny
+        sent = 0
+        for i in range(3000):
+            try:
+                sender.send(can.Message(arbitration_id=0x123, data=i.to_bytes(2, "little"),
+                                        is_extended_id=False))
+                sent += 1
+            except can.CanOperationError:  # the sender's own queue: wait for vcan to drain
+                time.sleep(0.01)
+        read = 0
+        while harness_bus.recv(timeout=0.5) is not None:
+            read += 1
+        print(f"sent {sent}, read {read}, dropped by the kernel {harness_bus.kernel_drops}")
+        assert harness_bus.kernel_drops > 0
+        assert read + harness_bus.kernel_drops == sent
+    finally:
+        sender.shutdown()
+        harness_bus.shutdown()

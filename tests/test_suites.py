@@ -95,6 +95,7 @@ def mini(tmp_path_factory):
     return tmp, path, out, proc
 
 
+@pytest.mark.slow
 def test_suite_runs_with_verdicts_junit_and_report(mini):
     tmp, _, out, proc = mini
     # the tightened copy FAILs, nothing errors: exit 1
@@ -313,6 +314,7 @@ def test_a_study_that_fails_to_run_is_an_error(tmp_path):
     assert res["verdict"] == "ERROR" and "harness study nope exited 2" in res["reason"]
 
 
+@pytest.mark.slow
 def test_interrupt_stops_the_runs_at_a_tick_and_exits_130(tmp_path):
     suite = tmp_path / "long.yaml"
     # 300 s of simulated time (about 20 s of wall time each): the interrupt lands mid-run
@@ -342,6 +344,7 @@ def test_interrupt_stops_the_runs_at_a_tick_and_exits_130(tmp_path):
     assert results["tests"] and all(t["reported"] is False for t in results["tests"])
 
 
+@pytest.mark.slow
 def test_real_bus_refuses_when_the_probe_fails(tmp_path):
     """A rig in its own process whose hub sensor is silent: the pre-flight probe fails, no
     test arms anything (no run directory), every test is an error naming the probe."""
@@ -367,6 +370,7 @@ def test_real_bus_refuses_when_the_probe_fails(tmp_path):
                                     for e in errors)
 
 
+@pytest.mark.slow
 def test_real_bus_runs_one_at_a_time_after_a_good_probe(tmp_path):
     """A healthy rig in its own process (socketcand on 127.0.0.1) as the 'real' bus: the
     probe passes, the runs go over that bus on the real-time clock, inline, and the

@@ -67,6 +67,7 @@ def runs(tmp_path_factory):
     return results
 
 
+@pytest.mark.slow
 def test_five_runs_complete_over_can(runs):
     protocol = load_protocol()
     for name, (run, result) in runs.items():

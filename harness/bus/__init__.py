@@ -1,6 +1,7 @@
 """The bus side: frames, not physics.
 
-This package opens the bus (here), carries frames over a Unix-domain socket (``unix``),
+This package opens the bus (here), carries frames over a Unix-domain socket (``unix``), tells the
+SocketCAN kernel's echo of the harness's own frames from the rest (``socketcan_echo``),
 measures bus load (``load``), puts every device driver on one bus (``rig_interface``) and
 runs the virtual rig as its own process (``rig_process``). It may import ``drivers``,
 ``rig_models``, ``harness.state`` and ``harness.record.can_log`` (the interface logs every
@@ -232,8 +233,14 @@ def open_bus(spec: BusSpec, receive_own_messages: bool = False) -> can.BusABC:
             return CopyingVirtualBus(channel=spec.channel,
                                      receive_own_messages=receive_own_messages)
         if spec.interface == "socketcan":
-            return can.Bus(interface="socketcan", channel=spec.channel,
-                           receive_own_messages=receive_own_messages)
+            # the kernel's echo of the harness's own frames, told from the rest (off until
+            # the loop turns it on: timing on the wire)
+            from harness.bus.socketcan_echo import EchoSocketcanBus
+
+            bus = EchoSocketcanBus(spec.channel)
+            if receive_own_messages:
+                bus.enable_echo()
+            return bus
         if spec.interface == "unix":
             from harness.bus.unix import UnixCanBus
 

@@ -6,7 +6,9 @@ are counted, never raised.
 
 from __future__ import annotations
 
+import math
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -27,6 +29,8 @@ from harness.state import SAFE_COMMAND, RigCommand, RigState
 from rig_models.rig_file import RigConfig
 
 CAN_ERR_BUSOFF = 0x040  # SocketCAN error class (linux/can/error.h)
+KERNEL_SYNC_BACKLOG = 1000
+"""Kernel-sent SYNCs kept for a loop that fell behind (their time stamps)."""
 DUPLICATE_HB_COUNT = 8
 DUPLICATE_HB_PERIODS = 5.0
 """A node id used twice: this many heartbeats within this many of the node's periods (a
@@ -174,22 +178,41 @@ class RigInterface:
         self._hb_quiet_until: int | None = None
         self._counter = 0
         self._hb_counter = 0
+        # timing on the wire (``start_wire_timing``), off until the loop turns it on: the
+        # tick's frames as (driver, time stamp), this tick's SYNC time stamp (the kernel's
+        # echo, or the send time), the last command frame's, and the last one's before the
+        # SYNC (its margin)
+        self.wire_rx: list[tuple[DeviceDriver, float]] | None = None
+        self.wire_sync_ts = math.nan
+        self.wire_cmd_ts = math.nan
+        self.wire_prev_cmd_ts = math.nan
+        self._wire_own = False  # frames to look at first: the echo, the kernel's SYNC
+        self._echo = False
+        self._sender_ts = False
+        self._cmd_keys = frozenset(m.key for maps in b.commands.values() for m in maps)
+        self.device_of_driver = {id(drv): name for name, drv in self.drivers.items()}
+        # SYNC sent by the kernel's broadcast manager (``start_kernel_sync``): its task and
+        # the SYNCs seen and not yet taken by the loop, as (time stamp, last command before)
+        self.kernel_sync: can.broadcastmanager.CyclicSendTaskABC | None = None
+        self._kernel_syncs: deque[tuple[float, float]] = deque(maxlen=KERNEL_SYNC_BACKLOG)
+        self.kernel_syncs_read = 0
         self.state = RigState()
         # the drivers' values dicts the state was last read from (snapshot)
         self._snapshot_seen: list[dict[str, float] | None] = [None] * 6
 
     # ------------------------------------------------------------------ sending
-    def _send_key(self, key: tuple[int, bool], data: bytes) -> None:
+    def _send_key(self, key: tuple[int, bool], data: bytes) -> can.Message | None:
         msg = can.Message(arbitration_id=key[0], data=data, is_extended_id=key[1],
                           timestamp=time.time(), is_rx=False)
         try:
             self.bus.send(msg)
         except can.CanError:
             self.counters.send_errors += 1
-            return
+            return None
         self.counters.sent += 1
         if self.can_log is not None:
             self.can_log.log(msg)
+        return msg
 
     def _send_args(self, device: str, args: tuple[float, ...], counter: int) -> None:
         """The device's command frames from its driver's ``command_args`` (``_send_key``
@@ -203,11 +226,101 @@ class RigInterface:
                 self.counters.send_errors += 1
                 continue
             self.counters.sent += 1
+            if self._sender_ts:
+                self.wire_cmd_ts = msg.timestamp
             if self.can_log is not None:
                 self.can_log.log(msg)
 
     def send_sync(self, tick: int) -> None:
-        self._send_key(self.binding.sync.key, self._sync_payload(tick))
+        """The SYNC of ``tick``; with the kernel sending SYNC, the payload (counter) of the
+        next one instead: the number of kernel SYNCs read so far, the next one's index on
+        the wire (the broadcast manager sends the task's data as it is)."""
+        task = self.kernel_sync
+        if task is not None:
+            key = self.binding.sync.key
+            try:
+                task.modify_data(can.Message(  # type: ignore[attr-defined]
+                    arbitration_id=key[0], is_extended_id=key[1],
+                    data=self._sync_payload(self.kernel_syncs_read)))
+            except can.CanError:
+                self.counters.send_errors += 1
+            return
+        self.wire_sync_ts = math.nan  # the echo's (or this send's) time stamp
+        msg = self._send_key(self.binding.sync.key, self._sync_payload(tick))
+        if msg is not None and self._sender_ts:
+            self.wire_prev_cmd_ts = self.wire_cmd_ts
+            self.wire_sync_ts = msg.timestamp
+
+    # ------------------------------------------------------------------ on the wire
+    def start_wire_timing(self) -> str:
+        """Time stamps of every frame from now on, for timing on the wire; returns their
+        source: "kernel" (SocketCAN: the kernel's receive time stamps and its echo of the
+        harness's own frames) or "sender" (every other bus: each frame's sender's clock,
+        the harness's own frames stamped at send())."""
+        enable = getattr(self.bus, "enable_echo", None)
+        self.wire_rx = []
+        if enable is not None:
+            enable()
+            self._echo = self._wire_own = True
+            return "kernel"
+        self._sender_ts = True
+        return "sender"
+
+    def start_kernel_sync(self, dt_s: float) -> None:
+        """SYNC every ``dt_s`` from the kernel's broadcast manager (SocketCAN only; the
+        caller has checked ``has_broadcast_manager``), starting with tick 0's payload."""
+        key = self.binding.sync.key
+        self._wire_own = True
+        self.kernel_sync = self.bus.send_periodic(
+            can.Message(arbitration_id=key[0], is_extended_id=key[1],
+                        data=self._sync_payload(0)), dt_s)
+
+    def stop_kernel_sync(self) -> None:
+        task, self.kernel_sync = self.kernel_sync, None
+        if task is not None:
+            task.stop()
+
+    def wait_kernel_sync(self, tick: int, timeout_s: float) -> float | None:
+        """Read frames (fed as received during the previous tick) until a kernel-sent SYNC
+        is there; its time stamp (kernel time, ``time.time()``'s clock), or None when none
+        came within ``timeout_s``."""
+        q = self._kernel_syncs
+        deadline = time.monotonic() + timeout_s
+        recv, feed = self.bus.recv, self.feed
+        while not q:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return None
+            msg = recv(remaining)
+            if msg is None:
+                return None
+            feed(msg, max(0, tick - 1))
+        ts, prev_cmd = q.popleft()
+        self.wire_sync_ts, self.wire_prev_cmd_ts = ts, prev_cmd
+        return ts
+
+    def _own_frame(self, msg: can.Message) -> bool:
+        """The kernel's echo of a frame the harness sent, or a SYNC its broadcast manager
+        sent: its time stamp noted (never a received frame, never another master's). True
+        if it was one."""
+        key = (msg.arbitration_id, msg.is_extended_id)
+        if self.kernel_sync is not None and key == self.binding.sync.key:
+            # from the broadcast manager's own socket: logged as the harness's transmission
+            self._kernel_syncs.append((msg.timestamp, self.wire_cmd_ts))
+            self.kernel_syncs_read += 1
+            self.counters.sent += 1
+            if self.can_log is not None:
+                msg.is_rx = False
+                self.can_log.log(msg)
+            return True
+        if not self._echo or msg.is_rx:
+            return False
+        if key == self.binding.sync.key:
+            self.wire_prev_cmd_ts = self.wire_cmd_ts
+            self.wire_sync_ts = msg.timestamp
+        elif key in self._cmd_keys:
+            self.wire_cmd_ts = msg.timestamp
+        return True
 
     def send_heartbeat(self, armed: bool) -> None:
         self._hb_counter = (self._hb_counter + 1) & 0xFF
@@ -286,6 +399,7 @@ class RigInterface:
         if lockstep:  # the rig answered already: what is waiting, up to the frames due
             feed, fast, counters = self.feed, self._fast, self.counters
             log = self.can_log.log if self.can_log is not None else None
+            wire = self.wire_rx
             while got < expected:
                 msg = recv(0.0)
                 if msg is None:
@@ -307,6 +421,8 @@ class RigInterface:
                     drv.malformed(str(exc))
                     continue
                 drv.update(values, tick)
+                if wire is not None:
+                    wire.append((drv, msg.timestamp))
                 got += 1
             return got
         deadline = time.monotonic() + timeout_s
@@ -325,6 +441,8 @@ class RigInterface:
         device's driver (as received during ``tick``). True if a driver accepted it as
         telemetry; error frames, unknown ids and malformed frames are counted, never raised.
         ``harness replay`` feeds a CAN log's frames through here."""
+        if self._wire_own and self._own_frame(msg):
+            return False
         self.counters.received += 1
         if self.can_log is not None:
             self.can_log.log(msg)
@@ -343,6 +461,8 @@ class RigInterface:
                     drv.malformed(str(exc))
                     return False
                 drv.update(values, tick)
+                if self.wire_rx is not None:
+                    self.wire_rx.append((drv, msg.timestamp))
                 return True
         maps = self._by_key.get((msg.arbitration_id, msg.is_extended_id))
         if maps is None:
@@ -365,6 +485,8 @@ class RigInterface:
             if values is not None:
                 drv.update(values, tick)
                 accepted = True
+                if self.wire_rx is not None:
+                    self.wire_rx.append((drv, msg.timestamp))
         if accepted:
             return True
         self.counters.unknown += 1  # a multiplexed page no device is bound to

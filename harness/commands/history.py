@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.commands import examples
-from harness.history import drift
+from harness.history import DEFAULT_K, DEFAULT_N_REF, DEFAULT_N_TREND
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -62,11 +62,11 @@ def register(sub: argparse._SubParsersAction) -> None:
             q.add_argument("--until", help="only runs before this date/time (as --since)")
 
     def stats(q: argparse.ArgumentParser) -> None:
-        q.add_argument("--k", type=float, default=drift.DEFAULT_K,
+        q.add_argument("--k", type=float, default=DEFAULT_K,
                        help="coverage factor: alarm beyond k x the combined 1 sigma (3)")
-        q.add_argument("--n-ref", type=int, default=drift.DEFAULT_N_REF,
+        q.add_argument("--n-ref", type=int, default=DEFAULT_N_REF,
                        help="runs that set a criterion's control limits (5)")
-        q.add_argument("--n-trend", type=int, default=drift.DEFAULT_N_TREND,
+        q.add_argument("--n-trend", type=int, default=DEFAULT_N_TREND,
                        help="runs of the trend rule (5)")
         q.add_argument("--recommended", type=Path,
                        help="a calibrated run file (recommended.yaml) whose mode bands the "
@@ -96,7 +96,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--model-rig", help="the rig file the virtual rig is built from (default: "
                    "the run's own, from its config.yaml)")
     q.add_argument("--seeds", type=int, default=5, help="noise seeds of the prediction (5)")
-    q.add_argument("--k", type=float, default=drift.DEFAULT_K,
+    q.add_argument("--k", type=float, default=DEFAULT_K,
                    help="within the scatter: |value - mean| <= k x its std (3)")
     p.epilog = examples(
         "harness history list",

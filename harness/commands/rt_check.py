@@ -21,9 +21,7 @@ import json
 import sys
 
 from harness.commands import examples
-from harness.realtime.check import format_report, judge
-from harness.realtime.floor import DEFAULT_WORK_S, Measures, run_floor
-from harness.realtime.host import read_host_facts
+from harness.realtime import DEFAULT_WORK_S
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -57,6 +55,12 @@ def cmd_rt_check(args: argparse.Namespace) -> int:
         print(f"harness rt-check: --work-us {args.work_us:g}: expected 0 <= work < the period "
               f"({period_us:g} us)", file=sys.stderr)
         return 2
+    # the floor's loop and clock, imported only when measuring (their numpy and python-can
+    # would slow `harness rt-check --help`)
+    from harness.realtime.check import format_report, judge
+    from harness.realtime.floor import Measures, run_floor
+    from harness.realtime.host import read_host_facts
+
     host = read_host_facts()
     if args.cpu >= 0 and host.cpus_online and args.cpu not in host.cpus_online:
         print(f"harness rt-check: --cpu {args.cpu}: not an online CPU {host.cpus_online}",

@@ -1,4 +1,4 @@
-"""The loop's two clocks behind one interface.
+"""The loop's clocks behind one interface.
 
 - ``LockstepClock``: simulated time; ``wait`` returns at once (each tick the virtual rig
   advances exactly one step), deterministic and as fast as the machine allows.
@@ -6,6 +6,8 @@
   accumulated sleeps). It sleeps until shortly before the deadline, then spins for at most
   ``spin_s`` (0.15 ms, never more than a quarter period, so SCHED_FIFO cannot starve the
   machine).
+- ``KernelSyncClock``: real time paced by the SYNCs SocketCAN's broadcast manager sends
+  (run file ``sync_source: kernel``): each tick starts when its SYNC is read back.
 """
 
 from __future__ import annotations
@@ -16,6 +18,9 @@ import os
 import sys
 import time
 from dataclasses import dataclass, field
+from typing import Any
+
+import can
 
 BUS_LOCKSTEP_WAIT_S = 0.5
 """Lockstep over a bus (a virtual rig in its own process, ``harness virtual-rig --lockstep``):
@@ -67,6 +72,51 @@ class RealTimeClock:
     def time_left(self, tick: int) -> float:
         """Seconds until the next tick's deadline."""
         return self.deadline(tick + 1) - time.perf_counter()
+
+
+KERNEL_SYNC_WAIT_PERIODS = 20
+"""A kernel-sent SYNC that does not come within this many periods (and at least 1 s) stops
+the run: the broadcast manager stopped or the interface went down."""
+
+
+class KernelSyncLost(RuntimeError):
+    pass
+
+
+class KernelSyncClock:
+    """Real time paced by SYNCs the kernel sends (SocketCAN's broadcast manager): ``wait``
+    returns when the next SYNC is on the bus (its time stamp read back), and the tick's
+    deadline is one period after that SYNC. The lateness is how long after the SYNC's
+    time stamp the loop started its tick."""
+
+    realtime = True
+
+    def __init__(self, dt_s: float, interface: Any) -> None:
+        self.dt_s = dt_s
+        self.interface = interface
+        self._sync_perf = 0.0
+
+    def start(self) -> None:
+        try:
+            self.interface.start_kernel_sync(self.dt_s)
+        except (OSError, can.CanError) as exc:
+            raise KernelSyncLost(f"the kernel's broadcast manager did not start SYNC: "
+                                 f"{exc}") from exc
+
+    def wait(self, tick: int) -> float:
+        ts = self.interface.wait_kernel_sync(
+            tick, max(1.0, KERNEL_SYNC_WAIT_PERIODS * self.dt_s))
+        if ts is None:
+            raise KernelSyncLost(
+                f"no SYNC from the kernel's broadcast manager within "
+                f"{max(1.0, KERNEL_SYNC_WAIT_PERIODS * self.dt_s):g} s (tick {tick})")
+        late = max(0.0, time.time() - ts)
+        self._sync_perf = time.perf_counter() - late
+        return late
+
+    def time_left(self, tick: int) -> float:
+        """Seconds until the next SYNC is due (one period after this tick's)."""
+        return self._sync_perf + self.dt_s - time.perf_counter()
 
 
 def allowed_cpus() -> list[int]:

@@ -18,8 +18,15 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from harness.bus.rig_interface import RigInterface
-from harness.core.clock import BUS_LOCKSTEP_WAIT_S, LockstepClock, RealTimeClock
+from harness.core.clock import (
+    BUS_LOCKSTEP_WAIT_S,
+    KernelSyncClock,
+    KernelSyncLost,
+    LockstepClock,
+    RealTimeClock,
+)
 from harness.core.streaming import LatencyHistogram
+from harness.core.wire_timing import WireTiming
 from harness.record.recording import Recorder
 from harness.state import RigCommand
 
@@ -46,6 +53,12 @@ CHANNELS = [
     "/timing/lateness_ms",
     "/timing/work_ms",
     "/timing/frames_rx",
+    # timing on the wire from the frames' own time stamps (harness.core.wire_timing; NaN
+    # where not measured): this SYNC's period minus the loop's, the last device's first
+    # answer after this SYNC, the previous tick's last command before this SYNC
+    "/timing/sync_jitter_ms",
+    "/timing/answer_latency_ms",
+    "/timing/command_margin_ms",
 ]
 # one recorded row packed straight into the recorder's float64 row (one call, not numpy's
 # conversion of a tuple)
@@ -108,7 +121,7 @@ the rig's traffic at 500 Hz)."""
 def run_loop(
     interface: RigInterface,
     controller: object,
-    clock: LockstepClock | RealTimeClock,
+    clock: LockstepClock | RealTimeClock | KernelSyncClock,
     recorder: Recorder,
     n_ticks: int,
     dt_s: float,
@@ -121,11 +134,14 @@ def run_loop(
     monitor: Any = None,
     should_stop: Callable[[], str | None] | None = None,
     step_budget_s: float = math.inf,
+    wire: WireTiming | None = None,
 ) -> LoopStats:
     """Run ``n_ticks`` ticks. ``pump`` lets an in-process virtual rig answer (lockstep).
     ``stats`` (filled in place) stays with the caller even when the loop raises.
     ``step_budget_s``: the controller's time per tick; the ticks its step() took longer are
-    counted (``stats.steps_over_budget``)."""
+    counted (``stats.steps_over_budget``). ``wire``: timing on the wire, fed every tick
+    from the interface's time stamps (``RigInterface.start_wire_timing``, called by the
+    caller); without it those channels are NaN."""
     stats = stats if stats is not None else LoopStats()
     step = controller.step  # type: ignore[attr-defined]
     perf = time.perf_counter
@@ -162,13 +178,18 @@ def run_loop(
     check = monitor.check if monitor is not None else None
     degrees = math.degrees
     on_time_ticks = 0
+    nan = math.nan
+    wire_tick = wire.tick if wire is not None else None
+    wire_rx = getattr(interface, "wire_rx", None)
+    wire_names = getattr(interface, "device_of_driver", {})
+    jitter_ms = latency_ms = margin_ms = nan
     step_total = step_max = 0.0
     steps_over = 0
     wall0 = perf()
-    clock.start()
     tick = 0
     prev_overrun = False
     try:
+        clock.start()  # the kernel's SYNC (KernelSyncClock) starts here: inside, left safe
         for tick in range(n_ticks):
             if should_stop is not None and should_stop():
                 stats.stopped_by = "interrupted"
@@ -192,6 +213,11 @@ def run_loop(
             missing = expected - got
             if missing > 0:
                 stats.missing_frames += missing
+            if wire_tick is not None and wire_rx is not None:
+                jitter_ms, latency_ms, margin_ms = wire_tick(
+                    interface.wire_sync_ts, interface.wire_prev_cmd_ts,
+                    [(wire_names.get(id(d), ""), ts) for d, ts in wire_rx])
+                wire_rx.clear()
             t_s = tick * dt_s
             state = snapshot(tick, t_s)
             t_step = perf()
@@ -233,6 +259,7 @@ def run_loop(
                 state.valve_firings, state.valve_on_time_s, piezo_v[0], piezo_v[1],
                 piezo_sensor_v[0], piezo_sensor_v[1], state.rotor_angle_rad,
                 state.rotor_speed_rad_s, lateness * 1e3, work * 1e3, got,
+                jitter_ms, latency_ms, margin_ms,
             )
             commit()
             stats.ticks = tick + 1
@@ -264,6 +291,11 @@ def run_loop(
                     can_log.drain()
             if progress is not None and tick % progress_every == 0:
                 progress(tick, n_ticks)
+    except KernelSyncLost as exc:  # the kernel's SYNC stopped: the run cannot go on
+        stats.stopped_by = "error"
+        stats.error = str(exc)
+        recorder.log_event(tick * dt_s, "/events/harness", stats.error, "ERROR")
+        print(f"\nharness: {exc}; leaving the rig safe", file=sys.stderr)
     except KeyboardInterrupt:
         stats.stopped_by = "interrupted"
         print("\nharness: interrupted; leaving the rig safe", file=sys.stderr)
@@ -284,6 +316,9 @@ def run_loop(
 def leave_safe(interface: RigInterface, pump: Callable[[], object] | None) -> None:
     """Wheel torque zero, valves closed, piezo 0 V, rotor stopped; heartbeat disarmed."""
     try:
+        stop_sync = getattr(interface, "stop_kernel_sync", None)
+        if stop_sync is not None:  # no SYNC after the run: the devices stop answering
+            stop_sync()
         interface.command_safe()
         interface.send_heartbeat(armed=False)
         if pump is not None:

@@ -36,6 +36,9 @@ RUN_SCHEMA: dict[str, Any] = {
     "bus": Field("str", default=None),
     "clock": Field("str", default="lockstep", choices=("lockstep", "realtime")),
     "rate_hz": Field("number", "Hz", default=500.0, minimum=1.0, maximum=2000.0),
+    # who sends SYNC in real time: the loop ("loop"), or the kernel's broadcast manager
+    # ("kernel", SocketCAN only; each tick starts when its SYNC is read back)
+    "sync_source": Field("str", default="loop", choices=("loop", "kernel")),
     # at most 30 days: a duration of 1e308 s overflowed the tick count (a traceback)
     "duration_s": Field("number", "s", required=True, exclusive_minimum=0.0,
                         maximum=30 * 24 * 3600.0),

@@ -28,7 +28,13 @@ from harness.bus import BusSpec, open_bus, parse_bus
 from harness.bus.load import binding_bus_load, compute_bus_load
 from harness.bus.rig_interface import RigInterface
 from harness.bus.rig_process import RigProcess, RigProcessError
-from harness.core.clock import LockstepClock, RealTimeClock, RealTimeSetup, choose_cpus
+from harness.core.clock import (
+    KernelSyncClock,
+    LockstepClock,
+    RealTimeClock,
+    RealTimeSetup,
+    choose_cpus,
+)
 from harness.core.limits import BeyondLimit, check_run
 from harness.core.loop import CHANNELS, HELD_FRACTION, RESERVE_FRACTION, LoopStats, run_loop
 from harness.core.monitor import FaultMonitor, MonitorWarning
@@ -36,6 +42,7 @@ from harness.core.paths import safe_child, safe_name
 from harness.core.periodic import steady_state_amplitude
 from harness.core.runs import RunConfig, build_controller, controller_summary
 from harness.core.streaming import RunningSummary
+from harness.core.wire_timing import WireTiming
 from harness.record.can_log import CanLog
 from harness.record.output import (
     OutputError,
@@ -149,6 +156,8 @@ def execute_run(
         raise RunRefused(f"{run.source}: --rig-process runs the virtual rig as its own "
                          f"process for a real-time run on the virtual bus; got bus {spec} "
                          f"and clock {clock_name}")
+    if run.data["sync_source"] == "kernel":
+        refuse_kernel_sync(run, spec, clock_name)
     load = bus_load_of(run)
     if load.percent > run.data["max_bus_load_percent"]:
         worst = max(load.rows, key=lambda r: r[2])
@@ -401,6 +410,7 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
              device_rig: Any = None) -> RunResult:
     dt_s = run.dt_s
     protocol = load_protocol()
+    kernel_sync = run.data["sync_source"] == "kernel"
     try:
         harness_bus = open_bus(spec)
     except Exception as exc:  # python-can raises many kinds (OSError, CanError, ValueError)
@@ -446,11 +456,18 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
             for line in setup.refused:
                 recorder.log_event(0.0, "/events/harness",
                                    f"real-time measure not granted: {line}", "WARN")
-            loop_clock: LockstepClock | RealTimeClock = RealTimeClock(dt_s)
+            loop_clock: LockstepClock | RealTimeClock | KernelSyncClock = RealTimeClock(dt_s)
         else:
             loop_clock = LockstepClock(dt_s)
         interface = RigInterface(harness_bus, protocol, run.rig, can_log, run.actuators,
                                  dry_run=dry_run)
+        if kernel_sync:
+            from harness.bus.socketcan_echo import broadcast_manager_missing
+
+            why = broadcast_manager_missing(harness_bus)
+            if why is not None:  # before the CANopen set-up: nothing sent
+                raise RunRefused(f"{run.source}: sync_source: kernel: bus {spec}: {why}")
+            loop_clock = KernelSyncClock(dt_s, interface)
         heartbeat_every = max(1, round(run.data["rate_hz"] / run.data["heartbeat_hz"]))
         monitor = make_monitor(run, interface, realtime=clock_name == "realtime")
         co_nodes: list[Any] | None = None
@@ -460,6 +477,10 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                                        quiet_ticks=monitor.startup_ticks)
         monitor.on_warning = _warning_logger(recorder, show_progress)
         reference = getattr(controller, "reference", None)
+        # timing on the wire: from here on every frame's time stamp (the set-up's are not)
+        wire = WireTiming(dt_s, interface.drivers,
+                          "none" if pump is not None else interface.start_wire_timing(),
+                          paced=realtime, sync_sent_by=run.data["sync_source"])
         recorder.log_static_text("/run/config", "```yaml\n" + yaml.safe_dump(
             run.resolved(), sort_keys=False) + "```")
         try:
@@ -468,7 +489,7 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                 heartbeat_every, run.data["receive_timeout_ms"] / 1e3, pump=pump,
                 reference=reference, progress=_progress if show_progress else None,
                 stats=stats, monitor=monitor, should_stop=should_stop,
-                step_budget_s=run.step_budget_s)
+                step_budget_s=run.step_budget_s, wire=wire)
         finally:
             if show_progress:
                 print("", file=sys.stderr)
@@ -480,6 +501,7 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
             summary = summarise(run, recorder, stats, load.percent, interface, clock_name,
                                 str(spec), setup, rig, running)
             summary["monitor_warnings"] = dict(monitor.warning_counts)
+            summary["wire_timing"] = wire.summary()
             summary.update(periodic_summary(run, recorder, controller, running))
             design_report = getattr(controller, "design_report", None)
             if callable(design_report):
@@ -515,6 +537,18 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
     if failure is not None:
         raise failure
     return RunResult(run_dir, summary, stats, recorder, rig)
+
+
+def refuse_kernel_sync(run: RunConfig, spec: BusSpec, clock_name: str) -> None:
+    """``sync_source: kernel`` needs SocketCAN's broadcast manager and the real-time clock;
+    otherwise the run is refused before anything is sent."""
+    if spec.interface != "socketcan":
+        raise RunRefused(f"{run.source}: sync_source: kernel needs a SocketCAN bus (the "
+                         f"kernel's broadcast manager sends SYNC); bus {spec} has none: use "
+                         "--bus socketcan:CHANNEL or sync_source: loop")
+    if clock_name != "realtime":
+        raise RunRefused(f"{run.source}: sync_source: kernel needs --clock realtime (the "
+                         f"kernel sends SYNC on its own period), not {clock_name}")
 
 
 def _write_summary(run_dir: Path, summary: dict[str, Any]) -> None:
@@ -636,7 +670,7 @@ def _final_layout(recorder: Recorder, run: RunConfig, run_dir: Path,
         # the time axes end where the recording does (a faulted run's at the fault)
         end_s = plot_stats.end_s or run.data["duration_s"]
         ranges, legends = plot_stats.ranges(), plot_stats.legends(end_s)
-        write_layout_file(run_dir, ranges, legends, end_s)
+        write_layout_file(run_dir, ranges, legends, end_s, CHANNELS)
         recorder.send_layout(layout_for_run(run.resolved(), CHANNELS, ranges, legends, end_s))
     except Exception as exc:  # the layout of the start stays
         print(f"harness: could not write the run's final layout ({exc})", file=sys.stderr)
@@ -754,6 +788,10 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
             "missing_in_ticks_held_by_both": stats.missing_frames_on_time,
             "missing_rig_answered_after_window": 0,
             "error_frames": interface.counters.error_frames,
+            # frames the host's kernel dropped because the harness's socket queue was full
+            # (a loop behind on a busy host); null where the bus cannot say (not SocketCAN)
+            "dropped_by_kernel": (interface.bus.kernel_drops
+                                  if getattr(interface.bus, "drops_counted", False) else None),
         },
         "wall_time_s": round(stats.wall_s, 3),
         "simulated_time_s": round(sim_time, 6),

@@ -14,3 +14,11 @@ and twin run the virtual rig), ``harness.record``, ``harness.calibration`` and
 ``rig_models``; only ``harness.commands`` and the few hooks that record a result (the run's
 and judge's verdict, a suite's report, identify, calibrate) import it, each lazily.
 """
+
+DEFAULT_K = 3.0
+"""Alarm threshold in standard uncertainties (``drift``'s default, and ``harness history``'s
+``--k``; kept here so the command's help needs no numpy)."""
+DEFAULT_N_REF = 5
+"""Reference points of a control chart (``--n-ref``)."""
+DEFAULT_N_TREND = 5
+"""Points of the trend window (``--n-trend``)."""

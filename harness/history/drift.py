@@ -30,9 +30,7 @@ from typing import Any
 
 import numpy as np
 
-DEFAULT_K = 3.0
-DEFAULT_N_REF = 5
-DEFAULT_N_TREND = 5
+from harness.history import DEFAULT_K, DEFAULT_N_REF, DEFAULT_N_TREND
 
 
 @dataclass

@@ -7,3 +7,8 @@
   uses, doing a fixed amount of busy work a tick: what the host alone allows.
 - ``check``: a plain verdict (HOLDS / MARGINAL / CANNOT HOLD) and what to change.
 """
+
+DEFAULT_WORK_S = 150e-6
+"""The floor loop's busy work a tick (s): about what the harness's own tick takes at 500 Hz
+(codecs, bus, drivers, controller; ``work_ms`` p50 of a real-time run is 0.1-0.2 ms). Kept
+here, not in ``floor``, so ``harness rt-check --help`` imports no clock and no numpy."""

@@ -10,10 +10,7 @@ from typing import Any
 
 from harness.core.clock import RealTimeClock, RealTimeSetup
 from harness.core.streaming import LatencyHistogram
-
-DEFAULT_WORK_S = 150e-6
-"""Busy work a tick: about what the harness's own tick takes at 500 Hz (codecs, bus,
-drivers, controller; ``work_ms`` p50 of a real-time run is 0.1-0.2 ms here)."""
+from harness.realtime import DEFAULT_WORK_S
 
 
 @dataclass

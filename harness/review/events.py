@@ -123,6 +123,7 @@ SUMMARY_ROWS: tuple[tuple[str, str], ...] = (
     ("wheel_torque_limit_n_m", "wheel torque limit (N m)"),
     ("overruns", "overruns"),
     ("lateness_ms", "lateness (ms)"),
+    ("wire_timing", "timing on the wire (ms)"),
     ("work_ms", "work per tick (ms)"),
     ("bus_load_percent", "bus load, worst case (%)"),
     ("frames", "frames"),
@@ -163,6 +164,8 @@ def summary_markdown(summary: Mapping[str, Any]) -> str:
         elif key == "monitor_warnings" and isinstance(value, dict):
             lines.append(f"| {label} | " + (", ".join(
                 f"{k.replace('_', ' ')} {n}" for k, n in value.items() if n) or "none") + " |")
+        elif key == "wire_timing" and isinstance(value, dict):
+            lines += [f"| {a} | {b} |" for a, b in wire_timing_rows(value)]
         elif key == "frames" and isinstance(value, dict):
             lines += [f"| frames {k.replace('_', ' ')} | {_fmt(v)} |" for k, v in value.items()]
         else:
@@ -174,6 +177,21 @@ def summary_markdown(summary: Mapping[str, Any]) -> str:
         if v not in (None, ""):
             lines.append(f"| {key} | {_fmt(v)} |")
     return "\n".join(lines) + "\n"
+
+
+def wire_timing_rows(w: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """summary.json's ``wire_timing`` as table rows (label, value): where its time stamps
+    come from and what they say, then each figure's percentiles."""
+    rows = [("timing on the wire: source",
+             f"{_fmt(w.get('source'))} (SYNC sent by {_fmt(w.get('sync_sent_by'))}): "
+             f"{_fmt(w.get('note'))}")]
+    if w.get("sync_period_jitter_ms"):
+        rows.append(("SYNC period jitter on the wire (ms)", _fmt(w["sync_period_jitter_ms"])))
+    for device, p in (w.get("answer_latency_ms") or {}).items():
+        rows.append((f"answer latency after SYNC, {device.replace('_', ' ')} (ms)", _fmt(p)))
+    if w.get("command_margin_ms"):
+        rows.append(("command margin before the next SYNC (ms)", _fmt(w["command_margin_ms"])))
+    return rows
 
 
 def values_at(rrd: Path, times_s: Sequence[float]) -> list[dict[str, float]]:

@@ -66,6 +66,9 @@ PLOTS: dict[str, Plot] = {p.key: p for p in (
     Plot("rotor_angle", "Disturbance rotor angle (rad)", ("/rotor/angle_rad",)),
     Plot("timing", "Loop timing: lateness and work (ms)",
          ("/timing/lateness_ms", "/timing/work_ms"), from_zero=True),
+    Plot("wire", "Timing on the wire: SYNC jitter, last answer after SYNC, command margin "
+         "(ms)", ("/timing/sync_jitter_ms", "/timing/answer_latency_ms",
+                  "/timing/command_margin_ms")),
     Plot("frames", "Telemetry frames per tick: read, late or missing (count)",
          ("/timing/frames_rx", "/bus/late_or_missing"), from_zero=True),
 )}
@@ -441,10 +444,16 @@ def channel_ranges(columns: Mapping[str, Any]) -> dict[str, list[float]]:
 
 def write_layout_file(run_dir: Path, ranges: Mapping[str, Sequence[float]],
                       legends: Mapping[str, str] | None = None,
-                      end_s: float | None = None) -> Path:
+                      end_s: float | None = None,
+                      channels: Iterable[str] | None = None) -> Path:
+    """layout.json: each channel's y range and legend corner, the time axis's end, and the
+    recorded channels (``channels``; a channel recorded as NaN throughout, such as a timing
+    on the wire not measured, has no range but keeps its place in the layout)."""
     path = run_dir / LAYOUT_FILE
     doc: dict[str, Any] = {"y_ranges": {c: list(r) for c, r in ranges.items()},
                            "legends": dict(legends or {})}
+    if channels is not None:
+        doc["channels"] = list(channels)
     if end_s is not None and math.isfinite(end_s):
         doc["end_s"] = float(end_s)
     path.write_text(json.dumps(doc, indent=1))
@@ -455,15 +464,16 @@ def blueprint_for_run_dir(run_dir: Path) -> rrb.Blueprint:
     """The layout of a recorded run from its config.yaml and layout.json: what run.rrd
     carries. Writers of other files for the run (identify.rrd, verdict.rrd) pass it as their
     ``default_blueprint`` so that the files open together in any order. The recorded
-    channels are layout.json's (those with values); without it, every plot's channels."""
+    channels are layout.json's (its ``channels``, or in an older file those with values);
+    without it, every plot's channels."""
     import yaml
 
     cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
     layout = run_dir / LAYOUT_FILE
     saved = json.loads(layout.read_text()) if layout.exists() else {}
     ranges = saved.get("y_ranges")
-    return layout_for_run(cfg, None if ranges is None else list(ranges), ranges,
-                          saved.get("legends"), saved.get("end_s"))
+    channels = saved.get("channels", None if ranges is None else list(ranges))
+    return layout_for_run(cfg, channels, ranges, saved.get("legends"), saved.get("end_s"))
 
 
 def study_layout(curves: Mapping[str, Sequence[str]], timeline: str,

@@ -42,6 +42,9 @@ SERIES_NAMES: dict[str, str] = {
     "/timing/lateness_ms": "lateness",
     "/timing/work_ms": "work",
     "/timing/frames_rx": "frames read",
+    "/timing/sync_jitter_ms": "SYNC jitter",
+    "/timing/answer_latency_ms": "last answer",
+    "/timing/command_margin_ms": "command margin",
     "/bus/late_or_missing": "late or missing",
 }
 UNIT_SUFFIXES = ("_deg_s", "_rad_s", "_m_s2", "_n_m", "_deg", "_rad", "_ms", "_hz", "_v",
@@ -73,6 +76,9 @@ SERIES_COLOURS: dict[str, tuple[int, int, int]] = {
     "/timing/lateness_ms": YELLOW,
     "/timing/work_ms": VERMILLION,
     "/timing/frames_rx": SKY,
+    "/timing/sync_jitter_ms": PURPLE,
+    "/timing/answer_latency_ms": BLUE,
+    "/timing/command_margin_ms": GREEN,
     "/bus/late_or_missing": VERMILLION,
 }
 # the decoded bus's signals: the colour of the loop's channel they carry

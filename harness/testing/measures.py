@@ -18,6 +18,8 @@ import re
 from collections.abc import Iterable, Mapping
 from typing import Any
 
+from drivers.binding.quantities import DEVICES
+
 UNIT_SUFFIXES = ("deg_s", "rad_s", "m_s2", "n_m", "percent", "count", "hz", "ms", "deg", "rad",
                  "kg", "m", "s", "v", "a")
 """Unit suffixes, longest first where one ends another (``deg_s`` before ``s``)."""
@@ -63,6 +65,7 @@ SUMMARY_MEASURES: dict[str, str] = {
     "frames.missing_in_ticks_held_by_both": "count",
     "frames.missing_rig_answered_after_window": "count",
     "frames.error_frames": "count",
+    "frames.dropped_by_kernel": "count",
     "wall_time_s": "s",
     "simulated_time_s": "s",
     "real_time_factor": "ratio",
@@ -102,6 +105,14 @@ SUMMARY_MEASURES: dict[str, str] = {
     "monitor_warnings.tip_accel": "count",
     "monitor_warnings.accel_range": "count",
     "monitor_warnings.telemetry_missing": "count",
+    # timing on the wire (harness.core.wire_timing): null where the bus cannot measure it
+    "wire_timing.syncs_time_stamped": "count",
+    **{f"wire_timing.sync_period_jitter_ms.{k}": "ms"
+       for k in ("p50", "p99", "max", "min_signed", "max_signed")},
+    **{f"wire_timing.command_margin_ms.{k}": "ms" for k in ("p50", "p99", "max", "min")},
+    "wire_timing.command_margin_ms.commands_after_next_sync": "count",
+    **{f"wire_timing.answer_latency_ms.{d}.{k}": "ms"
+       for d in DEVICES for k in ("p50", "p99", "max")},
 }
 
 OPEN_PREFIXES = ("controller_design.",)
@@ -110,7 +121,9 @@ its unit read from its name (``ratio`` without a suffix); a path the run did not
 missing data at judge time (ERROR)."""
 
 BUDGET_MEASURES = ("overruns", "lateness_ms.", "work_ms.", "real_time_factor", "frames.missing",
-                   "timing.")
+                   "frames.dropped_by_kernel",
+                   "timing.", "wire_timing.sync_period_jitter_ms.",
+                   "wire_timing.command_margin_ms.")
 """Measures of the real-time budget: a criterion on them that fails makes the verdict
 INCONCLUSIVE (the bench did not hold its time: the test measured nothing trustworthy), not
 FAIL. A criterion's ``budget: true|false`` overrides this."""

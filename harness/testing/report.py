@@ -371,6 +371,42 @@ def open_command(out_dir: Path, run_dir: str) -> str:
     return "rerun " + " ".join(f"{run_dir}/{f}" for f in files) if files else ""
 
 
+def _pcts(p: Any) -> str:
+    return "/".join(_fmt(p.get(k)) for k in ("p50", "p99", "max")) if isinstance(p, dict) \
+        else "-"
+
+
+def timing_line(out_dir: Path, run_dir: str) -> str | None:
+    """A run's timing in one line: the loop's lateness beside what the frames' own time
+    stamps say on the wire (SYNC period jitter, the slowest device's answer after SYNC, the
+    command's margin before the next SYNC), or what the bus could not measure. None for a
+    run without a readable summary."""
+    try:
+        s = json.loads((out_dir / run_dir / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(s, dict):
+        return None
+    line = f"loop lateness p50/p99/max {_pcts(s.get('lateness_ms'))} ms"
+    w = s.get("wire_timing")
+    if not isinstance(w, dict):
+        return line
+    jitter, answers = w.get("sync_period_jitter_ms"), w.get("answer_latency_ms") or {}
+    margin = w.get("command_margin_ms")
+    if jitter is None and not answers and margin is None:
+        return f"{line}; on the wire: not measured ({_fmt(w.get('note'))})"
+    parts = [f"on the wire ({_fmt(w.get('source'))} time stamps, SYNC sent by "
+             f"{_fmt(w.get('sync_sent_by'))}): SYNC jitter p50/p99/max {_pcts(jitter)} ms"]
+    if answers:
+        slowest = max(answers, key=lambda d: (answers[d] or {}).get("p99") or 0.0)
+        parts.append(f"slowest answer after SYNC {slowest} p50/p99/max "
+                     f"{_pcts(answers[slowest])} ms")
+    if isinstance(margin, dict):
+        parts.append(f"command margin before the next SYNC min {_fmt(margin.get('min'))} ms, "
+                     f"{_fmt(margin.get('commands_after_next_sync'))} after it")
+    return f"{line}; " + ", ".join(parts)
+
+
 def _counts(records: list[dict[str, Any]]) -> dict[str, int]:
     return dict(Counter(r["verdict"] for r in records))
 
@@ -497,6 +533,8 @@ def _markdown(doc: dict[str, Any], out_dir: Path) -> str:
             out += [" · ".join(f"[{f}]({d}/{f})" for f in names) + f" · [folder]({d}/)", ""]
             if cmd := open_command(out_dir, d):
                 out += [f"`{cmd}`", ""]
+            if r["kind"] == "run" and (timing := timing_line(out_dir, d)):
+                out += [f"Timing: {timing}", ""]
         if r["criteria"]:
             out += [_md_table(_criteria_rows(r["criteria"]), HEADER), ""]
         if r.get("modes"):
@@ -583,6 +621,8 @@ def _html(doc: dict[str, Any], out_dir: Path) -> str:
             if cmd := open_command(out_dir, r["run_dir"]):
                 parts.append("<p>open its recordings together (from this folder): "
                              f"<code>{html.escape(cmd)}</code></p>")
+            if r["kind"] == "run" and (timing := timing_line(out_dir, r["run_dir"])):
+                parts.append(f"<p>Timing: {html.escape(timing)}</p>")
         if r["criteria"]:
             parts.append(_html_table(_criteria_rows(r["criteria"]), HEADER,
                                      verdict_col=VERDICT_COL))
