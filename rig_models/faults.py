@@ -20,6 +20,8 @@ FAULT_KINDS: dict[str, str] = {
     "delay_frames": "holds the device's telemetry back by `value` ticks (default 3)",
     "corrupt_payload": "inverts byte `value` (default: the last) of the device's frames",
     "wrong_length": "sends the device's frames one byte short",
+    "bad_checksum": "inverts the checksum byte of the device's telemetry frames that declare "
+                    "one (a DBC binding's checksums:); frames without one are sent as they are",
     "unknown_ids": "adds a frame with an id no device uses, every tick",
     "stuck_sensor": "the device repeats its last frame, byte for byte",
     "silent_sensor": "the device stops answering",
@@ -44,7 +46,8 @@ FAULT_KINDS: dict[str, str] = {
                  "0x1017, the heartbeat time) with 0x08000020 (cannot store)",
 }
 DEVICE_FAULTS = {"drop_frames", "delay_frames", "corrupt_payload", "wrong_length",
-                 "stuck_sensor", "silent_sensor", "node_heartbeat_lost", "node_emcy",
+                 "bad_checksum", "stuck_sensor", "silent_sensor", "node_heartbeat_lost",
+                 "node_emcy",
                  "drive_fault", "drive_disabled", "node_reboot", "node_stopped", "sdo_abort"}
 CANOPEN_FAULTS = {"node_heartbeat_lost", "node_emcy", "drive_fault", "drive_disabled",
                   "node_reboot", "node_stopped", "sdo_abort"}
@@ -133,8 +136,10 @@ class FaultInjector:
     def any_active(self, t_s: float, kind: str) -> FaultSpec | None:
         return self.active(t_s, kind)
 
-    def telemetry(self, t_s: float, tick: int, device: str, data: bytes) -> list[bytes]:
-        """The payloads the device really puts on the bus this tick (maybe none)."""
+    def telemetry(self, t_s: float, tick: int, device: str, data: bytes,
+                  checksum_byte: int | None = None) -> list[bytes]:
+        """The payloads the device really puts on the bus this tick (maybe none);
+        ``checksum_byte``: where the frame's end-to-end checksum is, if it has one."""
         if self.active(t_s, "bus_off") or self.active(t_s, "silent_sensor", device):
             return []
         if self.active(t_s, "stuck_sensor", device):
@@ -151,6 +156,9 @@ class FaultInjector:
             i = int(f.value) if f.value is not None else len(data) - 1
             i = max(0, min(len(data) - 1, i))
             data = data[:i] + bytes([data[i] ^ 0xFF]) + data[i + 1:]
+        if checksum_byte is not None and self.active(t_s, "bad_checksum", device):
+            data = (data[:checksum_byte] + bytes([data[checksum_byte] ^ 0xFF])
+                    + data[checksum_byte + 1:])
         if self.active(t_s, "wrong_length", device):
             data = data[:-1]
         f = self.active(t_s, "delay_frames", device)

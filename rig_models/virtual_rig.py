@@ -39,6 +39,7 @@ from rig_models.devices import (
 )
 from rig_models.faults import FaultInjector, FaultSpec
 from rig_models.rig_file import RigConfig
+from rig_models.schema import ConfigError
 
 UNKNOWN_ID = 0x6A5  # used by no device of the DBC
 CAN_ERR_BUSERROR = 0x080  # SocketCAN error classes (linux/can/error.h)
@@ -70,8 +71,9 @@ TELEMETRY_QUANTITIES: dict[str, tuple[str, ...]] = {
 class RigCounters:
     frames_in: int = 0
     frames_out: int = 0
-    malformed: int = 0
+    malformed: int = 0  # frames refused: a wrong length, or a command's wrong checksum
     unknown: int = 0
+    repeated: int = 0  # protected commands dropped for repeating the last alive counter
     watchdog_trips: int = 0
     steps: int = 0
 
@@ -178,10 +180,20 @@ class TruthSample:
     modal: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-def check_virtual_rig(rig: RigConfig) -> None:
+def check_virtual_rig(rig: RigConfig, faults: list[FaultSpec] | tuple[FaultSpec, ...] = ()
+                      ) -> None:
     """``ConfigError`` (naming the rig file's key and the device file's object) if the
-    virtual rig cannot be one of the rig's devices: called before a run on the virtual bus,
-    so such a rig is refused with nothing sent rather than failing mid-set-up."""
+    virtual rig cannot be one of the rig's devices, or cannot inject one of ``faults`` (a
+    ``bad_checksum`` on a device whose telemetry declares no checksum): called before a run
+    on the virtual bus, so such a rig is refused with nothing sent rather than failing
+    mid-set-up or running a fault that never happens."""
+    for f in faults:
+        if f.kind == "bad_checksum" and not any(
+                getattr(m, "checksum", None) is not None
+                for m in rig.binding.telemetry.get(f.device, ())):
+            raise ConfigError(f"fault bad_checksum:{f.device}: the {f.device}'s telemetry "
+                              f"declares no checksum (a DBC binding's devices.{f.device}."
+                              "checksums)")
     co = rig.binding.canopen
     if co is not None:
         from rig_models.canopen.rig_devices import check_emulation
@@ -536,7 +548,8 @@ class VirtualRig:
             t0 = time.perf_counter() if self.time_ops else 0.0
             data = encode(*values)
             payloads = [data] if not self.injector.faults else self.injector.telemetry(
-                self.time_s, self.tick, device, data)
+                self.time_s, self.tick, device, data,
+                tmap.checksum.byte if tmap.checksum is not None else None)
             key = tmap.key
             for payload in payloads:
                 self.bus.send(can.Message(arbitration_id=key[0], data=payload,
@@ -629,16 +642,29 @@ class VirtualRig:
                          apply: dict[str, Callable[[dict[str, float]], None]]
                          ) -> Callable[[bytes], None]:
         # each map decodes straight into its device's command arguments (positional: no
-        # dict of quantities per frame)
+        # dict of quantities per frame). An end-to-end protected frame (a checksum declared)
+        # is dropped as a device drops it: a wrong checksum raises FrameError (counted as
+        # malformed by the caller), and with an alive counter, a frame repeating the last
+        # accepted counter value is not applied (a stale or replayed frame)
         decoders = []
         for cmap in cmaps:
             names, defaults, apply_args = self._command_args[cmap.device]
-            decoders.append((cmap.decoder(names, defaults), apply_args))
+            counted = cmap.checksum is not None and cmap.counter is not None
+            decoders.append((cmap.decoder(names, defaults, counted), apply_args, counted,
+                             [None]))
+        counters = self.counters
 
         def handler(data: bytes) -> None:
-            for decode, apply_args in decoders:
+            for decode, apply_args, counted, last in decoders:
                 values = decode(data)
                 if values is not None:
+                    if counted:
+                        count = values[-1]
+                        if count == last[0]:
+                            counters.repeated += 1
+                            return
+                        last[0] = count
+                        values = values[:-1]
                     if self.armed:
                         apply_args(*values)
                     return

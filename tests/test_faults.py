@@ -37,8 +37,10 @@ CASES = [
 
 
 def test_every_fault_kind_has_a_case():
-    # the CANopen kinds act on a CANopen rig's nodes: tests/test_binding_canopen.py
-    assert {c[0].split("@")[0] for c in CASES} | CANOPEN_FAULTS == set(FAULT_KINDS)
+    # the CANopen kinds act on a CANopen rig's nodes: tests/test_binding_canopen.py; a bad
+    # checksum on a rig whose DBC declares checksums: tests/test_e2e_protection.py
+    assert ({c[0].split("@")[0] for c in CASES} | CANOPEN_FAULTS | {"bad_checksum"}
+            == set(FAULT_KINDS))
 
 
 @pytest.mark.parametrize("fault,device,kind,bound", CASES, ids=[c[0] for c in CASES])

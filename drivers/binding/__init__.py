@@ -8,7 +8,8 @@ how each device speaks:
 - ``dbc``: any DBC file, with a map from each quantity to a message and signal and the
   conversion to SI (``scale``/``offset``: SI = value x scale + offset, or a sensor's
   ``sensitivity``/``offset``: value = offset + sensitivity x SI), both byte orders,
-  extended ids, multiplexed messages, optional alive counters;
+  extended ids, multiplexed messages, optional alive counters, and per message an optional
+  end-to-end checksum (``checksums:``, ``drivers.binding.e2e``);
 - ``canopen``: a node id, an EDS/DCF file and a CiA profile (``drivers.binding.canopen``);
 - ``none``: the rig has no such device (a run that needs it is refused).
 
@@ -18,7 +19,8 @@ files and DBC/EDS files, never in code (the sgsrt defaults below are the one exc
 ARE the sgsrt protocol).
 
 May import: ``drivers.dbc``, ``drivers.canopen_pdo``, ``drivers.device_file``, ``canopen``
-(EDS parsing only). Never ``harness`` or ``rig_models``.
+(EDS parsing only), ``crccheck`` (through ``drivers.binding.e2e``). Never ``harness`` or
+``rig_models``.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from drivers.binding.e2e import COVERS, SCHEMES, Checksum
 from drivers.binding.frames import (
     BindingError,
     CommandMap,
@@ -264,7 +267,7 @@ def _signal_length(codec: FrameCodec, name: str) -> int:
 def _dbc_device(device: str, cfg: Mapping[str, Any], key: str, base_dir: Path | None
                 ) -> tuple[tuple[TelemetryMap, ...], tuple[CommandMap, ...],
                            tuple[str, int] | None, str]:
-    allowed = {"binding", "dbc", "telemetry", "commands"}
+    allowed = {"binding", "dbc", "telemetry", "commands", "checksums"}
     unknown = sorted(set(cfg) - allowed, key=str)
     if unknown:
         raise BindingError(f"{key}.{unknown[0]}: unknown key (expected one of: "
@@ -292,13 +295,11 @@ def _dbc_device(device: str, cfg: Mapping[str, Any], key: str, base_dir: Path | 
     if missing:
         raise BindingError(f"{key}.telemetry.{missing[0]}: missing; the harness needs "
                            f"{', '.join(REQUIRED_TELEMETRY[device])} of the {device}")
-    tlm = tuple(TelemetryMap(device, codecs[name], tuple(fields), mux)
-                for (name, mux), fields in groups.items())
-    cmds: tuple[CommandMap, ...] = ()
+    cgroups: dict[tuple[str, int | None], list[SignalMap]] = {}
+    counter: dict[str, tuple[str, int]] = {}
     if device in COMMANDS:
         cmd_cfg = dict(_mapping(cfg.get("commands"), f"{key}.commands"))
         counter_cfg = cmd_cfg.pop("counter", None)
-        cgroups: dict[tuple[str, int | None], list[SignalMap]] = {}
         for q, spec in cmd_cfg.items():
             qkey = f"{key}.commands.{q}"
             if q not in COMMANDS[device]:
@@ -311,7 +312,6 @@ def _dbc_device(device: str, cfg: Mapping[str, Any], key: str, base_dir: Path | 
         if missing:
             raise BindingError(f"{key}.commands.{missing[0]}: missing; the harness commands "
                                f"{', '.join(REQUIRED_COMMANDS[device])} of the {device}")
-        counter: dict[str, tuple[str, int]] = {}
         if counter_cfg is not None:
             ckey = f"{key}.commands.counter"
             codec, sm, _, modulus = _signal_map("counter", counter_cfg, ckey, protocol, path)
@@ -319,11 +319,97 @@ def _dbc_device(device: str, cfg: Mapping[str, Any], key: str, base_dir: Path | 
                 raise BindingError(f"{ckey}.message: {codec.name} carries no command of the "
                                    f"{device}")
             counter[codec.name] = (sm.signal, modulus or 1 << _signal_length(codec, sm.signal))
-        cmds = tuple(CommandMap(device, codecs[name], tuple(fields), counter.get(name), mux)
-                     for (name, mux), fields in cgroups.items())
     elif cfg.get("commands"):
         raise BindingError(f"{key}.commands: the {device} takes no commands")
+    # each bound message's checksum, if declared: set last, over what the maps encode
+    used: dict[str, set[str]] = {}  # message -> the signals the device maps in it
+    for (name, _), fields in (*groups.items(), *cgroups.items()):
+        used.setdefault(name, set()).update(f.signal for f in fields)
+    for name, (sig, _) in counter.items():
+        used[name].add(sig)
+    sums = _checksums(device, cfg.get("checksums"), f"{key}.checksums", protocol, used)
+    tlm = tuple(TelemetryMap(device, codecs[name], tuple(fields), mux, sums.get(name))
+                for (name, mux), fields in groups.items())
+    cmds = tuple(CommandMap(device, codecs[name], tuple(fields), counter.get(name), mux,
+                            sums.get(name))
+                 for (name, mux), fields in cgroups.items())
     return tlm, cmds, sequence, str(path)
+
+
+_CHECKSUM_KEYS = {"signal", "scheme", "data_id", "covers"}
+
+
+def _checksums(device: str, raw: Any, key: str, protocol: Protocol,
+               used: Mapping[str, set[str]]) -> dict[str, Checksum]:
+    """A DBC device's ``checksums:``: message name -> {signal, scheme, data_id?, covers?},
+    for messages the device binds (telemetry or command). Raises BindingError naming the
+    key."""
+    out: dict[str, Checksum] = {}
+    for name, spec in _mapping(raw, key).items():
+        mkey = f"{key}.{name}"
+        if name not in used:
+            raise BindingError(f"{mkey}: {name!r} is not a message the {device} binds (its "
+                               f"messages: {', '.join(sorted(used))})")
+        codec = protocol.by_name[name]
+        spec = _mapping(spec, mkey)
+        unknown = sorted(set(spec) - _CHECKSUM_KEYS, key=str)
+        if unknown:
+            raise BindingError(f"{mkey}.{unknown[0]}: unknown key (expected one of: "
+                               f"{', '.join(sorted(_CHECKSUM_KEYS))})")
+        scheme = spec.get("scheme")
+        if scheme not in SCHEMES:
+            raise BindingError(f"{mkey}.scheme: unknown checksum scheme {scheme!r} (expected "
+                               f"one of: {', '.join(SCHEMES)})")
+        signal = _signal(codec, spec.get("signal"), mkey)
+        if signal in used[name]:
+            raise BindingError(f"{mkey}.signal: {signal} already carries a quantity or counter "
+                               f"of the {device}")
+        sig = next(s for s in codec.signals if s.name == signal)
+        aligned = sig.start % 8 == (7 if sig.byte_order == "big_endian" else 0)
+        if (sig.length != 8 or not aligned or sig.signed or sig.is_float or sig.scale != 1
+                or sig.offset != 0):
+            raise BindingError(f"{mkey}.signal: {signal} of {name} must be one whole byte (8 "
+                               "bits, unsigned, on a byte boundary, scale 1, offset 0) for an "
+                               "8-bit checksum")
+        byte = sig.start // 8
+        covers = spec.get("covers", "payload")
+        if covers not in COVERS:
+            raise BindingError(f"{mkey}.covers: expected one of {', '.join(COVERS)}, got "
+                               f"{covers!r}")
+        if "covers" in spec and scheme.startswith("autosar"):
+            raise BindingError(f"{mkey}.covers: the AUTOSAR profiles fix what they cover "
+                               "(every byte but the checksum's own, with the data id)")
+        data_id = spec.get("data_id")
+        if scheme.startswith("autosar"):
+            data_id = _data_id(scheme, data_id, f"{mkey}.data_id", byte, codec.length)
+        elif data_id is not None:
+            raise BindingError(f"{mkey}.data_id: {scheme} takes no data id (only autosar_p1 "
+                               "and autosar_p2 do)")
+        out[name] = Checksum(scheme, signal, byte, name, data_id, covers, codec.length)
+    return out
+
+
+def _data_id(scheme: str, value: Any, key: str, byte: int, length: int) -> int | list[int]:
+    """An AUTOSAR profile's data id: Profile 1 a 16-bit id; Profile 2 an 8-bit id, or the
+    profile's list of 16 chosen by the counter in byte 1 (checksum in byte 0)."""
+    top = 0xFFFF if scheme == "autosar_p1" else 0xFF
+
+    def one(v: Any) -> int:
+        if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= top:
+            raise BindingError(f"{key}: expected an integer 0..0x{top:X}, got {v!r}")
+        return v
+
+    if value is None:
+        raise BindingError(f"{key}: missing; {scheme} needs the message's data id")
+    if scheme == "autosar_p2" and isinstance(value, list):
+        if len(value) != 16:
+            raise BindingError(f"{key}: a list of 16 data ids (one per counter value), got "
+                               f"{len(value)}")
+        if byte != 0 or length < 2:
+            raise BindingError(f"{key}: a list of data ids needs Profile 2's layout (the "
+                               "checksum in byte 0, the counter in byte 1's low nibble)")
+        return [one(v) for v in value]
+    return one(value)
 
 
 def _sgsrt_device(device: str, protocol: Protocol

@@ -15,7 +15,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, cast
 
-from drivers.dbc import FrameCodec
+from drivers.binding.e2e import BYTE, Checksum
+from drivers.dbc import FrameCodec, FrameError
 
 
 class BindingError(ValueError):
@@ -86,19 +87,20 @@ class TelemetryMap:
     """One telemetry frame of one device (a multiplexed message: one mux value of it)."""
 
     __slots__ = ("device", "codec", "mux", "mux_signal", "fields", "identity", "_dec", "_enc",
-                 "key", "_wrap")
+                 "key", "_wrap", "checksum")
 
     def __init__(self, device: str, codec: FrameCodec, fields: tuple[SignalMap, ...],
-                 mux: int | None = None) -> None:
+                 mux: int | None = None, checksum: Checksum | None = None) -> None:
         self.device = device
         self.codec = codec
+        self.checksum = checksum  # end-to-end protection (drivers.binding.e2e), or None
         self.mux = mux
         self.mux_signal = _mux_signal(codec) if mux is not None else None
         self.fields = fields
         self.key = (codec.frame_id, codec.is_extended)
         # the sgsrt DBC's frames carry exactly the quantities, by name, in SI: its maps pass
         # the codec's dict through (one dict per frame, no copy: the tick budget)
-        self.identity = (mux is None and all(f.identity for f in fields)
+        self.identity = (mux is None and checksum is None and all(f.identity for f in fields)
                          and {f.signal for f in fields} == set(codec.signal_names))
         self._dec = tuple((f.quantity, f.signal, f.scale, f.offset) for f in fields)
         self._enc = tuple((f.quantity, f.signal, 1.0 / f.scale, f.offset) for f in fields)
@@ -106,12 +108,16 @@ class TelemetryMap:
 
     def decode(self, data: bytes | bytearray) -> dict[str, float] | None:
         """Payload -> quantities; None when it is another mux page of the message. Raises
-        FrameError on a wrong length."""
+        FrameError on a wrong length, and on a wrong checksum (this page's, if declared)."""
         v = self.codec.decode(data)
         if self.identity:
             return v
         if self.mux is not None and v.get(self.mux_signal) != self.mux:  # type: ignore[arg-type]
             return None
+        if self.checksum is not None:
+            why = self.checksum.error(data)
+            if why is not None:
+                raise FrameError(f"{self.device}: {why}")
         return {q: v[s] * a + b for q, s, a, b in self._dec if s in v}
 
     def encoder(self, quantities: tuple[str, ...]) -> Callable[..., bytes]:
@@ -138,7 +144,7 @@ class TelemetryMap:
             exprs.append(repr(self.mux))
         params = ", ".join(f"p{k}" for k in range(len(quantities)))
         return _compiled_encoder(f"<map {self.device} {self.codec.name}>", params, signals,
-                                 exprs, self.codec)
+                                 exprs, self.codec, self.checksum)
 
     def encode(self, quantities: dict[str, float]) -> bytes:
         if self.identity:
@@ -148,15 +154,26 @@ class TelemetryMap:
         values = {s: (quantities.get(q, 0.0) - b) * inv for q, s, inv, b in self._enc}
         if self.mux is not None:
             values[self.mux_signal] = self.mux  # type: ignore[index]
-        return self.codec.encode(values)
+        data = self.codec.encode(values)
+        return data if self.checksum is None else self.checksum.seal(data)
 
 
 def _compiled_encoder(name: str, params: str, signals: list[str], exprs: list[str],
-                      codec: FrameCodec) -> Callable[..., bytes]:
+                      codec: FrameCodec, checksum: Checksum | None = None
+                      ) -> Callable[..., bytes]:
     """``def encode(PARAMS): return codec.encoder(signals)(*exprs)`` compiled once: the
-    maps' positional encoders (each expression is a quantity's conversion to its signal)."""
-    source = f"def encode({params}):\n    return _codec({', '.join(exprs)})\n"
-    namespace: dict[str, Any] = {"_codec": codec.encoder(tuple(signals))}
+    maps' positional encoders (each expression is a quantity's conversion to its signal).
+    With a checksum, its byte is set last, over the payload as encoded (counter included,
+    the checksum's own byte 0 as the codec leaves a signal it is not given)."""
+    call = f"_codec({', '.join(exprs)})"
+    if checksum is None:
+        source = f"def encode({params}):\n    return {call}\n"
+    else:
+        i = checksum.byte
+        source = (f"def encode({params}):\n    d = {call}\n"
+                  f"    return d[:{i}] + _BYTE[_sum(d)] + d[{i + 1}:]\n")
+    namespace: dict[str, Any] = {"_codec": codec.encoder(tuple(signals)), "_BYTE": BYTE,
+                                 "_sum": checksum.compute if checksum is not None else None}
     exec(compile(source, name, "exec"), namespace)  # noqa: S102
     return cast(Callable[..., bytes], namespace["encode"])
 
@@ -165,14 +182,16 @@ class CommandMap:
     """One command frame of one device; an optional alive counter the sender fills in."""
 
     __slots__ = ("device", "codec", "mux", "mux_signal", "fields", "counter", "key",
-                 "_enc", "_dec")
+                 "_enc", "_dec", "checksum")
 
     def __init__(self, device: str, codec: FrameCodec, fields: tuple[SignalMap, ...],
-                 counter: tuple[str, int] | None = None, mux: int | None = None) -> None:
+                 counter: tuple[str, int] | None = None, mux: int | None = None,
+                 checksum: Checksum | None = None) -> None:
         self.device = device
         self.codec = codec
         self.fields = fields
         self.counter = counter
+        self.checksum = checksum  # end-to-end protection (drivers.binding.e2e), or None
         self.mux = mux
         self.mux_signal = _mux_signal(codec) if mux is not None else None
         self.key = (codec.frame_id, codec.is_extended)
@@ -198,7 +217,7 @@ class CommandMap:
             exprs.append(repr(self.mux))
         params = "".join(f"p{k}, " for k in range(len(quantities))) + "counter"
         return _compiled_encoder(f"<map {self.device} {self.codec.name}>", params, signals,
-                                 exprs, self.codec)
+                                 exprs, self.codec, self.checksum)
 
     def encode(self, quantities: dict[str, float], counter: int) -> bytes:
         values = {s: (quantities.get(q, 0.0) - b) * inv for q, s, inv, b in self._enc}
@@ -207,19 +226,30 @@ class CommandMap:
             values[name] = counter % modulus
         if self.mux is not None:
             values[self.mux_signal] = self.mux  # type: ignore[index]
-        return self.codec.encode(values)
+        data = self.codec.encode(values)
+        return data if self.checksum is None else self.checksum.seal(data)
 
     def decode(self, data: bytes | bytearray) -> dict[str, float] | None:
+        """Payload -> command quantities; None for another mux page. Raises FrameError on a
+        wrong length or a wrong checksum (a device drops such a frame)."""
         v = self.codec.decode(data)
         if self.mux is not None and v.get(self.mux_signal) != self.mux:  # type: ignore[arg-type]
             return None
+        if self.checksum is not None:
+            why = self.checksum.error(data)
+            if why is not None:
+                raise FrameError(f"{self.device}: {why}")
         return {q: v[s] * a + b for q, s, a, b in self._dec if s in v}
 
-    def decoder(self, quantities: tuple[str, ...], defaults: tuple[float, ...]
+    def decoder(self, quantities: tuple[str, ...], defaults: tuple[float, ...],
+                with_counter: bool = False
                 ) -> Callable[[bytes | bytearray], tuple[float, ...] | None]:
         """A positional decoder: ``decoder(quantities, defaults)(data)`` is the tuple of
         ``decode(data).get(q, default)`` for each quantity (None for another mux page),
-        without a dict of quantities (the virtual rig's commands, every tick)."""
+        without a dict of quantities (the virtual rig's commands, every tick). A wrong
+        checksum raises FrameError as ``decode`` does. ``with_counter`` (a map with a
+        counter): the frame's alive counter follows the quantities (the receiver checks
+        it)."""
         exprs = []
         for q, default in zip(quantities, defaults, strict=True):
             expr = repr(default)
@@ -230,8 +260,15 @@ class CommandMap:
         lines = ["def decode(data):", "    v = _codec(data)"]
         if self.mux is not None:
             lines.append(f"    if v.get({self.mux_signal!r}) != {self.mux!r}: return None")
+        if self.checksum is not None:
+            lines += ["    why = _error(data)",
+                      f"    if why is not None: raise _FrameError({self.device + ': '!r} + why)"]
+        if with_counter and self.counter is not None:
+            exprs.append(f"int(v[{self.counter[0]!r}])")
         lines.append(f"    return ({''.join(e + ', ' for e in exprs)})")
-        namespace: dict[str, Any] = {"_codec": self.codec.decode}
+        namespace: dict[str, Any] = {
+            "_codec": self.codec.decode, "_FrameError": FrameError,
+            "_error": self.checksum.error if self.checksum is not None else None}
         exec(compile("\n".join(lines) + "\n", f"<map {self.device} {self.codec.name} decoder>",  # noqa: S102
                      "exec"), namespace)
         return cast(Callable[[bytes | bytearray], tuple[float, ...] | None],

@@ -99,8 +99,9 @@ def cmd_virtual_rig(args: argparse.Namespace) -> int:
 
     try:
         rig_cfg = load_rig(args.rig)
-        check_virtual_rig(rig_cfg)  # a device it cannot be: refused before any bus opens
         faults = [parse_fault(f) for f in args.fault or []]
+        # a device it cannot be, a fault it cannot inject: refused before any bus opens
+        check_virtual_rig(rig_cfg, faults)
         if args.serve_socketcand is not None:
             from drivers.socketcand_server import SocketcandServerBus
 

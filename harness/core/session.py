@@ -171,7 +171,8 @@ def execute_run(
         from rig_models.virtual_rig import check_virtual_rig
 
         try:
-            check_virtual_rig(run.rig)  # a device it cannot be: refused, nothing sent
+            # a device it cannot be, a fault it cannot inject: refused, nothing sent
+            check_virtual_rig(run.rig, run.faults + list(faults or []))
         except ConfigError as exc:
             raise RunRefused(str(exc)) from None
     if show_progress:  # what is wrong in the device files but not in what the rig binds
@@ -801,6 +802,8 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
             "steps": rig.counters.steps,
             "malformed": rig.counters.malformed,
             "unknown": rig.counters.unknown,
+            # protected commands dropped for repeating the last alive counter (docs/lab.md)
+            "repeated": rig.counters.repeated,
         },
     }
 

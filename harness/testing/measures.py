@@ -73,6 +73,7 @@ SUMMARY_MEASURES: dict[str, str] = {
     "virtual_rig.steps": "count",
     "virtual_rig.malformed": "count",
     "virtual_rig.unknown": "count",
+    "virtual_rig.repeated": "count",
     "dry_run": "bool",
     # the controller's step() time per tick against its budget (docs/controllers.md)
     "controller.step_budget_ms": "ms",
