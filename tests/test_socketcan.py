@@ -404,11 +404,12 @@ WIRE_CHANNELS = ("/timing/sync_jitter_ms", "/timing/answer_latency_ms",
 def _check_wire_timing(s: dict[str, Any], sent_by: str) -> dict[str, Any]:
     w = s["wire_timing"]
     assert w["source"] == "kernel" and w["sync_sent_by"] == sent_by, w
-    # every SYNC's echo time-stamps its tick, but for echoes the kernel dropped (queue full)
-    # and, in a stalled VM, an echo the guest's kernel delivered only after the tick's read
-    # ended (two then come in one tick): at most 1 % of the ticks
+    # every SYNC's echo times its tick, but for echoes the kernel dropped (queue full) and
+    # echoes a stalled guest delivered only after the next SYNC went out (known by their
+    # counter, counted late, timing no tick)
     dropped = s["frames"]["dropped_by_kernel"] or 0
-    assert w["syncs_time_stamped"] >= s["ticks"] - 1 - dropped - s["ticks"] // 100, (w, dropped)
+    assert (w["syncs_time_stamped"] + w.get("sync_echoes_late", 0) + dropped
+            >= s["ticks"] - 1), (w, dropped)
     jitter = w["sync_period_jitter_ms"]
     assert jitter is not None and 0.0 <= jitter["p50"] <= jitter["max"], w
     assert set(w["answer_latency_ms"]) == set(DEVICES), w

@@ -138,7 +138,8 @@ def test_the_kernels_echo_is_the_harness_own_frame_not_another_master():
     iface = _interface(bus)
     assert iface.start_wire_timing() == "kernel" and bus.echo
     iface.feed(_own(iface, cmd_key, 2.001, is_rx=False), 0)
-    iface.feed(_own(iface, sync_key, 2.005, is_rx=False), 1)
+    iface.send_sync(1)
+    iface.feed(_sync_echo(iface, 1, 2.005), 1)
     c = iface.counters
     assert c.foreign == 0 and c.received == 0 and c.unknown == 0
     assert iface.wire_sync_ts == 2.005 and iface.wire_prev_cmd_ts == 2.001
@@ -152,6 +153,28 @@ def test_the_kernels_echo_is_the_harness_own_frame_not_another_master():
     iface.feed(msg, 1)
     assert [(iface.device_of_driver[id(d)], ts) for d, ts in iface.wire_rx or []] == [
         ("hub_sensor", 2.0053)]
+
+
+def _sync_echo(iface: RigInterface, tick: int, ts: float) -> can.Message:
+    key = iface.binding.sync.key
+    return can.Message(arbitration_id=key[0], is_extended_id=key[1],
+                       data=iface._sync_payload(tick), timestamp=ts, is_rx=False, check=False)
+
+
+def test_a_late_echo_of_an_earlier_sync_times_no_tick():
+    """On a stalled host the echo of tick 1's SYNC may come only after tick 2's SYNC went
+    out: it is known by its payload (the SYNC counter) and times no tick, so tick 2 is
+    not measured rather than measured with tick 1's time."""
+    bus = EchoBus()
+    iface = _interface(bus)
+    assert iface.start_wire_timing() == "kernel"
+    iface.send_sync(1)
+    iface.send_sync(2)
+    iface.feed(_sync_echo(iface, 1, 3.000), 2)
+    assert math.isnan(iface.wire_sync_ts) and iface.late_sync_echoes == 1
+    assert iface.counters.foreign == 0 and iface.counters.received == 0
+    iface.feed(_sync_echo(iface, 2, 3.002), 2)
+    assert iface.wire_sync_ts == 3.002 and iface.late_sync_echoes == 1
 
 
 def test_a_kernel_sent_sync_is_logged_as_the_harness_own_and_paces_the_loop():

@@ -186,6 +186,10 @@ class RigInterface:
         self.wire_sync_ts = math.nan
         self.wire_cmd_ts = math.nan
         self.wire_prev_cmd_ts = math.nan
+        # the payload of the last SYNC sent: its echo is known by it, so an echo that comes
+        # only after the next SYNC went out (a stalled host) times no tick (late_sync_echoes)
+        self._sync_sent = b""
+        self.late_sync_echoes = 0
         self._wire_own = False  # frames to look at first: the echo, the kernel's SYNC
         self._echo = False
         self._sender_ts = False
@@ -246,7 +250,8 @@ class RigInterface:
                 self.counters.send_errors += 1
             return
         self.wire_sync_ts = math.nan  # the echo's (or this send's) time stamp
-        msg = self._send_key(self.binding.sync.key, self._sync_payload(tick))
+        self._sync_sent = payload = self._sync_payload(tick)
+        msg = self._send_key(self.binding.sync.key, payload)
         if msg is not None and self._sender_ts:
             self.wire_prev_cmd_ts = self.wire_cmd_ts
             self.wire_sync_ts = msg.timestamp
@@ -316,6 +321,9 @@ class RigInterface:
         if not self._echo or msg.is_rx:
             return False
         if key == self.binding.sync.key:
+            if bytes(msg.data) != self._sync_sent:  # an earlier SYNC's echo, come late
+                self.late_sync_echoes += 1
+                return True
             self.wire_prev_cmd_ts = self.wire_cmd_ts
             self.wire_sync_ts = msg.timestamp
         elif key in self._cmd_keys:

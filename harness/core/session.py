@@ -502,6 +502,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                                 str(spec), setup, rig, running)
             summary["monitor_warnings"] = dict(monitor.warning_counts)
             summary["wire_timing"] = wire.summary()
+            # SYNC echoes that came after the next SYNC was sent: those ticks not timed
+            summary["wire_timing"]["sync_echoes_late"] = interface.late_sync_echoes
             summary.update(periodic_summary(run, recorder, controller, running))
             design_report = getattr(controller, "design_report", None)
             if callable(design_report):

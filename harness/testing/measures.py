@@ -107,6 +107,7 @@ SUMMARY_MEASURES: dict[str, str] = {
     "monitor_warnings.telemetry_missing": "count",
     # timing on the wire (harness.core.wire_timing): null where the bus cannot measure it
     "wire_timing.syncs_time_stamped": "count",
+    "wire_timing.sync_echoes_late": "count",
     **{f"wire_timing.sync_period_jitter_ms.{k}": "ms"
        for k in ("p50", "p99", "max", "min_signed", "max_signed")},
     **{f"wire_timing.command_margin_ms.{k}": "ms" for k in ("p50", "p99", "max", "min")},
