@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+_new = object.__new__
+
 
 @dataclass
 class RigState:
@@ -27,6 +29,15 @@ class RigState:
     rotor_speed_rad_s: float = 0.0
     rotor_sample_tick: int = 0  # tick of the last rotor telemetry (it answers every n-th SYNC)
     stale: tuple[str, ...] = field(default_factory=tuple)
+
+    def copy(self) -> RigState:
+        """A copy of this tick's state (every field is immutable: a shallow copy is whole).
+        The loop gives the controller one each tick, so that what the controller does to
+        its input can never reach the monitor or the recording, which read the original;
+        a dict copy, about 0.3 us a tick (``copy.copy`` takes 2.5 us)."""
+        out = _new(RigState)
+        out.__dict__ = self.__dict__.copy()
+        return out
 
 
 @dataclass

@@ -88,6 +88,7 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
 
     from harness.bus import BusSpecError
     from harness.bus.rig_process import RigProcessError
+    from harness.core.loop import ControllerError
     from harness.core.runs import load_run
     from harness.core.session import RunRefused, execute_run
     from harness.record.output import OutputError
@@ -146,11 +147,19 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
                         if rig_log is not None and rig_log.exists() else ""
                     print(f"harness: the run stopped: the bus failed: {exc}{seen}",
                           file=sys.stderr)
+                elif isinstance(exc, ControllerError):  # named, one line; the detail on file
+                    kept = _keep_traceback(run_dir, exc)
+                    print(f"harness: the run stopped, the rig left safe: {exc}"
+                          + (f" (traceback in {kept})" if kept else ""), file=sys.stderr)
                 else:
                     traceback.print_exc()
                 if run_dir is None:
                     return 4
                 codes.append(_judge(run_dir, None))
+                stopped = _read_summary(Path(run_dir))
+                if stopped is not None:  # --json prints the ERROR run's summary too
+                    stopped["run_dir"] = str(run_dir)
+                    summaries.append(stopped)
                 break
             s = result.summary
             s["run_dir"] = str(result.run_dir)
@@ -249,6 +258,27 @@ EXIT_ORDER = (130, 3, 4, 1, 6, 5, 0)
 
 def worst_exit(codes: list[int]) -> int:
     return min(codes, key=EXIT_ORDER.index, default=0)
+
+
+def _keep_traceback(run_dir: Path | None, exc: BaseException) -> Path | None:
+    """The controller's traceback in the run folder (``traceback.txt``) for its author; the
+    terminal gets one line."""
+    if run_dir is None:
+        return None
+    path = Path(run_dir) / "traceback.txt"
+    try:
+        path.write_text("".join(traceback.format_exception(exc)))
+    except OSError:
+        return None
+    return path
+
+
+def _read_summary(run_dir: Path) -> dict | None:
+    try:
+        data = json.loads((run_dir / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
 
 
 def _judge(run_dir: Path, summary: dict | None) -> int:

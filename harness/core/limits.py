@@ -34,7 +34,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from harness.state import RigState
+from harness.state import RigCommand, RigState
 
 REL_TOL = 1e-9  # a planned value at its limit (a saturated command) is within it
 
@@ -108,13 +108,14 @@ def limits_of(rig: Any, limits: dict[str, Any]) -> dict[str, Limit]:
 
 
 def plan_motion(controller: Any, rig: Any, dt_s: float, n_ticks: int,
-                actuators: tuple[str, ...], limits: dict[str, float] | None = None
-                ) -> PlannedMotion:
+                actuators: tuple[str, ...], limits: dict[str, float] | None = None,
+                should_stop: Any = None) -> PlannedMotion:
     """Step ``controller`` (a fresh one: it is left stepped) for ``n_ticks`` ticks of
     ``dt_s`` against the rig's rigid-body motion; the peaks of hub angle, hub rate, wheel
     speed and of every command the run would send to ``actuators``. A controller that
     raises ends the plan there (``stopped``): the run meets the error itself, on its own
-    exit path (recorded, the rig left safe, judged ERROR)."""
+    exit path (recorded, the rig left safe, judged ERROR). ``should_stop``: the command's
+    stop request; a KeyboardInterrupt while it asks for none is the controller's own."""
     inertia = float(rig.plant.inertia_kg_m2)
     wheel = rig.section("reaction_wheel")
     rotor_inertia = float(wheel["rotor_inertia_kg_m2"])
@@ -136,8 +137,17 @@ def plan_motion(controller: Any, rig: Any, dt_s: float, n_ticks: int,
         state.valve_state = valve
         try:
             cmd = step(state)
-        except Exception as exc:  # noqa: BLE001 - the run meets it itself, recorded and judged
-            motion.stopped = f"the controller raised at t = {t:.3f} s ({exc})"
+        except KeyboardInterrupt as exc:
+            if should_stop is None or should_stop() is not None:
+                raise  # Ctrl-C before the run began: nothing sent
+            motion.stopped = f"the controller raised at t = {t:.3f} s ({exc!r})"
+            break
+        except BaseException as exc:  # noqa: BLE001 - the run meets it itself, judged ERROR
+            # SystemExit too: a plugin's exit in its plan must not end the command as done
+            motion.stopped = f"the controller raised at t = {t:.3f} s ({exc!r})"
+            break
+        if not isinstance(cmd, RigCommand):  # the run meets it too (ControllerError)
+            motion.stopped = f"the controller returned {type(cmd).__name__} at t = {t:.3f} s"
             break
         wheel_torque = cmd.wheel_torque_n_m if "reaction_wheel" in use else 0.0
         valve = (cmd.valve_direction > 0) - (cmd.valve_direction < 0) \
@@ -189,7 +199,8 @@ def refusal(source: str, row: dict[str, Any], others: int = 0) -> str:
             "torque or amplitude, or raise the limit if the rig allows it")
 
 
-def check_run(run: Any, controller: Any | None = None) -> list[dict[str, Any]]:
+def check_run(run: Any, controller: Any | None = None,
+              should_stop: Any = None) -> list[dict[str, Any]]:
     """Refuse ``run`` (a RunConfig) whose plan passes a limit (BeyondLimit, a sentence);
     the checked rows otherwise. ``controller``: a fresh controller of the run to step (one
     is built as the run builds it when not given; never pass the one the run will use)."""
@@ -198,7 +209,8 @@ def check_run(run: Any, controller: Any | None = None) -> list[dict[str, Any]]:
 
         controller = build_controller(run)
     lims = {q: lim.value for q, lim in limits_of(run.rig, run.data["limits"]).items()}
-    motion = plan_motion(controller, run.rig, run.dt_s, run.n_ticks, run.actuators, lims)
+    motion = plan_motion(controller, run.rig, run.dt_s, run.n_ticks, run.actuators, lims,
+                         should_stop)
     rows = limit_rows(motion, run.rig, run.data["limits"])
     bad = beyond(rows)
     if bad:

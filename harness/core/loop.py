@@ -28,7 +28,7 @@ from harness.core.clock import (
 from harness.core.streaming import LatencyHistogram
 from harness.core.wire_timing import WireTiming
 from harness.record.recording import Recorder
-from harness.state import RigCommand
+from harness.state import RigCommand, RigState
 
 # what the loop records every tick (entity path = channel; the unit is in the name)
 CHANNELS = [
@@ -101,6 +101,18 @@ class LoopStats:
         return hist.percentiles_ms()
 
 
+class ControllerError(RuntimeError):
+    """The controller failed in the tick: its ``step()`` raised (anything: ``SystemExit``,
+    ``GeneratorExit`` and a ``KeyboardInterrupt`` no signal asked for included) or returned
+    something other than a ``RigCommand``. The run ends ERROR, the rig left safe, the
+    controller named; ``__cause__`` is what it raised."""
+
+
+def _not_a_command(value: object) -> str:
+    text = repr(value)
+    return f"{type(value).__name__} {text[:60]}{'...' if len(text) > 60 else ''}"
+
+
 RESERVE_FRACTION = 0.3
 """In real time the loop waits for a tick's telemetry until this fraction of the period is
 left (for the controller, the commands and the recording): a frame that comes later is
@@ -135,15 +147,21 @@ def run_loop(
     should_stop: Callable[[], str | None] | None = None,
     step_budget_s: float = math.inf,
     wire: WireTiming | None = None,
+    controller_name: str = "the controller",
 ) -> LoopStats:
     """Run ``n_ticks`` ticks. ``pump`` lets an in-process virtual rig answer (lockstep).
     ``stats`` (filled in place) stays with the caller even when the loop raises.
     ``step_budget_s``: the controller's time per tick; the ticks its step() took longer are
     counted (``stats.steps_over_budget``). ``wire``: timing on the wire, fed every tick
     from the interface's time stamps (``RigInterface.start_wire_timing``, called by the
-    caller); without it those channels are NaN."""
+    caller); without it those channels are NaN. The controller is given a copy of the
+    tick's state (``RigState.copy``): the monitor and the recording read the original.
+    Whatever its ``step()`` raises, or a return that is not a ``RigCommand``, ends the run
+    with ``ControllerError`` naming ``controller_name`` (a ``KeyboardInterrupt`` while a
+    stop was asked for, ``should_stop``, is the signal's: the run is interrupted)."""
     stats = stats if stats is not None else LoopStats()
     step = controller.step  # type: ignore[attr-defined]
+    copy_state = RigState.copy
     perf = time.perf_counter
     realtime = clock.realtime
     # lockstep in process: the rig answered inside pump(); over a bus: wait for its answers
@@ -221,8 +239,21 @@ def run_loop(
             t_s = tick * dt_s
             state = snapshot(tick, t_s)
             t_step = perf()
-            cmd = step(state)
+            try:
+                cmd = step(copy_state(state))
+            except BaseException as exc:  # a plugin's SystemExit is no completed run
+                if isinstance(exc, KeyboardInterrupt) and (
+                        should_stop is None or should_stop() is not None):
+                    raise  # the second Ctrl-C/SIGTERM of a stop (harness.core.interrupts)
+                raise ControllerError(
+                    f"{controller_name}: step() raised {type(exc).__name__}"
+                    f"{': ' + str(exc) if str(exc) else ''} at tick {tick} "
+                    f"(t = {tick * dt_s:.3f} s)") from exc
             t_step = perf() - t_step
+            if cmd.__class__ is not RigCommand and not isinstance(cmd, RigCommand):
+                raise ControllerError(
+                    f"{controller_name}: step() returned {_not_a_command(cmd)}, not a "
+                    f"RigCommand, at tick {tick} (t = {tick * dt_s:.3f} s)")
             step_total += t_step
             if t_step > step_max:
                 step_max = t_step
@@ -299,7 +330,11 @@ def run_loop(
     except KeyboardInterrupt:
         stats.stopped_by = "interrupted"
         print("\nharness: interrupted; leaving the rig safe", file=sys.stderr)
-    except Exception as exc:  # a controller or driver failed: leave the rig safe first
+    except ControllerError as exc:  # the controller failed: leave the rig safe first
+        stats.stopped_by = "error"
+        stats.error = str(exc)
+        raise
+    except Exception as exc:  # a driver failed: leave the rig safe first
         stats.stopped_by = "error"
         stats.error = f"{type(exc).__name__}: {exc} (tick {tick})"
         raise

@@ -245,8 +245,10 @@ def build_controller(run: RunConfig) -> Any:
                          and abs(v) > 1e6)
         raise ConfigError(f"{run.source}: controller: its numbers are out of range ({exc}"
                           f"{'; ' + keys if keys else ''})") from exc
-    except Exception as exc:
-        if ctype.builtin:
+    except KeyboardInterrupt:
+        raise  # Ctrl-C before the run began (harness.core.interrupts): nothing sent
+    except BaseException as exc:  # SystemExit too: a plugin's exit is no run
+        if ctype.builtin and isinstance(exc, Exception):
             raise
         # a plugin's own failure: named, one line, before anything is sent
         raise ConfigError(f"{run.source}: controller: {ctype.describe()} failed to build: "

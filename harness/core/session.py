@@ -40,7 +40,12 @@ from harness.core.loop import CHANNELS, HELD_FRACTION, RESERVE_FRACTION, LoopSta
 from harness.core.monitor import FaultMonitor, MonitorWarning
 from harness.core.paths import safe_child, safe_name
 from harness.core.periodic import steady_state_amplitude
-from harness.core.runs import RunConfig, build_controller, controller_summary
+from harness.core.runs import (
+    RunConfig,
+    build_controller,
+    controller_summary,
+    controller_type,
+)
 from harness.core.streaming import RunningSummary
 from harness.core.wire_timing import WireTiming
 from harness.record.can_log import CanLog
@@ -104,12 +109,14 @@ def bus_load_of(run: RunConfig):  # noqa: ANN201 - BusLoad
         run.actuators, run.data["heartbeat_hz"], run.rig.data["bus"]["bitrate_bit_s"])
 
 
-def refuse_beyond_limits(run: RunConfig, controller: object) -> list[dict[str, Any]]:
+def refuse_beyond_limits(run: RunConfig, controller: object,
+                         should_stop: Callable[[], str | None] | None = None
+                         ) -> list[dict[str, Any]]:
     """The run's planned motion against its limits and the rig's (``harness.core.limits``),
     on a copy of its controller; RunRefused (a sentence naming the limit) before anything is
     sent, the checked rows otherwise."""
     try:
-        return check_run(run, copy.deepcopy(controller))
+        return check_run(run, copy.deepcopy(controller), should_stop)
     except BeyondLimit as exc:
         raise RunRefused(str(exc)) from exc
 
@@ -183,7 +190,7 @@ def execute_run(
             print(f"harness: warning: ... and {len(notes) - 5} more such messages",
                   file=sys.stderr)
     if not dry_run:  # a dry run sends no command: nothing moves
-        refuse_beyond_limits(run, controller)
+        refuse_beyond_limits(run, controller, should_stop)
     SpaceGuard(out_dir).check()  # a folder already (nearly) full: refused, nothing sent
     try:
         run_dir = make_run_dir(out_dir, run.name)
@@ -489,7 +496,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                 heartbeat_every, run.data["receive_timeout_ms"] / 1e3, pump=pump,
                 reference=reference, progress=_progress if show_progress else None,
                 stats=stats, monitor=monitor, should_stop=should_stop,
-                step_budget_s=run.step_budget_s, wire=wire)
+                step_budget_s=run.step_budget_s, wire=wire,
+                controller_name=controller_type(run.controller["type"]).describe())
         finally:
             if show_progress:
                 print("", file=sys.stderr)
