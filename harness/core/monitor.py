@@ -29,6 +29,7 @@ rotor in the default rig file):
 | node id used twice | twice 8 heartbeats of a CANopen node within 5 of its periods | 16 beats |
 | physics: hub | the angle's change against its rate's integral over a window | a window |
 | physics: wheel | the speed's change against -(torque sent) dt / rotor inertia | a window |
+| physics: momentum | hub momentum change vs the wheel's and the valves' (a fit) | 2+ windows |
 | stuck (noise) | a channel equal for longer than its noise and resolution make likely | that |
 | limits | hub angle, rate, wheel speed or tip acceleration beyond the run's `limits` | 1 |
 
@@ -178,7 +179,9 @@ class PlausibilityWindow:
                  "wheel_speed_max", "hub_tick", "hub_tick0", "hub_n", "angle0", "angle_last",
                  "rate_last", "rate_int", "wheel_tick", "wheel_tick0", "wheel_n", "speed0",
                  "speed_last", "wheel_ok", "torque_int", "torque_abs", "torque_peak",
-                 "rate_tv", "wheel_speed_near")
+                 "rate_tv", "wheel_speed_near", "rate0", "valve_int", "rotor_on",
+                 "hub_inertia", "couple", "balance_min", "inertia_fraction",
+                 "couple_fraction", "wheel_checked")
 
     def __init__(self, every: int, angle: ChannelQuality | None, rate: ChannelQuality | None,
                  rate_bias: float, noise_factor: float, wheel_inertia: float,
@@ -192,15 +195,31 @@ class PlausibilityWindow:
         self.wheel_speed_max = wheel_speed_max
         # near its limit the wheel refuses torque: such a window is not judged
         self.wheel_speed_near = 0.95 * wheel_speed_max
+        # the momentum balance (``FaultMonitor._balance``): off until ``balance``
+        self.hub_inertia = self.couple = 0.0
+        self.balance_min = math.inf
+        self.inertia_fraction = self.couple_fraction = 0.0
         self.hub_tick = self.wheel_tick = -1
         self.rate_last = self.angle_last = self.speed_last = 0.0
         self.restart(0)
+
+    def balance(self, hub_inertia: float, couple: float, window_s: float,
+                min_torque: float, inertia_fraction: float, couple_fraction: float) -> None:
+        """Judge the momentum balance in windows whose exchanged momentum is at least
+        ``BALANCE_MIN_FRACTION`` of ``min_torque`` over the window."""
+        self.hub_inertia, self.couple = hub_inertia, couple
+        self.balance_min = BALANCE_MIN_FRACTION * min_torque * window_s
+        self.inertia_fraction, self.couple_fraction = inertia_fraction, couple_fraction
 
     def restart(self, tick: int) -> None:
         """A new window from ``tick``, from the last samples of the one before."""
         self.end = tick + self.every
         self.hub_tick0, self.angle0, self.rate_int = self.hub_tick, self.angle_last, 0.0
+        self.rate0 = self.rate_last
         self.rate_tv = 0.0
+        self.valve_int = 0
+        self.rotor_on = False
+        self.wheel_checked = False
         self.hub_n = 1 if self.hub_tick >= 0 else 0
         self.wheel_tick0, self.speed0 = self.wheel_tick, self.speed_last
         self.wheel_n = 1 if self.wheel_tick >= 0 else 0
@@ -209,6 +228,47 @@ class PlausibilityWindow:
         # the torque loop's output at the window's start trails the last window's commands:
         # their peak bounds it (no torque commanded in this window can still turn the wheel)
         self.torque_peak = getattr(self, "torque_peak", 0.0)
+
+
+BALANCE_MIN_FRACTION = 0.25
+"""The momentum balance judges a window whose predicted momentum change is at least this
+fraction of the smaller of the wheel's torque limit and the valves' couple held over the
+window (0.016 N m s on the sgsrt: a wheel at a quarter of its torque for 1 s)."""
+
+BALANCE_BAND_FRACTION = 0.5
+"""... and its regression slope, the hub's momentum change on the prediction over the
+windows so far, must lie within 1 +- this plus the file's inertia (and for the valves
+couple) tolerance, within ``BALANCE_SIGMAS`` standard errors. Wide, since the check is for
+what no tolerance explains: a reversed hub sensor or swapped valves (a slope of -1), a
+gross factor. The valves' state is read every few ticks (the sgsrt's every 5th), and PWM
+pulses shorter than that alias their open time: their slope scatters more, and its
+standard error says so."""
+
+
+BALANCE_SIGMAS = 4.0
+"""The momentum balance's slope is judged this many standard errors from its band."""
+
+
+class SlopeFit:
+    """A least-squares slope through the origin, y = k x, from running sums."""
+
+    __slots__ = ("n", "spp", "smp", "smm")
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.spp = self.smp = self.smm = 0.0
+
+    def add(self, x: float, y: float) -> None:
+        self.n += 1
+        self.spp += x * x
+        self.smp += x * y
+        self.smm += y * y
+
+    def slope(self) -> tuple[float, float]:
+        """The slope and its standard error (the residuals' scatter)."""
+        k = self.smp / self.spp
+        rss = max(0.0, self.smm - k * self.smp)
+        return k, math.sqrt(rss / max(1, self.n - 1) / self.spp)
 
 
 def _cause(measured: float, predicted: float, band: float, still: str) -> str:
@@ -434,6 +494,20 @@ class FaultMonitor:
             + float(tol.get("inertia_fraction", 0.0)),
             wheel_step=_quantity_step(rig, "reaction_wheel", "speed"),
             wheel_speed_max=self.wheel_max)
+        acting = set(getattr(self.iface, "actuators", ()) or ())
+        wheel_on = "reaction_wheel" in acting and "reaction_wheel" in self.div
+        valves_on = "thruster_valves" in acting and "thruster_valves" in self.div
+        self._fit_wheel, self._fit_valves = SlopeFit(), SlopeFit()
+        if "hub_sensor" in self.div and (wheel_on or valves_on):
+            valves = rig.section("thruster_valves")
+            couple = float(valves["couple_n_m"])
+            self._pw.balance(
+                hub_inertia=float(rig.plant.inertia_kg_m2), couple=couple,
+                window_s=self._pw.every * self.dt_s,
+                min_torque=min(float(wheel["max_torque_n_m"]) if wheel_on else math.inf,
+                               couple if valves_on else math.inf),
+                inertia_fraction=float(tol.get("inertia_fraction", 0.0)),
+                couple_fraction=float(tol.get("couple_fraction", 0.0)))
 
     def _plausible_window(self, tick: int) -> FaultEvent | None:
         """At the end of a window: the hub angle's change against its rate's integral, the
@@ -464,6 +538,7 @@ class FaultMonitor:
                     f"{math.degrees(integral):+.4g} deg (within "
                     f"{math.degrees(band):.3g} deg); likely {cause}"))
         if event is None and pw.wheel_n >= 2 and pw.wheel_ok:
+            pw.wheel_checked = True
             changed = pw.speed_last - pw.speed0
             predicted = -pw.torque_int * dt / pw.wheel_inertia
             band = (pw.torque_fraction * pw.torque_abs * dt
@@ -479,8 +554,70 @@ class FaultMonitor:
                     f"speed against the commanded torque: it changed by {changed:+.4g} rad/s "
                     f"in {span_s:.3g} s, the torque's integral over the rotor's inertia says "
                     f"{predicted:+.4g} rad/s (within {band:.3g}); likely {cause}"))
+                pw.wheel_checked = False
+        if event is None and pw.hub_inertia > 0.0 and not pw.rotor_on and pw.hub_n >= 2:
+            event = self._balance(tick, pw)
         pw.restart(tick)
         return event
+
+    def _balance(self, tick: int, pw: PlausibilityWindow) -> FaultEvent | None:
+        """The momentum balance: the hub's momentum change over each window (its rate's
+        change times the rig file's inertia) against the prediction, minus the wheel's
+        measured momentum change plus the valves' couple over their reported open time.
+        Friction, the torque loop's lag and the wheel's limits are all inside the wheel's
+        measured speed, so they cannot upset it; what can is a hub sensor mounted reversed,
+        valves swapped, a gross scale.
+
+        The beam's vibration carries momentum the rigid prediction leaves out, as much as
+        the prediction itself in a window of the free-decay run's bursts: one window proves
+        nothing. So the windows so far are regressed, the hub's change on the prediction
+        through the origin, the windows of the wheel alone apart from those of the valves
+        alone (the attribution), and the slope ``k`` is judged with its standard error
+        ``se`` (the scatter of the windows about the fit): a fault when
+        ``|k - 1| - BALANCE_SIGMAS se`` is beyond ``BALANCE_BAND_FRACTION`` plus the file's
+        inertia (or couple) tolerance, once the windows' predictions add up to at least
+        one window's worth (``balance_min``). Windows with the disturbance rotor turning
+        (its torque is not measured), a driven wheel whose own speed check did not run, or
+        both actuators at once are left out."""
+        wheel = 0.0
+        if pw.wheel_n >= 2:
+            if not pw.wheel_checked and pw.torque_abs > 0.0:
+                return None  # driven, its speed unverified this window: no prediction
+            wheel = -(pw.speed_last - pw.speed0) * pw.wheel_inertia
+        valve = pw.valve_int * self.dt_s * pw.couple
+        measured = pw.hub_inertia * (pw.rate_last - pw.rate0)
+        if abs(valve) <= 0.1 * abs(wheel) or (valve == 0.0 and wheel == 0.0):
+            fit, predicted, tol = self._fit_wheel, wheel, pw.inertia_fraction
+        elif abs(wheel) <= 0.1 * abs(valve):
+            fit, predicted, tol = self._fit_valves, valve, pw.inertia_fraction \
+                + pw.couple_fraction
+        else:
+            return None
+        fit.add(predicted, measured)
+        if not fit.spp >= pw.balance_min ** 2 or fit.n < 2:
+            return None
+        k, se = fit.slope()
+        allowed = BALANCE_BAND_FRACTION + tol
+        if abs(k - 1.0) - BALANCE_SIGMAS * se <= allowed:
+            return None
+        span_s = fit.n * pw.every * self.dt_s
+        said = (f"over {fit.n} windows ({span_s:.3g} s) the hub's momentum changed by "
+                f"{k:+.3g} +- {se:.2g} x the prediction (its rate's change x the rig file's "
+                f"inertia {pw.hub_inertia:g} kg m^2; allowed 1 +- {allowed:.2g})")
+        cause = likely_cause(k, allowed, se)
+        if fit is self._fit_wheel:
+            return self._event(tick, "hub_sensor", "implausible", (
+                f"momentum balance against the wheel: {said}; likely {cause} of the hub "
+                "sensor's angle and rate (they agree with each other), or the rig file's "
+                "hub.inertia_kg_m2"))
+        w = self._fit_wheel
+        vouched = w.n >= 2 and w.spp >= pw.balance_min ** 2
+        blame = ("the positive and negative valve swapped (their commands or their "
+                 "read-back), the wheel's windows having vouched for the hub sensor"
+                 if vouched else "the valves swapped or the hub sensor reversed (no "
+                 "window of the wheel alone vouched for the hub sensor in this run)")
+        return self._event(tick, "thruster_valves", "implausible", (
+            f"momentum balance against the valves' couple: {said}; likely {cause}: {blame}"))
 
     # ------------------------------------------------------------------ warnings
     def _init_warnings(self, cfg: dict[str, Any], wheel_max_torque_n_m: float) -> None:
@@ -785,6 +922,7 @@ class FaultMonitor:
                     pw.hub_n += 1
                 else:  # its first sample: the first window starts here
                     pw.hub_tick0, pw.angle0, pw.hub_n = tick, v.get("angle", 0.0), 1
+                    pw.rate0 = r
                 pw.rate_last, pw.angle_last, pw.hub_tick = r, v.get("angle", 0.0), tick
             if wheel is not None and wheel.last_tick == tick and tick != pw.wheel_tick:
                 v = wheel.values
@@ -797,6 +935,9 @@ class FaultMonitor:
                         or not v.get("enabled", 1.0)):
                     pw.wheel_ok = False  # held at its limit or off: torque not applied
                 pw.speed_last, pw.wheel_tick = speed, tick
+            pw.valve_int += state.valve_state
+            if state.rotor_speed_rad_s:
+                pw.rotor_on = True
             if pw.wheel_n:
                 torque = sent.wheel_torque_n_m
                 pw.torque_int += torque
