@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+G0_M_S2 = 9.80665  # standard gravity
+
 
 def quantise(value: float, lsb: float) -> float:
     return round(value / lsb) * lsb if lsb > 0 else value
@@ -47,10 +49,14 @@ class NoiseSource:
 
 @dataclass
 class ReactionWheel:
-    """Torque-mode wheel: first-order torque lag, torque limit, speed limit.
+    """Torque-mode wheel: first-order torque lag, torque limit, speed limit, bearing
+    friction.
 
-    ``torque_n_m`` is the torque the wheel applies on the hub; the rotor speed (relative to
-    the hub) changes by -torque / rotor inertia.
+    ``torque_n_m`` is the motor's torque on the hub (what the drive's current measures);
+    the rotor speed (relative to the hub) changes by -torque / rotor inertia. Friction
+    (Coulomb + viscous, a breakaway torque at rest) acts between rotor and hub: it slows the
+    rotor relative to the hub and the hub takes its reaction, so what ``step`` returns (every
+    torque on the hub) is always -rotor inertia x the rotor's speed change / dt.
     """
 
     max_torque_n_m: float
@@ -65,11 +71,18 @@ class ReactionWheel:
     speed_limited: bool = False
     torque_limited: bool = False
     command_n_m: float = 0.0
+    friction_coulomb_n_m: float = 0.0
+    friction_viscous_n_m_s: float = 0.0  # N m per rad/s of rotor speed
+    friction_breakaway_n_m: float | None = None  # None: the Coulomb friction
 
     def __post_init__(self) -> None:
         self._alpha = (
             1.0 - math.exp(-self.dt_s / self.torque_lag_s) if self.torque_lag_s > 0 else 1.0
         )
+        self._breakaway = (self.friction_coulomb_n_m if self.friction_breakaway_n_m is None
+                           else self.friction_breakaway_n_m)
+        if self.friction_coulomb_n_m or self.friction_viscous_n_m_s or self._breakaway:
+            self.step = self._step_with_friction  # type: ignore[method-assign]
 
     def command(self, torque_n_m: float, enable: bool) -> None:
         self.enabled = enable and not self.fault
@@ -98,6 +111,45 @@ class ReactionWheel:
         self.speed_rad_s -= applied * self.dt_s / self.rotor_inertia_kg_m2
         return applied
 
+    def _step_with_friction(self) -> float:
+        """``step`` with bearing friction (the wheel's ``step`` when it has any). A wheel at
+        rest whose motor torque is within the breakaway friction stays at rest (the torque
+        stays inside the wheel: none on the hub); a wheel whose speed would reach zero
+        within the step stops there (friction never reverses it) and, if its motor torque
+        exceeds the breakaway, starts the other way for the rest of the step."""
+        target = 0.0 if self.fault else self.command_n_m
+        w = self.speed_rad_s
+        self.speed_limited = False
+        if target == 0.0 and self.torque_n_m == 0.0 and w == 0.0:
+            return 0.0
+        if w >= self.max_speed_rad_s and target < 0:
+            target, self.speed_limited = 0.0, True
+        elif w <= -self.max_speed_rad_s and target > 0:
+            target, self.speed_limited = 0.0, True
+        motor = self.torque_n_m
+        self.torque_n_m += self._alpha * (target - motor)
+        j, dt, coulomb = self.rotor_inertia_kg_m2, self.dt_s, self.friction_coulomb_n_m
+        if w == 0.0:
+            if abs(motor) <= self._breakaway:
+                return 0.0
+            hub = motor - math.copysign(coulomb, motor)
+            self.speed_rad_s = -hub * dt / j
+            return hub
+        # friction on the rotor opposes its speed; the hub takes the reaction
+        hub = motor + math.copysign(coulomb + self.friction_viscous_n_m_s * abs(w), w)
+        new = w - hub * dt / j
+        if new != 0.0 and (new > 0.0) == (w > 0.0):
+            self.speed_rad_s = new
+            return hub
+        # zero within the step, after t0 = w j / hub (hub has w's sign here)
+        if abs(motor) <= self._breakaway:
+            self.speed_rad_s = 0.0
+            return w * j / dt
+        rest = dt - w * j / hub
+        after = motor - math.copysign(coulomb, motor)
+        self.speed_rad_s = -after * rest / j
+        return (w * j + after * rest) / dt
+
 
 @dataclass
 class ThrusterValves:
@@ -121,13 +173,30 @@ class ThrusterValves:
     _opened_at: int = 0
     commanded: int = 0
     stuck_open: bool = False  # fault: the positive valve stays open whatever it is told
+    couple_negative_n_m: float | None = None
+    open_delay_negative_s: float | None = None
+    close_delay_negative_s: float | None = None
+
+    def __post_init__(self) -> None:
+        self._couple_neg = (self.couple_n_m if self.couple_negative_n_m is None
+                            else self.couple_negative_n_m)
+        self._open_neg = (self.open_delay_s if self.open_delay_negative_s is None
+                          else self.open_delay_negative_s)
+        self._close_neg = (self.close_delay_s if self.close_delay_negative_s is None
+                           else self.close_delay_negative_s)
 
     def command(self, direction: int) -> None:
         direction = 1 if direction > 0 else -1 if direction < 0 else 0
-        if direction == self.commanded:
+        before = self.commanded
+        if direction == before:
             return
         self.commanded = direction
-        delay = self.open_delay_s if direction != 0 else self.close_delay_s
+        if direction > 0:
+            delay = self.open_delay_s
+        elif direction < 0:
+            delay = self._open_neg
+        else:
+            delay = self._close_neg if before < 0 else self.close_delay_s
         self._pending.append((self._step + round(delay / self.dt_s), direction))
 
     def make_safe(self) -> None:
@@ -154,8 +223,10 @@ class ThrusterValves:
             if self.state != 1:
                 self.firings += 1
             self.state = 1
-        torque = self.state * self.couple_n_m
-        if self.state != 0:
+        state = self.state
+        torque = (self.couple_n_m if state > 0 else -self._couple_neg if state < 0
+                  else 0.0)
+        if state != 0:
             self.on_time_s += self.dt_s
         self._step += 1
         return torque
@@ -163,7 +234,8 @@ class ThrusterValves:
 
 @dataclass
 class Accelerometer:
-    """Range clipping, first-order bandwidth, white noise and quantisation."""
+    """Range clipping, first-order bandwidth, white noise and quantisation; as built, a
+    bias, a scale error and a tilt of its sensitive axis (``sensed``)."""
 
     range_m_s2: float
     bandwidth_hz: float
@@ -174,9 +246,26 @@ class Accelerometer:
     filtered: float = 0.0
     counter: int = 0
     saturated: bool = False
+    bias_m_s2: float = 0.0
+    scale_error: float = 0.0
+    tilt_rad: float = 0.0
+    tilt_azimuth_rad: float = 0.0
 
     def __post_init__(self) -> None:
         self._alpha = 1.0 - math.exp(-2.0 * math.pi * self.bandwidth_hz * self.dt_s)
+        self._gravity = G0_M_S2 * math.sin(self.tilt_rad)
+
+    @property
+    def ideal(self) -> bool:
+        """No bias, scale error or tilt: ``sensed`` is the identity."""
+        return not (self.bias_m_s2 or self.scale_error or self.tilt_rad)
+
+    def sensed(self, true_accel_m_s2: float, hub_angle_rad: float) -> float:
+        """What the sensing element reads before its filter: (1 + scale error) x (the true
+        acceleration + the gravity its tilted axis picks up at this hub angle) + bias."""
+        if self._gravity:
+            true_accel_m_s2 += self._gravity * math.cos(hub_angle_rad - self.tilt_azimuth_rad)
+        return (1.0 + self.scale_error) * true_accel_m_s2 + self.bias_m_s2
 
     def sample(self, true_accel_m_s2: float) -> float:
         self.filtered += self._alpha * (true_accel_m_s2 - self.filtered)
@@ -192,11 +281,38 @@ class Accelerometer:
 
 @dataclass
 class HubSensor:
+    """White noise and quantisation; as built, reading = (1 + scale error) x true + bias,
+    the rate's bias walking randomly (``rate_random_walk_rad_s_sqrt_s`` per sqrt(s), a step
+    each sample ``sample_dt_s`` apart, drawn from the rig's noise)."""
+
     angle_noise_rms_rad: float
     rate_noise_rms_rad_s: float
     angle_lsb_rad: float
     rate_lsb_rad_s: float
     noise: NoiseSource
+    angle_bias_rad: float = 0.0
+    rate_bias_rad_s: float = 0.0
+    angle_scale_error: float = 0.0
+    rate_scale_error: float = 0.0
+    rate_random_walk_rad_s_sqrt_s: float = 0.0
+    sample_dt_s: float = 0.0
+    rate_walk_rad_s: float = 0.0  # the random walk's part of the rate bias so far
+
+    def __post_init__(self) -> None:
+        self._walk_step = self.rate_random_walk_rad_s_sqrt_s * math.sqrt(self.sample_dt_s)
+        if (self.angle_bias_rad or self.rate_bias_rad_s or self.angle_scale_error
+                or self.rate_scale_error or self._walk_step):
+            self.sample = self._sample_as_built  # type: ignore[method-assign]
+
+    def _sample_as_built(self, angle_rad: float, rate_rad_s: float) -> tuple[float, float]:
+        n_angle, n_rate = self.noise.normal2()
+        if self._walk_step:
+            self.rate_walk_rad_s += self._walk_step * self.noise.normal()
+        a = ((1.0 + self.angle_scale_error) * angle_rad + self.angle_bias_rad
+             + self.angle_noise_rms_rad * n_angle)
+        r = ((1.0 + self.rate_scale_error) * rate_rad_s + self.rate_bias_rad_s
+             + self.rate_walk_rad_s + self.rate_noise_rms_rad_s * n_rate)
+        return quantise(a, self.angle_lsb_rad), quantise(r, self.rate_lsb_rad_s)
 
     def sample(self, angle_rad: float, rate_rad_s: float) -> tuple[float, float]:
         n_angle, n_rate = self.noise.normal2()

@@ -16,7 +16,8 @@ a_tip = (R + L) theta'' + phi(L)^T eta'' (which depends on the input through q''
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
@@ -75,9 +76,20 @@ def build_hub_beam(
     modes: BeamModes,
     damping_ratio: float | np.ndarray,
     tip_radius_m: float,
+    frequency_factors: Sequence[float] | np.ndarray | None = None,
 ) -> HubBeamModel:
-    """Assemble the hub-beam model from the beam's constrained modes."""
+    """Assemble the hub-beam model from the beam's constrained modes. ``frequency_factors``:
+    each constrained mode's frequency times its factor, mode by mode (its modal stiffness
+    times factor^2; shapes and coupling kept; missing entries 1): a beam measured off its
+    model. The model's ``modes`` then carry the scaled frequencies."""
     n = len(modes.omega_rad_s)
+    if frequency_factors is not None and len(frequency_factors):
+        factors = np.ones(n)
+        given = np.asarray(frequency_factors, dtype=float)[:n]
+        if np.any(~np.isfinite(given)) or np.any(given <= 0):
+            raise ValueError(f"beam frequency factors must be > 0, got {given}")
+        factors[:len(given)] = given
+        modes = replace(modes, omega_rad_s=modes.omega_rad_s * factors)
     if inertia_kg_m2 <= modes.rigid_inertia_kg_m2:
         raise ValueError(
             f"hub.inertia_kg_m2 = {inertia_kg_m2} must exceed the beam's own rigid inertia "

@@ -5,10 +5,12 @@
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
+import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -16,20 +18,32 @@ from typing import Any
 from drivers.binding import BindingError, RigBinding, absolutize, build_binding
 from drivers.binding.quantities import DEVICES
 from rig_models.beam import BeamModes, BeamSpec, beam_modes
+from rig_models.devices import G0_M_S2
 from rig_models.flexible_hub import HubBeamModel, build_hub_beam
 from rig_models.piezo import PatchGains, PiezoPatch, patch_gains
 from rig_models.schema import ConfigError, Field, validate
 from rig_models.yaml_file import load_yaml
 
-G0_M_S2 = 9.80665
 RIGS_DIR = Path(__file__).parent / "rigs"
 
 POSITIVE = {"exclusive_minimum": 0.0}
+TWO_PI = 2.0 * math.pi
+FRACTION = {"minimum": -0.5, "maximum": 0.5}  # a scale error: reading = (1 + e) x true
+
+
+def _at_most_modes(value: Any) -> str | None:
+    return "expected at most 20 entries (one per kept mode)" if len(value) > 20 else None
+
+
 RIG_SCHEMA: dict[str, Any] = {
     "name": Field("str", required=True),
     "hub": {
         "inertia_kg_m2": Field("number", "kg m^2", required=True, **POSITIVE),
         "radius_m": Field("number", "m", required=True, minimum=0.0),
+        # a table out of level: torque on the hub -gravity_torque * sin(angle - azimuth)
+        "gravity_torque_n_m": Field("number", "N m", default=0.0, minimum=0.0, maximum=10.0),
+        "gravity_azimuth_rad": Field("number", "rad", default=0.0, minimum=-TWO_PI,
+                                     maximum=TWO_PI),
     },
     "beam": {
         "length_m": Field("number", "m", required=True, **POSITIVE),
@@ -41,30 +55,65 @@ RIG_SCHEMA: dict[str, Any] = {
         "n_elements": Field("int", default=40, minimum=2, maximum=400),
         "n_modes": Field("int", default=3, minimum=1, maximum=20),
         "damping_ratio": Field("number", default=0.05, minimum=0.0, maximum=0.99),
+        # per kept constrained mode, in order (missing entries: 1 and damping_ratio): its
+        # frequency times the factor (its modal stiffness times factor^2), its damping ratio
+        "frequency_factors": Field("list[number]", "x the beam model's frequency",
+                                   default=[], minimum=0.1, maximum=10.0, check=_at_most_modes),
+        "damping_ratios": Field("list[number]", default=[], minimum=0.0, maximum=0.99,
+                                check=_at_most_modes),
     },
     "reaction_wheel": {
         "max_torque_n_m": Field("number", "N m", required=True, **POSITIVE),
         "max_speed_rad_s": Field("number", "rad/s", required=True, **POSITIVE),
         "rotor_inertia_kg_m2": Field("number", "kg m^2", required=True, **POSITIVE),
         "torque_lag_s": Field("number", "s", default=0.01, minimum=0.0),
+        # bearing friction between rotor and hub (internal: the hub takes its reaction);
+        # breakaway: the static friction a wheel at rest must overcome (null: the Coulomb)
+        "friction_coulomb_n_m": Field("number", "N m", default=0.0, minimum=0.0, maximum=1.0),
+        "friction_viscous_n_m_s": Field("number", "N m s", default=0.0, minimum=0.0,
+                                        maximum=1.0),
+        "friction_breakaway_n_m": Field("number", "N m", default=None, minimum=0.0,
+                                        maximum=1.0),
     },
     "accelerometer": {
         "range_g": Field("number", "g", default=2.0, **POSITIVE),
         "bandwidth_hz": Field("number", "Hz", default=400.0, **POSITIVE),
         "noise_rms_m_s2": Field("number", "m/s^2", default=0.0, minimum=0.0),
         "lsb_m_s2": Field("number", "m/s^2", default=0.001, minimum=0.0),
+        # reading = (1 + scale_error) x (true + g0 sin(tilt) cos(hub angle - tilt azimuth))
+        # + bias, latency_s old (whole ticks)
+        "bias_m_s2": Field("number", "m/s^2", default=0.0, minimum=-100.0, maximum=100.0),
+        "scale_error": Field("number", "fraction", default=0.0, **FRACTION),
+        "tilt_rad": Field("number", "rad", default=0.0, minimum=-0.5, maximum=0.5),
+        "tilt_azimuth_rad": Field("number", "rad", default=0.0, minimum=-TWO_PI,
+                                  maximum=TWO_PI),
+        "latency_s": Field("number", "s", default=0.0, minimum=0.0, maximum=0.5),
     },
     "hub_sensor": {
         "angle_noise_rms_rad": Field("number", "rad", default=0.0, minimum=0.0),
         "rate_noise_rms_rad_s": Field("number", "rad/s", default=0.0, minimum=0.0),
         "angle_lsb_rad": Field("number", "rad", default=1e-7, minimum=0.0),
         "rate_lsb_rad_s": Field("number", "rad/s", default=1e-7, minimum=0.0),
+        # reading = (1 + scale_error) x true + bias (+ the rate bias's random walk),
+        # latency_s old (whole ticks)
+        "angle_bias_rad": Field("number", "rad", default=0.0, minimum=-math.pi,
+                                maximum=math.pi),
+        "rate_bias_rad_s": Field("number", "rad/s", default=0.0, minimum=-1.0, maximum=1.0),
+        "angle_scale_error": Field("number", "fraction", default=0.0, **FRACTION),
+        "rate_scale_error": Field("number", "fraction", default=0.0, **FRACTION),
+        "rate_random_walk_rad_s_sqrt_s": Field("number", "rad/s per sqrt(s)", default=0.0,
+                                               minimum=0.0, maximum=0.1),
+        "latency_s": Field("number", "s", default=0.0, minimum=0.0, maximum=0.5),
     },
     "thruster_valves": {
         "couple_n_m": Field("number", "N m", default=0.1, **POSITIVE),
         "open_delay_s": Field("number", "s", default=0.004, minimum=0.0),
         "close_delay_s": Field("number", "s", default=0.004, minimum=0.0),
         "min_on_time_s": Field("number", "s", default=0.010, minimum=0.0),
+        # the negative valve's own couple magnitude and delays (null: the positive's)
+        "couple_negative_n_m": Field("number", "N m", default=None, **POSITIVE),
+        "open_delay_negative_s": Field("number", "s", default=None, minimum=0.0),
+        "close_delay_negative_s": Field("number", "s", default=None, minimum=0.0),
     },
     "piezo_amplifier": {
         "max_voltage_v": Field("number", "V", default=200.0, **POSITIVE, maximum=327.0),
@@ -128,6 +177,33 @@ RIG_SCHEMA: dict[str, Any] = {
     # limits of a run's criteria that differ on this rig, by criterion name:
     # {final_error: {max_abs_deg: 0.2}}; applied by the harness's verdict layer
     "expect_overrides": Field("any", default=None),
+    # how the rig really is (the virtual rig emulates it; the harness keeps the model
+    # above): the physics sections' keys as an overlay, plus timing (AS_BUILT_SCHEMA,
+    # checked by rig_from_dict; docs/as_built.md)
+    "as_built": Field("any", default=None),
+}
+
+AS_BUILT_SECTIONS = ("hub", "beam", "reaction_wheel", "hub_sensor", "accelerometer",
+                     "thruster_valves")
+"""The physics sections an ``as_built:`` overlay may change (not the bus, the devices'
+binding, the limits the harness clamps to elsewhere, nor the tolerances)."""
+
+
+def _overlay(schema: Mapping[str, Any]) -> dict[str, Any]:
+    """``schema`` with every leaf optional and absent by default (an overlay names only
+    what differs)."""
+    return {k: _overlay(v) if not isinstance(v, Field) else replace(v, required=False,
+                                                                     default=None)
+            for k, v in schema.items()}
+
+
+AS_BUILT_SCHEMA: dict[str, Any] = {
+    **{k: _overlay(RIG_SCHEMA[k]) for k in AS_BUILT_SECTIONS},
+    # devices answering a SYNC late: emulated in real time (run_forever), not in lockstep
+    "timing": {
+        "answer_latency_s": Field("number", "s", default=None, minimum=0.0, maximum=0.1),
+        "answer_jitter_s": Field("number", "s", default=None, minimum=0.0, maximum=0.1),
+    },
 }
 
 
@@ -154,6 +230,36 @@ class RigConfig:
     def name(self) -> str:
         return self.data["name"]
 
+    def as_built_rig(self) -> RigConfig:
+        """The rig as it really is: this model with its ``as_built:`` overlay merged and the
+        section removed (what the virtual rig emulates); this rig itself when it has none."""
+        return self._as_built
+
+    @cached_property
+    def _as_built(self) -> RigConfig:
+        overlay = self.data.get("as_built")
+        physics = {k: v for k, v in (overlay or {}).items() if k != "timing"}
+        if not physics:
+            if not overlay:
+                return self
+            data = dict(self.data, as_built=None)
+        else:
+            data = _merge(copy.deepcopy(dict(self.data, as_built=None)), copy.deepcopy(physics))
+            _check_physics(data, f"{self.source}: as_built")
+        cfg = RigConfig(source=f"{self.source} (as built)", data=data, base_dir=self.base_dir)
+        # the overlay changes no device's binding (nor the bus): the same binding, not
+        # built again (an EDS parsed twice)
+        cfg.__dict__["binding"] = self.binding
+        return cfg
+
+    @property
+    def answer_timing(self) -> tuple[float, float]:
+        """(latency, jitter) in s of the devices' answers to a SYNC, as built (0, 0 when the
+        rig file says nothing): emulated by the virtual rig in real time only."""
+        timing = (self.data.get("as_built") or {}).get("timing") or {}
+        return (float(timing.get("answer_latency_s") or 0.0),
+                float(timing.get("answer_jitter_s") or 0.0))
+
     @cached_property
     def beam_spec(self) -> BeamSpec:
         b = self.data["beam"]
@@ -177,12 +283,19 @@ class RigConfig:
 
     @cached_property
     def plant(self) -> HubBeamModel:
+        b = self.data["beam"]
+        n_modes = len(self.beam_modes.omega_rad_s)
+        damping: float | list[float] = b["damping_ratio"]
+        ratios = b.get("damping_ratios") or []
+        if ratios:  # per mode, the rest at damping_ratio
+            damping = [*ratios[:n_modes], *[b["damping_ratio"]] * (n_modes - len(ratios))]
         try:
             return build_hub_beam(
                 inertia_kg_m2=self.data["hub"]["inertia_kg_m2"],
                 modes=self.beam_modes,
-                damping_ratio=self.data["beam"]["damping_ratio"],
-                tip_radius_m=self.data["hub"]["radius_m"] + self.data["beam"]["length_m"],
+                damping_ratio=damping,
+                tip_radius_m=self.data["hub"]["radius_m"] + b["length_m"],
+                frequency_factors=b.get("frequency_factors") or None,
             )
         except ValueError as exc:
             raise ConfigError(f"{self.source}: {exc}") from exc
@@ -248,29 +361,51 @@ def load_rig(name_or_path: str | Path = "sgsrt") -> RigConfig:
 def _read_rig_yaml(path: Path, seen: tuple[Path, ...], what: str = "rig file") -> Any:
     """A rig file's data; ``extends: NAME`` takes another rig file's data as the base and
     overrides it key by key (a rig that differs only in its device binding names the
-    physics once). ``what`` names the file in errors (a base: the file that extends it)."""
+    physics once); ``as_built_from: NAME`` takes another rig file's ``as_built:`` section
+    (this file's own ``as_built:`` overrides it key by key: one as-built rig, several
+    bindings). ``what`` names the file in errors (a base: the file that extends it)."""
     raw = load_yaml(path, what)
-    if not isinstance(raw, dict) or "extends" not in raw:
+    if not isinstance(raw, dict):
         return raw
-    base_name = raw.pop("extends")
+    if "as_built_from" in raw:
+        source = _read_base(path, raw.pop("as_built_from"), seen, "as_built_from")
+        own = raw.get("as_built")
+        if own is not None and not isinstance(own, dict):
+            raise ConfigError(f"rig file {path.name}: as_built: expected a mapping of keys, "
+                              f"got {_kind(own)}")
+        base_built = source.get("as_built")
+        if not isinstance(base_built, dict):
+            raise ConfigError(f"rig file {path.name}: as_built_from: its rig file has no "
+                              "as_built: section")
+        raw["as_built"] = _merge(base_built, own or {})
+    if "extends" not in raw:
+        return raw
+    return _merge(_read_base(path, raw.pop("extends"), seen, "extends"), raw)
+
+
+def _read_base(path: Path, base_name: Any, seen: tuple[Path, ...], key: str
+               ) -> dict[str, Any]:
+    """The data of the rig file ``base_name`` that ``path`` names under ``key`` (extends,
+    as_built_from): a built-in name, or a path (relative to ``path``'s folder)."""
     if not isinstance(base_name, str):
-        raise ConfigError(f"rig file {path.name}: extends: expected a rig name or path, got "
+        raise ConfigError(f"rig file {path.name}: {key}: expected a rig name or path, got "
                           f"{base_name!r}")
     base = rig_path(base_name)
     if not base.is_absolute() and not _exists(base) and _exists(path.parent / base_name):
         base = path.parent / base_name
     if not _exists(base):
-        raise ConfigError(f"rig file {path.name}: extends: {base_name}: not found")
+        raise ConfigError(f"rig file {path.name}: {key}: {base_name}: not found")
     if base.resolve() in seen or base.resolve() == path.resolve():
-        raise ConfigError(f"rig file {path.name}: extends: {base_name}: a circle of extends")
+        raise ConfigError(f"rig file {path.name}: {key}: {base_name}: a circle of rig files "
+                          "(extends, as_built_from)")
     base_data = _read_rig_yaml(base, seen + (path.resolve(),),
-                               f"rig file {path.name}: extends: rig file")
+                               f"rig file {path.name}: {key}: rig file")
     if base_data is None:
         base_data = {}
     if not isinstance(base_data, dict):
-        raise ConfigError(f"rig file {path.name}: extends: {base_name}: its top level is "
+        raise ConfigError(f"rig file {path.name}: {key}: {base_name}: its top level is "
                           f"{_kind(base_data)}, not a mapping of keys (a rig file)")
-    return _merge(base_data, raw)
+    return base_data
 
 
 def _kind(value: Any) -> str:
@@ -297,9 +432,51 @@ def rig_from_dict(raw: Any, source: str = "rig", base_dir: Path | None = None) -
     """A validated rig; its device binding is built here too, so a bad binding is refused
     before anything opens a bus."""
     data = validate(raw, RIG_SCHEMA, source)
+    data["as_built"] = _as_built_overlay(data["as_built"], source)
+    _check_physics(data, source)
     cfg = RigConfig(source=source, data=absolutize(data, base_dir), base_dir=base_dir)
     cfg.binding  # noqa: B018 (built to be checked)
+    if cfg.data["as_built"] is not None:
+        cfg.as_built_rig()  # the model with the overlay: checked as a whole too
     return cfg
+
+
+def _pruned(data: dict[str, Any]) -> dict[str, Any]:
+    """A validated overlay without its absent keys (None) and empty sections."""
+    out: dict[str, Any] = {}
+    for k, v in data.items():
+        if isinstance(v, dict):
+            v = _pruned(v)
+            if v:
+                out[k] = v
+        elif v is not None:
+            out[k] = v
+    return out
+
+
+def _as_built_overlay(raw: Any, source: str) -> dict[str, Any] | None:
+    """The ``as_built:`` section checked against ``AS_BUILT_SCHEMA`` (errors name
+    ``as_built.hub.inertia_kg_m2`` etc.), only the keys it gives; None when it gives none."""
+    if raw is None:
+        return None
+    return _pruned(validate(raw, AS_BUILT_SCHEMA, source, "as_built")) or None
+
+
+def _check_physics(data: Mapping[str, Any], source: str) -> None:
+    """What one key's bounds cannot say: per-mode lists no longer than the kept modes,
+    a breakaway friction no lower than the Coulomb friction."""
+    beam = data["beam"]
+    for key in ("frequency_factors", "damping_ratios"):
+        values = beam.get(key) or []
+        if len(values) > beam["n_modes"]:
+            raise ConfigError(f"{source}: beam.{key}: {len(values)} entries for "
+                              f"beam.n_modes = {beam['n_modes']} kept modes")
+    rw = data["reaction_wheel"]
+    breakaway, coulomb = rw.get("friction_breakaway_n_m"), rw.get("friction_coulomb_n_m") or 0.0
+    if breakaway is not None and breakaway < coulomb:
+        raise ConfigError(f"{source}: reaction_wheel.friction_breakaway_n_m: expected >= "
+                          f"friction_coulomb_n_m = {coulomb:g} N m (static friction is no "
+                          f"lower than sliding), got {breakaway!r}")
 
 
 # ------------------------------------------------------------------------ identity

@@ -12,14 +12,19 @@ Two ways to run it:
   rig answers before the harness reads (deterministic, as fast as the machine allows);
 - its own process (``run_forever``): blocking reads on a SocketCAN channel or a socketcand
   server bus; the watchdog also runs on the wall clock there.
+
+It emulates the rig as built (``RigConfig.as_built_rig()``: the rig file's model with its
+``as_built:`` overlay; docs/as_built.md) wherever it runs; the harness keeps the model.
 """
 
 from __future__ import annotations
 
 import gc
 import math
+import random
 import resource
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -204,6 +209,10 @@ def check_virtual_rig(rig: RigConfig, faults: list[FaultSpec] | tuple[FaultSpec,
 class VirtualRig:
     def __init__(self, rig: RigConfig, bus: can.BusABC, dt_s: float,
                  faults: list[FaultSpec] | None = None) -> None:
+        # the rig as built (the model itself when its file has no as_built: section)
+        self.model_rig = rig
+        self.answer_latency_s, self.answer_jitter_s = rig.answer_timing
+        rig = rig.as_built_rig()
         self.rig = rig
         self.injector = FaultInjector(list(faults or []))
         self.bus = bus
@@ -222,13 +231,22 @@ class VirtualRig:
         self.wheel = ReactionWheel(
             max_torque_n_m=rw["max_torque_n_m"], max_speed_rad_s=rw["max_speed_rad_s"],
             rotor_inertia_kg_m2=rw["rotor_inertia_kg_m2"], torque_lag_s=rw["torque_lag_s"],
-            dt_s=dt_s,
+            dt_s=dt_s, friction_coulomb_n_m=rw.get("friction_coulomb_n_m") or 0.0,
+            friction_viscous_n_m_s=rw.get("friction_viscous_n_m_s") or 0.0,
+            friction_breakaway_n_m=rw.get("friction_breakaway_n_m"),
         )
         tv = rig.section("thruster_valves")
         self.valves = ThrusterValves(
             couple_n_m=tv["couple_n_m"], open_delay_s=tv["open_delay_s"],
             close_delay_s=tv["close_delay_s"], min_on_time_s=tv["min_on_time_s"], dt_s=dt_s,
+            couple_negative_n_m=tv.get("couple_negative_n_m"),
+            open_delay_negative_s=tv.get("open_delay_negative_s"),
+            close_delay_negative_s=tv.get("close_delay_negative_s"),
         )
+        # a table out of level: -gravity_torque sin(hub angle - azimuth) on the hub
+        hub = rig.section("hub")
+        self.gravity_torque_n_m = hub.get("gravity_torque_n_m") or 0.0
+        self.gravity_azimuth_rad = hub.get("gravity_azimuth_rad") or 0.0
         pa = rig.section("piezo_amplifier")
         self.piezo_gains = rig.piezo_gains
         # modal forces per volt, one column per patch; the piezo's share of u is computed
@@ -262,17 +280,38 @@ class VirtualRig:
             dish_radius_m=dr["dish_radius_m"], max_speed_rad_s=dr["max_speed_rad_s"],
             speed_lag_s=dr["speed_lag_s"], dt_s=dt_s,
         )
+        self.divider = rig.data["bus"]["sync_divider"]
         self.accel = Accelerometer(
             range_m_s2=rig.accel_range_m_s2, bandwidth_hz=acc["bandwidth_hz"],
             noise_rms_m_s2=acc["noise_rms_m_s2"], lsb_m_s2=acc["lsb_m_s2"], dt_s=dt_s,
-            noise=noise,
+            noise=noise, bias_m_s2=acc.get("bias_m_s2") or 0.0,
+            scale_error=acc.get("scale_error") or 0.0, tilt_rad=acc.get("tilt_rad") or 0.0,
+            tilt_azimuth_rad=acc.get("tilt_azimuth_rad") or 0.0,
         )
         self.hub_sensor = HubSensor(
             angle_noise_rms_rad=hs["angle_noise_rms_rad"],
             rate_noise_rms_rad_s=hs["rate_noise_rms_rad_s"],
             angle_lsb_rad=hs["angle_lsb_rad"], rate_lsb_rad_s=hs["rate_lsb_rad_s"], noise=noise,
+            angle_bias_rad=hs.get("angle_bias_rad") or 0.0,
+            rate_bias_rad_s=hs.get("rate_bias_rad_s") or 0.0,
+            angle_scale_error=hs.get("angle_scale_error") or 0.0,
+            rate_scale_error=hs.get("rate_scale_error") or 0.0,
+            rate_random_walk_rad_s_sqrt_s=hs.get("rate_random_walk_rad_s_sqrt_s") or 0.0,
+            sample_dt_s=dt_s * self.divider["hub_sensor"],
         )
-        self.divider = rig.data["bus"]["sync_divider"]
+        # the sensors' latency: a delay line of the physics' outputs, a tuple (angle, rate,
+        # tip acceleration) per SYNC; each sensor reads the one its latency back (whole
+        # ticks). Only a rig with a latency or the accelerometer's errors goes through it
+        self.hub_latency_ticks = round((hs.get("latency_s") or 0.0) / dt_s)
+        self.accel_latency_ticks = round((acc.get("latency_s") or 0.0) / dt_s)
+        self._sensor_terms = bool(self.hub_latency_ticks or self.accel_latency_ticks
+                                  or not self.accel.ideal)
+        depth = max(self.hub_latency_ticks, self.accel_latency_ticks) + 1
+        self._outputs: deque[tuple[float, float, float]] = deque(
+            [(0.0, 0.0, 0.0)] * depth, maxlen=depth)
+        # the devices' late answers (real time only): their own generator, so the physics'
+        # noise is the same sequence in every mode
+        self._answer_rng = random.Random(rig.data["noise_seed"])
         period = math.lcm(*(self.divider[d] for d in TELEMETRY_QUANTITIES))
         self._due_period = period if period <= 10_000 else 0
         self._due_at = [tuple(k % self.divider[d] == 0 for d in TELEMETRY_QUANTITIES)
@@ -443,6 +482,10 @@ class VirtualRig:
         then run on the rig's time too, and the wall-clock watchdog waits
         ``LOCKSTEP_BACKSTOP_S`` longer (a backstop for a harness that died).
 
+        A rig file's ``as_built.timing`` holds each SYNC's answer back by the devices'
+        latency plus a uniform jitter (the physics is the same: it steps by SYNC), in real
+        time only; lockstep (in process, or ``lockstep=True``) ignores it.
+
         ``timing`` measures every SYNC's wake-up and answer (``SyncTiming``). With the
         collector disabled (``gc.disable()`` by the caller), generations 0-1 are collected
         right after a SYNC's answer about once a second, in the slack before the next one,
@@ -456,6 +499,8 @@ class VirtualRig:
         self.wall_clock = not lockstep
         self.lockstep_process = lockstep
         wall_timeout_s = self.watchdog_timeout_s + (LOCKSTEP_BACKSTOP_S if lockstep else 0.0)
+        # devices answering late (as_built.timing): in real time only, lockstep ignores it
+        late = not lockstep and (self.answer_latency_s > 0 or self.answer_jitter_s > 0)
         while not stop():
             msg = self.bus.recv(poll_s)
             if msg is not None:
@@ -463,6 +508,8 @@ class VirtualRig:
                         and not msg.is_error_frame):
                     woke, ran = clock(), cpu()
                     self.last_sync_wall = time.monotonic()
+                    if late:
+                        self._answer_delay()
                     if timing is None:
                         self.handle(msg)
                     else:
@@ -723,6 +770,9 @@ class VirtualRig:
                 if values is not None:
                     self._apply[device](values)
         hub_torque = self.wheel.step() + self.valves.step() + self.rotor.step()
+        if self.gravity_torque_n_m:
+            hub_torque -= self.gravity_torque_n_m * math.sin(
+                float(self.x[0]) - self.gravity_azimuth_rad)
         u = self.u
         u[0] = hub_torque
         volts = self.piezo.voltages_v
@@ -789,11 +839,36 @@ class VirtualRig:
             # the nodes count this SYNC and send their TPDOs of the values just written
             self.co_devices.handle(self.binding.sync.key[0], data, now)
 
+    def _as_built_sensors(self, angle: float, rate: float, accel: float
+                          ) -> tuple[float, float, float]:
+        """The hub sensor's angle and rate and the accelerometer's input, as built: each
+        sensor's latency back in the delay line, the accelerometer's bias, scale error and
+        tilt (at the hub angle of its own latency)."""
+        outputs = self._outputs
+        outputs.append((angle, rate, accel))
+        hub_angle, hub_rate, _ = outputs[-1 - self.hub_latency_ticks]
+        acc_angle, _, acc_true = outputs[-1 - self.accel_latency_ticks]
+        return hub_angle, hub_rate, self.accel.sensed(acc_true, acc_angle)
+
+    def _answer_delay(self) -> None:
+        """Hold the answer to a SYNC back by the devices' latency plus a uniform jitter
+        (``as_built.timing``; real time only): sleep, then spin the last 0.1 ms."""
+        delay = self.answer_latency_s + self.answer_jitter_s * self._answer_rng.random()
+        if delay <= 0.0:
+            return
+        deadline = time.perf_counter() + delay
+        if delay > 2e-4:
+            time.sleep(delay - 1e-4)
+        while time.perf_counter() < deadline:
+            pass
+
     def _sample_and_send(self, tick: int) -> None:
         # the last step's outputs and patch volts as Python floats, one conversion a tick
         n_y0 = self._n_x
         out = self._state.tolist()
         y0, y1, y2 = out[n_y0], out[n_y0 + 1], out[n_y0 + 2]
+        if self._sensor_terms:
+            y0, y1, y2 = self._as_built_sensors(y0, y1, y2)
         # which devices answer this SYNC: a table by tick modulo the dividers' least common
         # multiple (or the dividers themselves beyond 10 000)
         due = (self._due_at[tick % self._due_period] if self._due_period

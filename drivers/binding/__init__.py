@@ -164,6 +164,14 @@ def resolve_file(value: Any, key: str, base_dir: Path | None, subdir: str = "") 
                        f"{', '.join(str(c.parent) for c in candidates)})")
 
 
+def _is_file(path: Path) -> bool:
+    """``path.is_file()``, False for a name the file system refuses (too long, a NUL)."""
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
+
+
 def absolutize(data: Mapping[str, Any], base_dir: Path | None) -> dict[str, Any]:
     """A copy of rig data whose DBC/EDS paths relative to the rig file's folder are made
     absolute, so the data stays valid wherever it goes (a run's config.yaml, a rig
@@ -178,7 +186,7 @@ def absolutize(data: Mapping[str, Any], base_dir: Path | None) -> dict[str, Any]
         cfg = dict(cfg)
         for k in ("dbc", "eds"):
             v = cfg.get(k)
-            if isinstance(v, str) and v and not Path(v).is_absolute() and (base_dir / v).is_file():
+            if isinstance(v, str) and v and not Path(v).is_absolute() and _is_file(base_dir / v):
                 cfg[k] = str((base_dir / v).resolve())
         return cfg
 
