@@ -93,7 +93,8 @@ def test_limits_abort_the_run(tmp_path, monkeypatch):
     run = load_run("slew-rw", {"duration_s": 30.0, "limits": {"max_angle_deg": 5.0}})
     with pytest.raises(RunRefused, match=r"limits\.max_angle_deg of 5 deg"):
         execute_run(run, out_dir=tmp_path / "refused", show_progress=False)
-    monkeypatch.setattr(session, "refuse_beyond_limits", lambda run, controller, should_stop=None: [])
+    monkeypatch.setattr(session, "refuse_beyond_limits",
+                        lambda run, controller, should_stop=None: [])
     res = execute_run(run, out_dir=tmp_path, show_progress=False)
     (event,) = res.summary["faults"]
     assert event["kind"] == "angle limit" and "> 5 deg" in event["message"]
