@@ -173,6 +173,9 @@ RIG_SCHEMA: dict[str, Any] = {
         "accel_bias_m_s2": Field("number", "m/s^2", default=0.05, minimum=0.0),
         "rate_bias_rad_s": Field("number", "rad/s", default=1.0e-4, minimum=0.0),
         "piezo_bias_v": Field("number", "V", default=0.01, minimum=0.0),
+        # the wheel's bearing friction the model leaves out (beyond its friction_* keys):
+        # a torque below it may not turn a wheel at rest, a coasting wheel may slow by it
+        "wheel_friction_n_m": Field("number", "N m", default=1.0e-3, minimum=0.0),
     },
     # limits of a run's criteria that differ on this rig, by criterion name:
     # {final_error: {max_abs_deg: 0.2}}; applied by the harness's verdict layer

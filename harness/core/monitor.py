@@ -180,6 +180,8 @@ class PlausibilityWindow:
                  "rate_last", "rate_int", "wheel_tick", "wheel_tick0", "wheel_n", "speed0",
                  "speed_last", "wheel_ok", "torque_int", "torque_abs", "torque_peak",
                  "rate_tv", "wheel_speed_near", "rate0", "valve_int", "rotor_on",
+                 "friction_coulomb", "friction_viscous", "friction_tol", "friction_int",
+                 "rate_bias_model",
                  "hub_inertia", "couple", "balance_min", "inertia_fraction",
                  "couple_fraction", "wheel_checked")
 
@@ -195,6 +197,10 @@ class PlausibilityWindow:
         self.wheel_speed_max = wheel_speed_max
         # near its limit the wheel refuses torque: such a window is not judged
         self.wheel_speed_near = 0.95 * wheel_speed_max
+        # the wheel's bearing friction as the rig file models it, and how much friction the
+        # file allows beyond its model (``friction``)
+        self.friction_coulomb = self.friction_viscous = self.friction_tol = 0.0
+        self.rate_bias_model = 0.0  # the hub rate's bias as the file models it
         # the momentum balance (``FaultMonitor._balance``): off until ``balance``
         self.hub_inertia = self.couple = 0.0
         self.balance_min = math.inf
@@ -219,6 +225,8 @@ class PlausibilityWindow:
         self.rate_tv = 0.0
         self.valve_int = 0
         self.rotor_on = False
+        # the modelled friction torque on the rotor summed over the window's ticks (N m)
+        self.friction_int = 0.0
         self.wheel_checked = False
         self.hub_n = 1 if self.hub_tick >= 0 else 0
         self.wheel_tick0, self.speed0 = self.wheel_tick, self.speed_last
@@ -494,6 +502,13 @@ class FaultMonitor:
             + float(tol.get("inertia_fraction", 0.0)),
             wheel_step=_quantity_step(rig, "reaction_wheel", "speed"),
             wheel_speed_max=self.wheel_max)
+        # the wheel's friction as the file models it (a coasting wheel slows by it), and
+        # the friction it allows unmodelled (a torque below it may not turn a wheel at rest)
+        self._pw.friction_coulomb = float(wheel.get("friction_coulomb_n_m") or 0.0)
+        self._pw.friction_viscous = float(wheel.get("friction_viscous_n_m_s") or 0.0)
+        self._pw.friction_tol = float(tol.get("wheel_friction_n_m") or 0.0)
+        self._pw.rate_bias_model = float(
+            rig.section("hub_sensor").get("rate_bias_rad_s") or 0.0)
         acting = set(getattr(self.iface, "actuators", ()) or ())
         wheel_on = "reaction_wheel" in acting and "reaction_wheel" in self.div
         valves_on = "thruster_valves" in acting and "thruster_valves" in self.div
@@ -519,8 +534,9 @@ class FaultMonitor:
         dt = self.dt_s
         if pw.hub_n >= 2 and pw.angle is not None and pw.rate is not None:
             moved = pw.angle_last - pw.angle0
-            integral = pw.rate_int
             span_s = (pw.hub_tick - pw.hub_tick0) * dt
+            # the rate's bias the file models is no motion of the angle
+            integral = pw.rate_int - pw.rate_bias_model * span_s
             sample_dt = span_s / max(1, pw.hub_n - 1)
             noise = pw.noise_factor * math.sqrt(
                 2.0 * pw.angle.noise_rms ** 2
@@ -540,8 +556,11 @@ class FaultMonitor:
         if event is None and pw.wheel_n >= 2 and pw.wheel_ok:
             pw.wheel_checked = True
             changed = pw.speed_last - pw.speed0
-            predicted = -pw.torque_int * dt / pw.wheel_inertia
+            predicted = -(pw.torque_int + pw.friction_int) * dt / pw.wheel_inertia
+            span_s = (pw.wheel_tick - pw.wheel_tick0) * dt
             band = (pw.torque_fraction * pw.torque_abs * dt
+                    # friction the file does not model: at most its tolerance, all along
+                    + pw.friction_tol * span_s
                     # the torque loop's lag: its output trails the command by lag x the
                     # change of its output over the window, at most twice the peak; the
                     # command acts a tick late (on the wall clock up to the grace later)
@@ -549,7 +568,6 @@ class FaultMonitor:
                     ) / pw.wheel_inertia + 2.0 * pw.wheel_step
             if abs(changed - predicted) > band:
                 cause = _cause(changed, predicted, band, "no torque was commanded")
-                span_s = (pw.wheel_tick - pw.wheel_tick0) * dt
                 event = self._event(tick, "reaction_wheel", "implausible", (
                     f"speed against the commanded torque: it changed by {changed:+.4g} rad/s "
                     f"in {span_s:.3g} s, the torque's integral over the rotor's inertia says "
@@ -941,6 +959,10 @@ class FaultMonitor:
             if pw.wheel_n:
                 torque = sent.wheel_torque_n_m
                 pw.torque_int += torque
+                w = pw.speed_last
+                if w and (pw.friction_coulomb or pw.friction_viscous):
+                    pw.friction_int += (pw.friction_coulomb if w > 0.0
+                                        else -pw.friction_coulomb) + pw.friction_viscous * w
                 magnitude = abs(torque)
                 pw.torque_abs += magnitude
                 if magnitude > pw.torque_peak:

@@ -31,7 +31,9 @@ FORMS = ("fault", "left_safe", "settles", "baseline", "modal_residual", "measure
 """The key that names a criterion's form, checked in this order (``baseline`` criteria also
 have a ``channel``)."""
 
-REDUCTIONS = ("each", "rms", "mean", "final")
+REDUCTIONS = ("each", "rms", "std", "mean", "final")
+"""A channel criterion's value: each sample, the rms, the rms about the mean (``std``: a
+vibration with the sensor's bias left out), the mean, the final sample."""
 COMMON_KEYS = ("why", "budget", "applies_to_stopped")
 WINDOW_KEYS = ("after", "from_s", "to_s", "last_s")
 

@@ -424,7 +424,8 @@ def _channel_core(c: Criterion, start: float) -> Generator[None, Any, CriterionR
     where = c.window.describe()
     best = math.inf
     best_x = best_t = t_last = x_last = 0.0
-    total = 0.0
+    total = total_sq = 0.0
+    x_first: float | None = None
     n = 0
     starts = _Starts()
     while (blk := (yield)) is not None:
@@ -439,6 +440,12 @@ def _channel_core(c: Criterion, start: float) -> Generator[None, Any, CriterionR
             starts.feed(t, margins < 0)
         elif c.reduce == "rms":
             total += np.sum(x ** 2, dtype=np.float64)
+        elif c.reduce == "std":  # about the first sample: no cancellation for a large mean
+            if x_first is None:
+                x_first = float(x[0])
+            d = x - x_first
+            total += np.sum(d, dtype=np.float64)
+            total_sq += np.sum(d ** 2, dtype=np.float64)
         elif c.reduce == "mean":
             total += np.sum(x, dtype=np.float64)
     if c.reduce == "each":
@@ -450,6 +457,8 @@ def _channel_core(c: Criterion, start: float) -> Generator[None, Any, CriterionR
     worst: float | None
     if c.reduce == "rms":
         value, worst = float(np.sqrt(total / n)), None
+    elif c.reduce == "std":
+        value, worst = float(np.sqrt(max(0.0, total_sq / n - (total / n) ** 2))), None
     elif c.reduce == "mean":
         value, worst = float(total / n), None
     else:  # final

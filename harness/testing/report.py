@@ -108,6 +108,9 @@ def _shade_band(ax: Any, s: dict[str, Any], t0: float, t1: float, v: np.ndarray)
     if reduce == "rms":
         value = known if known is not None else float(np.sqrt(np.nanmean(v ** 2)))
         lo = 0.0 if lo is None else lo
+    elif reduce == "std":
+        value = known if known is not None else float(np.nanstd(v))
+        lo = 0.0 if lo is None else lo
     elif reduce == "mean":
         value = known if known is not None else float(np.nanmean(v))
     elif reduce == "final":
