@@ -64,3 +64,14 @@ def test_acceptance_on_the_as_built_devices_fails_only_where_the_file_is_wrong(t
     (ident,) = [t for t in tests if t["item"] == "identify[free-decay]"]
     failed = {c["name"] for c in ident.get("criteria", []) if c["verdict"] == "FAIL"}
     assert failed == {"frequencies", "damping"}, ident
+
+
+def test_the_twin_is_the_files_model_never_its_as_built_overlay():
+    """The twin measures the rig against its model: on sgsrt-as-built it must run the
+    model's inertia (15 kg m^2), not the overlay's 15.6 that the virtual rig emulates."""
+    from harness.history.twin import TwinModel
+
+    rig = load_rig("sgsrt-as-built")
+    twin = TwinModel(rig.data, 0.002)
+    assert twin.rig.rig.data["hub"]["inertia_kg_m2"] == 15.0
+    assert rig.as_built_rig().data["hub"]["inertia_kg_m2"] == 15.6

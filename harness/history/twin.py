@@ -120,8 +120,12 @@ class TwinModel:
         quiet["accelerometer"]["noise_rms_m_s2"] = 0.0
         quiet["hub_sensor"]["angle_noise_rms_rad"] = 0.0
         quiet["hub_sensor"]["rate_noise_rms_rad_s"] = 0.0
+        quiet["hub_sensor"]["rate_random_walk_rad_s_sqrt_s"] = 0.0  # a drawn drift: noise
         quiet["piezo_amplifier"]["sensor_noise_rms_v"] = 0.0
         quiet["devices"] = None  # the physics only: no device speaks on a bus here
+        # the model the rig file states (its friction, biases, lags included), never the
+        # as_built: overlay a virtual rig emulates: the twin measures the rig against it
+        quiet["as_built"] = None
         if isinstance(quiet.get("bus"), dict):  # nor the harness: a DBC's SYNC would need them
             quiet["bus"] = dict(quiet["bus"], sync=None, heartbeat=None)
         self.rig = VirtualRig(rig_from_dict(quiet, source="twin rig"), bus=None,  # type: ignore[arg-type]
