@@ -280,7 +280,11 @@ def test_dry_run_judges_only_the_safe_state(tmp_path):
               "safe": {"left_safe": True}}
     code, d = run(run_file(tmp_path, expect, "dry"), tmp_path / "logs", "--dry-run")
     v = verdict_of(d)
-    assert code == 0 and [c["name"] for c in v["criteria"]] == ["safe"]
+    assert code == 0 and [c["name"] for c in v["criteria"]
+                          if c["verdict"] != "NOT JUDGED"] == ["safe"]
+    # the others are listed, not dropped: NOT JUDGED with why
+    assert all("dry run" in c["message"] for c in v["criteria"]
+               if c["verdict"] == "NOT JUDGED")
     assert v["reason"].startswith("dry run")
     assert main(["judge", str(d), "--expect", str(_expect_file(tmp_path, expect)),
                  "--write"]) == 0
@@ -337,5 +341,25 @@ def test_fault_test_reusing_a_run_file_is_judged_on_its_fault(tmp_path):
     code, d = run(run_file(tmp_path, expect, "fault-test", faults=faults), tmp_path / "logs")
     v = verdict_of(d)
     assert code == 0, v["reason"]
-    assert sorted(c["name"] for c in v["criteria"]) == ["detected", "safe"]
+    assert sorted(c["name"] for c in v["criteria"]
+                  if c["verdict"] != "NOT JUDGED") == ["detected", "safe"]
+    # the slew's own criteria are listed NOT JUDGED with why, never dropped without a word
+    skipped = [c for c in v["criteria"] if c["verdict"] == "NOT JUDGED"]
+    assert skipped and all("fault test" in c["message"] for c in skipped)
     assert v["reason"].startswith("fault test")
+
+
+def test_a_criterion_that_applies_to_a_stopped_run_is_judged_in_a_fault_test(tmp_path):
+    """A channel criterion with applies_to_stopped: true in a fault test is judged, and its
+    FAIL fails the test (it was dropped without a word: 'all 2 criteria passed')."""
+    expect = {"detected": {"fault": "accelerometer", "kind": "malformed frame",
+                           "within_ticks": 1},
+              "quiet_tip": {"channel": "/tip/accel_m_s2", "max_abs_m_s2": 1e-6,
+                            "applies_to_stopped": True},
+              "safe": {"left_safe": True}}
+    faults = [{"kind": "wrong_length", "at_s": 1.0, "device": "accelerometer"}]
+    code, d = run(run_file(tmp_path, expect, "fault-test-stopped", faults=faults),
+                  tmp_path / "logs")
+    v = verdict_of(d)
+    by_name = {c["name"]: c["verdict"] for c in v["criteria"]}
+    assert by_name["quiet_tip"] == "FAIL" and v["verdict"] == "FAIL" and code == 1, by_name

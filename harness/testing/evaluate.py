@@ -933,10 +933,11 @@ def stopped_early(measures: Mapping[str, Any]) -> str | None:
     return None
 
 
-def not_judged(c: Criterion, why: str) -> CriterionResult:
-    """A criterion left unjudged on a run stopped early (see NOT_JUDGED)."""
+def not_judged(c: Criterion, why: str, ending: str = " before its end") -> CriterionResult:
+    """A criterion left unjudged on a run stopped early, a fault test or a dry run (see
+    NOT_JUDGED)."""
     return CriterionResult(c.name, c.kind, None, c.unit, limit_dict(c), None, NOT_JUDGED,
-                           None, f"not judged: {why} before its end; this criterion does "
+                           None, f"not judged: {why}{ending}; this criterion does "
                            "not apply to a stopped run (applies_to_stopped: true judges it)",
                            c.why)
 

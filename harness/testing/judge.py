@@ -498,15 +498,24 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
     facts = Facts(summary, source, BaselineCache(wanted),
                   lambda: left_safe_problems(run_dir / "can.blf", _rig_data(cfg)), source.blocks)
     note = ""
+    # criteria a dry run or a fault test leaves out: listed NOT JUDGED with why, never
+    # dropped without a word
+    left_out: list[CriterionResult] = []
     if summary.get("dry_run"):  # nothing was commanded: only the safe state and the checks
+        left_out = [not_judged(c, "a dry run commanded nothing", ending="")
+                    for c in criteria if c.kind != "left_safe"]
         criteria = [c for c in criteria if c.kind == "left_safe"]
         note = "dry run (nothing commanded): only left_safe and the run's own checks judged"
     elif any(c.kind == "fault" for c in criteria):
         # a fault test: the fault stops the run by design, so the nominal run's criteria
-        # (final error, settling, a clean bus) do not apply; the rig must see it and be safe
-        criteria = [c for c in criteria if c.kind in ("fault", "left_safe")]
-        note = "fault test: only its fault expectations, left_safe and the run's own checks " \
-               "judged"
+        # (final error, settling, a clean bus) do not apply; the rig must see it and be
+        # safe. A criterion that says it applies to a stopped run is judged all the same
+        keep = ("fault", "left_safe")
+        left_out = [not_judged(c, "a fault test: its fault stops the run by design")
+                    for c in criteria if c.kind not in keep and not c.applies_to_stopped]
+        criteria = [c for c in criteria if c.kind in keep or c.applies_to_stopped]
+        note = "fault test: only its fault expectations, left_safe, the criteria that apply " \
+               "to a stopped run and the run's own checks judged"
     if is_realtime(summary):  # the bench's own timing, in every real-time run
         run = cfg.get("run") if isinstance(cfg.get("run"), Mapping) else {}
         criteria = criteria + timing_criteria(run, {c.name for c in criteria})
@@ -514,8 +523,8 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
     judged = [c for c in criteria if not why or c.applies_to_stopped]
     done = dict(zip((id(c) for c in judged), evaluate(judged, facts), strict=True))
     results = [done[id(c)] if id(c) in done else not_judged(c, str(why))
-               for c in criteria] + results + (run_checks(criteria, summary)
-                                               if summary else [])
+               for c in criteria] + left_out + results + (run_checks(criteria, summary)
+                                                          if summary else [])
     verdict = make_verdict(results, identity_of(run_dir, cfg, summary, expect_file), run_dir)
     if note and verdict.verdict == "PASS":
         verdict.reason = f"{note}; {verdict.reason}"

@@ -57,7 +57,8 @@ def channel_specs(run_dir: Path, criteria_results: list[dict[str, Any]]
     for c in criteria_of(run_dir, cfg)[0]:
         if c.kind not in ("channel", "settles", "baseline"):
             continue
-        if criteria_results and c.name not in verdicts:
+        if criteria_results and (c.name not in verdicts
+                                 or verdicts[c.name].get("verdict") == "NOT JUDGED"):
             continue  # not judged (a fault test judges only its fault expectations)
         lim = c.limit
         if c.kind == "channel":
