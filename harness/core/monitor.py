@@ -99,6 +99,10 @@ MONITOR_SCHEMA = {
     "max_error_frames": Field("int", default=10, minimum=0),
     "realtime_grace_s": Field("number", "s", default=0.05, minimum=0.0),
     "startup_s": Field("number", "s", default=0.5, minimum=0.0),
+    # on the wall clock: every device silent at once is the bench (host, transport, bus),
+    # waited for this long before the run stops naming the bus (docs/faults.md)
+    "bench_stall_s": Field("number", "s", default=1.0, exclusive_minimum=0.0,
+                           maximum=60.0),
     # the rig's physics every run: hub angle against its rate's integral, wheel speed
     # against the commanded torque's integral, over windows of this length (docs/faults.md)
     "plausibility": Field("bool", default=True),
@@ -134,7 +138,8 @@ class DeviceWatch:
     """What the monitor keeps of one device between ticks (its frames due and lost)."""
 
     __slots__ = ("name", "driver", "divider", "stale_ticks", "misses", "due", "silent_after",
-                 "frames", "base_rx", "base_due", "window", "lost_at", "span", "slack")
+                 "frames", "base_rx", "base_due", "window", "lost_at", "span", "slack",
+                 "behind")
 
     def __init__(self, name: str, driver: Any, divider: int, stale_ticks: int,
                  grace_ticks: int, frames: int) -> None:
@@ -164,6 +169,9 @@ class DeviceWatch:
         # frames beyond those asked for that a healthy device can show: its frames of the
         # SYNCs before it was first counted that were still on their way (the grace)
         self.slack = frames * (grace_ticks // divider + 2) + 2
+        # on the wall clock: its frames asked for and not come, beyond the least over the
+        # last ``span`` ticks (what ``lost_at`` bounds); a bench behind shows in every device
+        self.behind = 0
 
     def due_by(self, tick: int) -> int:
         """Its frames due at ticks 0..tick."""
@@ -181,7 +189,8 @@ class PlausibilityWindow:
                  "speed_last", "wheel_ok", "torque_int", "torque_abs", "torque_peak",
                  "rate_tv", "wheel_speed_near", "rate0", "valve_int", "rotor_on",
                  "friction_coulomb", "friction_viscous", "friction_tol", "friction_int",
-                 "rate_bias_model",
+                 "rate_bias_model", "torque_at_sample", "friction_at_sample",
+                 "stale_windows", "hub_div", "wheel_div",
                  "hub_inertia", "couple", "balance_min", "inertia_fraction",
                  "couple_fraction", "wheel_checked")
 
@@ -201,6 +210,14 @@ class PlausibilityWindow:
         # file allows beyond its model (``friction``)
         self.friction_coulomb = self.friction_viscous = self.friction_tol = 0.0
         self.rate_bias_model = 0.0  # the hub rate's bias as the file models it
+        # the torque (and modelled friction) summed up to the wheel's last sample: the
+        # torque sent after it belongs to the next window (its next sample shows it)
+        self.torque_at_sample = self.friction_at_sample = 0.0
+        self.torque_int = self.friction_int = 0.0
+        # windows not judged for samples that did not come in time (a stalled bench): a
+        # check must not judge stale data
+        self.stale_windows = 0
+        self.hub_div = self.wheel_div = 1
         # the momentum balance (``FaultMonitor._balance``): off until ``balance``
         self.hub_inertia = self.couple = 0.0
         self.balance_min = math.inf
@@ -225,14 +242,17 @@ class PlausibilityWindow:
         self.rate_tv = 0.0
         self.valve_int = 0
         self.rotor_on = False
-        # the modelled friction torque on the rotor summed over the window's ticks (N m)
-        self.friction_int = 0.0
+        # the modelled friction torque on the rotor summed over the window's ticks (N m);
+        # both integrals carry what was sent after the wheel's last sample over
+        self.friction_int -= self.friction_at_sample
         self.wheel_checked = False
         self.hub_n = 1 if self.hub_tick >= 0 else 0
         self.wheel_tick0, self.speed0 = self.wheel_tick, self.speed_last
         self.wheel_n = 1 if self.wheel_tick >= 0 else 0
         self.wheel_ok = True
-        self.torque_int = self.torque_abs = 0.0
+        self.torque_int -= self.torque_at_sample
+        self.torque_at_sample = self.friction_at_sample = 0.0
+        self.torque_abs = 0.0
         # the torque loop's output at the window's start trails the last window's commands:
         # their peak bounds it (no torque commanded in this window can still turn the wheel)
         self.torque_peak = getattr(self, "torque_peak", 0.0)
@@ -252,6 +272,12 @@ gross factor. The valves' state is read every few ticks (the sgsrt's every 5th),
 pulses shorter than that alias their open time: their slope scatters more, and its
 standard error says so."""
 
+
+STALE_FRACTION = 0.9
+"""A physics window is judged only with this fraction of its device's samples (one per
+SYNC that asks) come each in a tick of its own; fewer, the samples were late (a stalled
+host, a slow transport) and the window is counted as stale (``monitor_stale_windows`` in
+summary.json), not judged."""
 
 BALANCE_SIGMAS = 4.0
 """The momentum balance's slope is judged this many standard errors from its band."""
@@ -393,6 +419,14 @@ class FaultMonitor:
         # _silent_and_lost: no device can be silent before this tick (from the last full
         # pass); the devices due at each tick modulo the dividers' least common multiple
         self._silent_from = 0
+        # a stall of the whole bench on the wall clock (_bench_stall): since when, how many
+        self._stall_from: int | None = None
+        self._resumed_at: int | None = None
+        self._bench_stall_s = float(monitor.get("bench_stall_s", 1.0))
+        self.bench_stalls = 0
+        self.bench_behind = 0  # episodes of every device's frames late beyond the grace
+        self._behind_since: int | None = None
+        self.bench_stall_max_s = 0.0
         lost_period = math.lcm(*(w.divider for w in self._lost)) if self._lost else 1
         self._lost_due_period = lost_period if lost_period <= 10_000 else 0
         self._lost_due_at = [tuple(w for w in self._lost if k % w.divider == 0)
@@ -507,6 +541,8 @@ class FaultMonitor:
         self._pw.friction_coulomb = float(wheel.get("friction_coulomb_n_m") or 0.0)
         self._pw.friction_viscous = float(wheel.get("friction_viscous_n_m_s") or 0.0)
         self._pw.friction_tol = float(tol.get("wheel_friction_n_m") or 0.0)
+        self._pw.hub_div = self.div.get("hub_sensor", 1)
+        self._pw.wheel_div = self.div.get("reaction_wheel", 1)
         self._pw.rate_bias_model = float(
             rig.section("hub_sensor").get("rate_bias_rad_s") or 0.0)
         acting = set(getattr(self.iface, "actuators", ()) or ())
@@ -532,7 +568,13 @@ class FaultMonitor:
         assert pw is not None
         event = None
         dt = self.dt_s
-        if pw.hub_n >= 2 and pw.angle is not None and pw.rate is not None:
+        # a device whose samples did not all come in time (late frames on a stalled bench
+        # arrive together and the monitor sees the last): its checks skip the window
+        hub_stale = pw.hub_n < STALE_FRACTION * pw.every / pw.hub_div
+        wheel_stale = pw.wheel_n < STALE_FRACTION * pw.every / pw.wheel_div
+        if (hub_stale and pw.hub_n) or (wheel_stale and pw.wheel_n):
+            pw.stale_windows += 1
+        if pw.hub_n >= 2 and pw.angle is not None and pw.rate is not None and not hub_stale:
             moved = pw.angle_last - pw.angle0
             span_s = (pw.hub_tick - pw.hub_tick0) * dt
             # the rate's bias the file models is no motion of the angle
@@ -553,10 +595,11 @@ class FaultMonitor:
                     f"in {span_s:.3g} s, the rate's integral says "
                     f"{math.degrees(integral):+.4g} deg (within "
                     f"{math.degrees(band):.3g} deg); likely {cause}"))
-        if event is None and pw.wheel_n >= 2 and pw.wheel_ok:
+        if event is None and pw.wheel_n >= 2 and pw.wheel_ok and not wheel_stale:
             pw.wheel_checked = True
             changed = pw.speed_last - pw.speed0
-            predicted = -(pw.torque_int + pw.friction_int) * dt / pw.wheel_inertia
+            predicted = -(pw.torque_at_sample + pw.friction_at_sample) * dt \
+                / pw.wheel_inertia
             span_s = (pw.wheel_tick - pw.wheel_tick0) * dt
             band = (pw.torque_fraction * pw.torque_abs * dt
                     # friction the file does not model: at most its tolerance, all along
@@ -573,7 +616,8 @@ class FaultMonitor:
                     f"in {span_s:.3g} s, the torque's integral over the rotor's inertia says "
                     f"{predicted:+.4g} rad/s (within {band:.3g}); likely {cause}"))
                 pw.wheel_checked = False
-        if event is None and pw.hub_inertia > 0.0 and not pw.rotor_on and pw.hub_n >= 2:
+        if (event is None and pw.hub_inertia > 0.0 and not pw.rotor_on and pw.hub_n >= 2
+                and not hub_stale and not (wheel_stale and pw.wheel_n)):
             event = self._balance(tick, pw)
         pw.restart(tick)
         return event
@@ -636,6 +680,11 @@ class FaultMonitor:
                  "window of the wheel alone vouched for the hub sensor in this run)")
         return self._event(tick, "thruster_valves", "implausible", (
             f"momentum balance against the valves' couple: {said}; likely {cause}: {blame}"))
+
+    @property
+    def stale_windows(self) -> int:
+        """Physics windows not judged for late samples (``STALE_FRACTION``)."""
+        return self._pw.stale_windows if self._pw is not None else 0
 
     # ------------------------------------------------------------------ warnings
     def _init_warnings(self, cfg: dict[str, Any], wheel_max_torque_n_m: float) -> None:
@@ -953,6 +1002,7 @@ class FaultMonitor:
                         or not v.get("enabled", 1.0)):
                     pw.wheel_ok = False  # held at its limit or off: torque not applied
                 pw.speed_last, pw.wheel_tick = speed, tick
+                pw.torque_at_sample, pw.friction_at_sample = pw.torque_int, pw.friction_int
             pw.valve_int += state.valve_state
             if state.rotor_speed_rad_s:
                 pw.rotor_on = True
@@ -1059,6 +1109,10 @@ class FaultMonitor:
                     # silent from the end of the start-up time on
                     silent_from = min(silent_from, self.startup_ticks - 1)
                     continue
+                if grace and age < 10**8:
+                    stalled = self._bench_stall(tick, watch)
+                    if stalled is not None:
+                        return stalled if isinstance(stalled, FaultEvent) else None
                 return self._event(tick, watch.name, "silent",
                                    f"no telemetry for {age if age < 10**8 else 'all'} ticks")
             if last + limit < silent_from:
@@ -1069,7 +1123,74 @@ class FaultMonitor:
                     return event
         # the first tick a device could be silent at (its age past its limit)
         self._silent_from = silent_from + 1
+        if self._stall_from is not None:  # every device is answering again: a stall ended
+            self._end_stall(tick)
         return None
+
+    def _bench_stall(self, tick: int, watch: DeviceWatch) -> FaultEvent | bool | None:
+        """On the wall clock, ``watch``'s device is past its silence limit. If no other
+        device has answered since this one's next answer was due, every device stopped at
+        once, which no one device does: its frames are late, not lost; the host, the
+        transport or the bus held them (the bench's time, which the verdict judges by its
+        timing criteria).
+        True while such a stall lasts, up to ``bench_stall_s``, and while the devices
+        catch up after it (each within its own silence limit of the first answer); past
+        ``bench_stall_s`` the run stops, the bench named (device ``bus``). None: the
+        device's own silence."""
+        if self._stall_from is None:
+            others = [w.driver.last_tick for w in self._lost if w is not watch]
+            if not others or max(others) > watch.driver.last_tick + watch.divider:
+                return None  # another answered after its next was due: its own silence
+            # none has answered since this device's next answer was due: the bench may have
+            # stopped them all (a device answering every 5th SYNC is the first past its
+            # limit); it is a stall for as long as no device answers
+            self._stall_from = max(w.driver.last_tick for w in self._lost)
+        self._silent_from = tick + 1  # look again next tick
+        if self._resumed_at is None and any(
+                w.driver.last_tick > self._stall_from for w in self._lost):
+            self._resumed_at = tick
+        if self._resumed_at is not None:  # the devices are coming back: each gets its limit
+            return True if tick - self._resumed_at <= watch.silent_after else None
+        quiet = tick - self._stall_from
+        if quiet * self.dt_s <= self._bench_stall_s:
+            return True
+        return self._event(tick, "bus", "silent", (
+            f"no device has answered for {quiet * self.dt_s:.3f} s (every one stopped at "
+            f"t = {self._stall_from * self.dt_s:.3f} s): the bus, the CAN adapter, the "
+            "transport or the host, not one device; monitor.bench_stall_s "
+            f"{self._bench_stall_s:g} s"))
+
+    def _bench_behind(self, tick: int, watch: DeviceWatch) -> bool:
+        """On the wall clock, ``watch``'s frames are past their loss limit: lost, unless
+        every other device is as far behind (each more than its grace's worth of frames
+        short), when the bench (the transport, the host) is delivering late, not losing
+        one device's frames. Counted once per episode (``bench_behind``); the missing
+        frames are the bench's timing criteria's to judge."""
+        others = [w for w in self._lost if w is not watch and w.base_rx is not None]
+        if not others or any(w.behind <= w.lost_at for w in others):
+            self._behind_since = None
+            return False
+        if self._behind_since is None:
+            self._behind_since = tick
+            self.bench_behind += 1
+        return True
+
+    def _end_stall(self, tick: int) -> None:
+        """Telemetry came again after a stall of the whole bench: counted and measured
+        (summary.json ``monitor_bench_stalls``), a warning logged."""
+        start = self._stall_from
+        assert start is not None
+        resumed = self._resumed_at if self._resumed_at is not None else tick
+        self._stall_from = self._resumed_at = None
+        length_s = (resumed - start) * self.dt_s
+        self.bench_stalls += 1
+        self.bench_stall_max_s = max(self.bench_stall_max_s, length_s)
+        for w in self._lost:  # the frames the stall kept back are the bench's, not lost
+            w.window.clear()
+        if self.on_warning is not None:
+            self.on_warning(MonitorWarning(tick, tick * self.dt_s, "telemetry_missing", (
+                f"no device answered for {length_s:.3f} s from t = {start * self.dt_s:.3f} "
+                "s, then all did: the bench stalled (late frames, not a device's silence)")))
 
     def _count_frames(self, tick: int) -> FaultEvent | None:
         """Each device's frames against the SYNCs that asked for them, from the first tick
@@ -1090,7 +1211,8 @@ class FaultMonitor:
                 return self._event(tick, w.name, "duplicate frames", (
                     f"{surplus} frames more than its SYNCs asked for since t = "
                     f"{self._base_time(w):.3f} s: a second node answers with its id"))
-            if grace and tick - w.driver.last_tick <= w.silent_after:
+            if (grace and self._stall_from is None
+                    and tick - w.driver.last_tick <= w.silent_after):
                 # frames asked for and not come, counted in order (a PDO carries no
                 # counter: a lost frame and a late one look alike until the grace is past);
                 # a device that stopped answering altogether is the silent rule's
@@ -1101,8 +1223,9 @@ class FaultMonitor:
                 window.append((tick, deficit))
                 if window[0][0] <= tick - w.span:
                     window.popleft()
-                lost = deficit - window[0][1] - w.lost_at
-                if lost >= self._lost_limit * w.frames:
+                w.behind = deficit - window[0][1]
+                lost = w.behind - w.lost_at
+                if lost >= self._lost_limit * w.frames and not self._bench_behind(tick, w):
                     return self._event(tick, w.name, "frames lost", (
                         f"{lost} of its frames asked for more than "
                         f"{grace * self.dt_s * 1e3:.0f} ms ago did not come (counted over "

@@ -509,6 +509,13 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
             summary = summarise(run, recorder, stats, load.percent, interface, clock_name,
                                 str(spec), setup, rig, running)
             summary["monitor_warnings"] = dict(monitor.warning_counts)
+            # what the monitor did not judge as a device's doing: stalls of the whole bench
+            # on the wall clock, physics windows with late samples (docs/faults.md)
+            summary["monitor_bench"] = {
+                "stalls": monitor.bench_stalls,
+                "behind_episodes": monitor.bench_behind,
+                "longest_stall_s": round(monitor.bench_stall_max_s, 6),
+                "stale_physics_windows": monitor.stale_windows}
             summary["wire_timing"] = wire.summary()
             # SYNC echoes that came after the next SYNC was sent: those ticks not timed
             summary["wire_timing"]["sync_echoes_late"] = interface.late_sync_echoes
