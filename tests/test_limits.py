@@ -103,3 +103,96 @@ def test_suite_test_beyond_a_limit_is_refused(tmp_path):
     assert r.returncode == 2, r.stdout + r.stderr
     assert not any(out.rglob("can.blf"))
     assert "reaction_wheel.max_torque_n_m" in r.stdout + r.stderr
+
+
+# ------------------------------------------------------------- bounded and stoppable
+
+
+class _Counting:
+    def __init__(self) -> None:
+        self.steps = 0
+
+    def step(self, state):
+        from harness.state import RigCommand
+
+        self.steps += 1
+        return RigCommand()
+
+
+def test_a_thirty_day_runs_plan_steps_its_horizon_not_its_duration():
+    from harness.core.limits import PLAN_HORIZON_S
+
+    run = load_run("slew-rw", {"duration_s": 30 * 86400.0})
+    counting = _Counting()
+    check_run(run, counting)
+    assert counting.steps == round(PLAN_HORIZON_S / run.dt_s) + 1
+
+
+def test_a_stop_request_ends_the_plan_at_once_with_nothing_sent():
+    from harness.core.limits import PLAN_STOP_EVERY, PlanInterrupted
+
+    run = load_run("slew-rw", {"duration_s": 30 * 86400.0})
+    counting = _Counting()
+    with pytest.raises(PlanInterrupted, match="SIGTERM while the limit plan"):
+        check_run(run, counting, should_stop=lambda: "SIGTERM")
+    assert counting.steps == PLAN_STOP_EVERY
+
+
+def test_sigterm_during_the_plan_exits_130_before_the_first_frame(tmp_path):
+    """The process: a 30-day OPPF run's plan (seconds of CPU) reports its progress; the
+    first SIGTERM then ends it, exit 130, no run folder."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    root = Path(__file__).resolve().parent.parent
+    env = dict(os.environ, PYTHONPATH=str(root))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "harness", "run", "thruster-oppf", "--duration-s",
+         str(30 * 86400), "--out", str(tmp_path / "logs")],
+        stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=env, cwd=tmp_path)
+    assert proc.stderr is not None
+    seen = ""
+    deadline = time.monotonic() + 120
+    while "checking the plan" not in seen and time.monotonic() < deadline:
+        line = proc.stderr.readline()
+        if not line:
+            break
+        seen += line
+    assert "checking the plan" in seen, seen
+    proc.send_signal(signal.SIGTERM)
+    t0 = time.monotonic()
+    rest = proc.communicate(timeout=60)[1]
+    assert proc.returncode == 130, seen + rest
+    assert time.monotonic() - t0 < 5.0
+    assert "in the limit plan; nothing sent" in rest, rest
+    assert not (tmp_path / "logs").exists() or not any((tmp_path / "logs").iterdir())
+
+
+class _Locked:
+    """A plugin-like controller holding a lock: deepcopy cannot copy it."""
+
+    def __init__(self) -> None:
+        import threading
+
+        self.lock = threading.Lock()
+
+    def step(self, state):
+        from harness.state import RigCommand
+
+        return RigCommand()
+
+
+def test_a_controller_that_cannot_be_deep_copied_gets_a_fresh_one_for_its_plan():
+    import copy
+
+    from harness.core.session import _plan_copy
+
+    run = load_run("slew-rw", {"duration_s": 2.0})
+    locked = _Locked()
+    with pytest.raises(TypeError):
+        copy.deepcopy(locked)
+    fresh = _plan_copy(run, locked)
+    assert fresh is not locked and callable(fresh.step)

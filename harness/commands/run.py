@@ -73,11 +73,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     with stop_on_signals() as stop:
         try:
             return _run_all(args, stop, summaries)
-        except KeyboardInterrupt:
-            # a signal before the run began (nothing sent), or a third one while its files
-            # were closed (the rig already left safe): one line, exit 130
-            when = "while closing the run" if stop.begun else "before the run began; " \
-                "nothing sent"
+        except KeyboardInterrupt as exc:
+            # a signal before the run began (nothing sent), while its limit plan was
+            # checked (nothing sent), or a third one while its files were closed (the rig
+            # already left safe): one line, exit 130
+            from harness.core.limits import PlanInterrupted
+
+            when = ("before the first frame, in the limit plan; nothing sent"
+                    if isinstance(exc, PlanInterrupted) else "while closing the run"
+                    if stop.begun else "before the run began; nothing sent")
             print(f"harness: {stop.reason or 'interrupted'}: stopped {when}", file=sys.stderr)
             return 130
 

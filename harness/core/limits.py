@@ -31,12 +31,31 @@ May import: ``harness.state``, ``rig_models``. Never the bus or the recording.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
 from harness.state import RigCommand, RigState
 
 REL_TOL = 1e-9  # a planned value at its limit (a saturated command) is within it
+
+PLAN_HORIZON_S = 600.0
+"""The plan steps the run's first this many seconds (the whole run when shorter): a run of
+days would otherwise be stepped for hours before its first frame. Every built-in run and
+the motion a slew or an excitation asks for lie within it; beyond it the monitor alone
+holds the run to its ``limits`` (it stops the run at the first tick past one)."""
+
+PLAN_STOP_EVERY = 256
+"""Ticks between two looks at the command's stop request (Ctrl-C, SIGTERM) while planning,
+and at the wall clock for progress."""
+
+PLAN_PROGRESS_AFTER_S = 1.0
+"""A plan that takes longer than this on the wall clock says how far it is, about once a
+second."""
+
+
+class PlanInterrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM while the plan was checked: nothing was sent."""
 
 
 class BeyondLimit(ValueError):
@@ -109,13 +128,16 @@ def limits_of(rig: Any, limits: dict[str, Any]) -> dict[str, Limit]:
 
 def plan_motion(controller: Any, rig: Any, dt_s: float, n_ticks: int,
                 actuators: tuple[str, ...], limits: dict[str, float] | None = None,
-                should_stop: Any = None) -> PlannedMotion:
+                should_stop: Any = None, progress: Any = None) -> PlannedMotion:
     """Step ``controller`` (a fresh one: it is left stepped) for ``n_ticks`` ticks of
     ``dt_s`` against the rig's rigid-body motion; the peaks of hub angle, hub rate, wheel
     speed and of every command the run would send to ``actuators``. A controller that
     raises ends the plan there (``stopped``): the run meets the error itself, on its own
     exit path (recorded, the rig left safe, judged ERROR). ``should_stop``: the command's
-    stop request; a KeyboardInterrupt while it asks for none is the controller's own."""
+    stop request; a KeyboardInterrupt while it asks for none is the controller's own, and
+    a stop it asks for ends the plan with ``PlanInterrupted`` (nothing sent). ``progress``
+    (fraction done, ticks, n_ticks) is called about once a second once the plan has taken
+    ``PLAN_PROGRESS_AFTER_S``. The caller bounds ``n_ticks`` (``PLAN_HORIZON_S``)."""
     inertia = float(rig.plant.inertia_kg_m2)
     wheel = rig.section("reaction_wheel")
     rotor_inertia = float(wheel["rotor_inertia_kg_m2"])
@@ -128,8 +150,18 @@ def plan_motion(controller: Any, rig: Any, dt_s: float, n_ticks: int,
     note = motion.note
     state = RigState()
     step = controller.step
+    wall0 = time.perf_counter()
+    next_report = wall0 + PLAN_PROGRESS_AFTER_S
     for tick in range(n_ticks):
         t = tick * dt_s
+        if tick % PLAN_STOP_EVERY == 0 and tick:
+            if should_stop is not None and should_stop() is not None:
+                raise PlanInterrupted(f"{should_stop()} while the limit plan was checked at "
+                                      f"t = {t:.1f} s of {n_ticks * dt_s:.1f} s")
+            now = time.perf_counter()
+            if progress is not None and now >= next_report:
+                progress(tick / n_ticks, tick, n_ticks)
+                next_report = now + 1.0
         state.tick, state.time_s = tick, t
         state.hub_angle_rad, state.hub_rate_rad_s = angle, rate
         state.wheel_speed_rad_s, state.wheel_torque_n_m = wheel_speed, wheel_torque
@@ -200,7 +232,7 @@ def refusal(source: str, row: dict[str, Any], others: int = 0) -> str:
 
 
 def check_run(run: Any, controller: Any | None = None,
-              should_stop: Any = None) -> list[dict[str, Any]]:
+              should_stop: Any = None, progress: Any = None) -> list[dict[str, Any]]:
     """Refuse ``run`` (a RunConfig) whose plan passes a limit (BeyondLimit, a sentence);
     the checked rows otherwise. ``controller``: a fresh controller of the run to step (one
     is built as the run builds it when not given; never pass the one the run will use)."""
@@ -209,8 +241,9 @@ def check_run(run: Any, controller: Any | None = None,
 
         controller = build_controller(run)
     lims = {q: lim.value for q, lim in limits_of(run.rig, run.data["limits"]).items()}
-    motion = plan_motion(controller, run.rig, run.dt_s, run.n_ticks, run.actuators, lims,
-                         should_stop)
+    n_ticks = min(run.n_ticks, int(round(PLAN_HORIZON_S / run.dt_s)) + 1)
+    motion = plan_motion(controller, run.rig, run.dt_s, n_ticks, run.actuators, lims,
+                         should_stop, progress)
     rows = limit_rows(motion, run.rig, run.data["limits"])
     bad = beyond(rows)
     if bad:

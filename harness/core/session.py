@@ -110,15 +110,39 @@ def bus_load_of(run: RunConfig):  # noqa: ANN201 - BusLoad
 
 
 def refuse_beyond_limits(run: RunConfig, controller: object,
-                         should_stop: Callable[[], str | None] | None = None
-                         ) -> list[dict[str, Any]]:
+                         should_stop: Callable[[], str | None] | None = None,
+                         show_progress: bool = True) -> list[dict[str, Any]]:
     """The run's planned motion against its limits and the rig's (``harness.core.limits``),
     on a copy of its controller; RunRefused (a sentence naming the limit) before anything is
-    sent, the checked rows otherwise."""
+    sent, the checked rows otherwise; ``PlanInterrupted`` when ``should_stop`` asks."""
     try:
-        return check_run(run, copy.deepcopy(controller), should_stop)
+        planned = _plan_copy(run, controller)
+        return check_run(run, planned, should_stop,
+                         progress=_plan_progress if show_progress else None)
     except BeyondLimit as exc:
         raise RunRefused(str(exc)) from exc
+
+
+def _plan_progress(fraction: float, tick: int, n_ticks: int) -> None:
+    print(f"harness: checking the plan against the limits: {100 * fraction:.0f} % "
+          f"(tick {tick} of {n_ticks}; Ctrl-C stops it, nothing sent)", file=sys.stderr,
+          flush=True)
+
+
+def _plan_copy(run: RunConfig, controller: object) -> object:
+    """A second controller for the limit plan: a deep copy of the run's, or, when that
+    cannot be copied (a plugin keeping the rig, a lock, a file), one built afresh as the
+    run builds it; RunRefused naming the controller when neither can be had."""
+    try:
+        return copy.deepcopy(controller)
+    except Exception as exc:  # noqa: BLE001 - any copy failure: build a fresh one instead
+        why = f"{type(exc).__name__}: {exc}"
+    try:
+        return build_controller(run)
+    except ConfigError as exc:
+        named = controller_type(run.controller["type"]).describe()
+        raise RunRefused(f"{run.source}: controller: {named} could not be copied for the "
+                         f"limit plan ({why}) nor built a second time ({exc})") from None
 
 
 def make_run_dir(out: Path, name: str) -> Path:
@@ -190,7 +214,7 @@ def execute_run(
             print(f"harness: warning: ... and {len(notes) - 5} more such messages",
                   file=sys.stderr)
     if not dry_run:  # a dry run sends no command: nothing moves
-        refuse_beyond_limits(run, controller, should_stop)
+        refuse_beyond_limits(run, controller, should_stop, show_progress)
     SpaceGuard(out_dir).check()  # a folder already (nearly) full: refused, nothing sent
     try:
         run_dir = make_run_dir(out_dir, run.name)
