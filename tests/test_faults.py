@@ -94,7 +94,7 @@ def test_limits_abort_the_run(tmp_path, monkeypatch):
     with pytest.raises(RunRefused, match=r"limits\.max_angle_deg of 5 deg"):
         execute_run(run, out_dir=tmp_path / "refused", show_progress=False)
     monkeypatch.setattr(session, "refuse_beyond_limits",
-                        lambda run, controller, should_stop=None: [])
+                        lambda run, controller, should_stop=None, show_progress=True: [])
     res = execute_run(run, out_dir=tmp_path, show_progress=False)
     (event,) = res.summary["faults"]
     assert event["kind"] == "angle limit" and "> 5 deg" in event["message"]
