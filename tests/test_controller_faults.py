@@ -56,6 +56,8 @@ class Raiser:
             raise KeyboardInterrupt
         if self.what == "none":
             return None
+        if self.what == "string":
+            return RigCommand(wheel_torque_n_m="0.01")  # type: ignore[arg-type]
         raise ValueError("a bug in the plugin")
 
 
@@ -105,7 +107,8 @@ def test_a_controller_writing_into_its_state_blinds_neither_the_monitor_nor_the_
 @pytest.mark.parametrize("what, raised", [("exit", "SystemExit"),
                                           ("interrupt", "KeyboardInterrupt"),
                                           ("bug", "ValueError"),
-                                          ("none", "returned NoneType")])
+                                          ("none", "returned NoneType"),
+                                          ("string", "cannot be sent")])
 def test_whatever_step_raises_the_run_ends_error_naming_the_controller_rig_safe(
         lab, tmp_path, what, raised):
     run = run_from_dict({"name": "raiser", "duration_s": 1.0, "actuators": ["reaction_wheel"],

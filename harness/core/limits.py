@@ -181,19 +181,23 @@ def plan_motion(controller: Any, rig: Any, dt_s: float, n_ticks: int,
         if not isinstance(cmd, RigCommand):  # the run meets it too (ControllerError)
             motion.stopped = f"the controller returned {type(cmd).__name__} at t = {t:.3f} s"
             break
-        wheel_torque = cmd.wheel_torque_n_m if "reaction_wheel" in use else 0.0
-        valve = (cmd.valve_direction > 0) - (cmd.valve_direction < 0) \
-            if "thruster_valves" in use else 0
-        if "reaction_wheel" in use:
-            note("wheel_torque", wheel_torque, t)
-        if "piezo_amplifier" in use:
-            note("piezo_v", max(abs(cmd.piezo_v[0]), abs(cmd.piezo_v[1])), t)
-        if "disturbance_rotor" in use and cmd.rotor_enable:
-            note("rotor_speed", cmd.rotor_speed_rad_s, t)
-        if wheel_torque != wheel_torque:
-            wheel_torque = 0.0
-        # semi-implicit Euler over the tick, the command held (zero-order hold)
-        rate += (wheel_torque + valve * couple) / inertia * dt_s
+        try:
+            wheel_torque = cmd.wheel_torque_n_m if "reaction_wheel" in use else 0.0
+            valve = (cmd.valve_direction > 0) - (cmd.valve_direction < 0) \
+                if "thruster_valves" in use else 0
+            if "reaction_wheel" in use:
+                note("wheel_torque", wheel_torque, t)
+            if "piezo_amplifier" in use:
+                note("piezo_v", max(abs(cmd.piezo_v[0]), abs(cmd.piezo_v[1])), t)
+            if "disturbance_rotor" in use and cmd.rotor_enable:
+                note("rotor_speed", cmd.rotor_speed_rad_s, t)
+            if wheel_torque != wheel_torque:
+                wheel_torque = 0.0
+            # semi-implicit Euler over the tick, the command held (zero-order hold)
+            rate += (wheel_torque + valve * couple) / inertia * dt_s
+        except (TypeError, ValueError) as exc:  # a value of the wrong type: the run meets it
+            motion.stopped = f"the controller's command at t = {t:.3f} s: {exc}"
+            break
         angle += rate * dt_s
         wheel_speed -= wheel_torque / rotor_inertia * dt_s
         note("hub_angle", angle, t + dt_s)

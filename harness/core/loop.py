@@ -259,7 +259,13 @@ def run_loop(
                 step_max = t_step
             if t_step > step_budget_s:
                 steps_over += 1
-            sent = command(cmd)
+            try:
+                sent = command(cmd)
+            except (TypeError, ValueError) as exc:  # a value no driver can encode
+                raise ControllerError(
+                    f"{controller_name}: step() returned a command that cannot be sent "
+                    f"({type(exc).__name__}: {exc}; a value of the wrong type?) at tick "
+                    f"{tick} (t = {tick * dt_s:.3f} s)") from exc
             work = perf() - t_start
             if realtime:
                 overrun = clock.time_left(tick) < 0

@@ -139,7 +139,7 @@ class DeviceWatch:
 
     __slots__ = ("name", "driver", "divider", "stale_ticks", "misses", "due", "silent_after",
                  "frames", "base_rx", "base_due", "window", "lost_at", "span", "slack",
-                 "behind")
+                 "behind", "deficit")
 
     def __init__(self, name: str, driver: Any, divider: int, stale_ticks: int,
                  grace_ticks: int, frames: int) -> None:
@@ -172,6 +172,8 @@ class DeviceWatch:
         # on the wall clock: its frames asked for and not come, beyond the least over the
         # last ``span`` ticks (what ``lost_at`` bounds); a bench behind shows in every device
         self.behind = 0
+        # ... and since it was first heard from (frames in flight included)
+        self.deficit = 0
 
     def due_by(self, tick: int) -> int:
         """Its frames due at ticks 0..tick."""
@@ -1160,14 +1162,22 @@ class FaultMonitor:
             "transport or the host, not one device; monitor.bench_stall_s "
             f"{self._bench_stall_s:g} s"))
 
-    def _bench_behind(self, tick: int, watch: DeviceWatch) -> bool:
-        """On the wall clock, ``watch``'s frames are past their loss limit: lost, unless
-        every other device is as far behind (each more than its grace's worth of frames
-        short), when the bench (the transport, the host) is delivering late, not losing
-        one device's frames. Counted once per episode (``bench_behind``); the missing
-        frames are the bench's timing criteria's to judge."""
-        others = [w for w in self._lost if w is not watch and w.base_rx is not None]
-        if not others or any(w.behind <= w.lost_at for w in others):
+    def _bench_behind(self, tick: int, watch: DeviceWatch | None,
+                      since_start: bool = False) -> bool:
+        """On the wall clock, ``watch``'s frames are past their loss limit (or the
+        accelerometer's samples behind the SYNC count, ``watch`` None): lost or late,
+        unless every other device is behind too, each by at least half the grace in time
+        (its frames not come, over its frames per SYNC, times its divider; since it was
+        first heard from with ``since_start``, else beyond the least over its window): then
+        the bench (the transport, the host) is delivering late, not one device. Counted
+        once per episode (``bench_behind``); the missing frames are the bench's timing
+        criteria's to judge."""
+        others = [w for w in self._lost if w is not watch and w.base_rx is not None
+                  and (watch is not None or w.name != "accelerometer")]
+        half = 0.5 * self.realtime_grace
+        if not others or any(
+                (w.deficit if since_start else w.behind) / w.frames * w.divider < half
+                for w in others):
             self._behind_since = None
             return False
         if self._behind_since is None:
@@ -1223,7 +1233,7 @@ class FaultMonitor:
                 window.append((tick, deficit))
                 if window[0][0] <= tick - w.span:
                     window.popleft()
-                w.behind = deficit - window[0][1]
+                w.behind, w.deficit = deficit - window[0][1], deficit
                 lost = w.behind - w.lost_at
                 if lost >= self._lost_limit * w.frames and not self._bench_behind(tick, w):
                     return self._event(tick, w.name, "frames lost", (
@@ -1281,7 +1291,8 @@ class FaultMonitor:
         late = (offset - self._accel_offset) % 65536 if self._accel_offset is not None else 0
         if self._accel_offset is None:
             self._accel_offset = offset
-        elif self._late_limit < late < 32768:
+        elif self._late_limit < late < 32768 and not (
+                self.realtime_grace and self._bench_behind(tick, None, since_start=True)):
             return self._event(tick, "accelerometer", "late",
                                f"telemetry {(offset - self._accel_offset) % 65536} samples "
                                "behind the SYNC count")

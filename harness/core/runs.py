@@ -206,10 +206,42 @@ def run_from_dict(raw: Any, source: str = "run", base_dir: Path | None = None,
         rig = rig_from_dict(_deep_merge(rig.data, data["rig_overrides"]),
                             source=f"{rig.source} + rig_overrides of {source}",
                             base_dir=rig.base_dir)
+    _check_timing(data, rig, source)
     _check_expect(data, rig, source, base_dir, check_files)
     if data["bus"] is None:
         data["bus"] = virtual_bus(rig.name)
     return RunConfig(source=source, data=data, rig=rig)
+
+
+RECEIVE_TIMEOUT_MAX_S = 1.0
+"""The longest a tick waits for telemetry (``receive_timeout_ms``): a bus that answers
+later than this has stopped, and a tick that waited longer would be deaf to Ctrl-C and to
+the devices' watchdogs (the default watchdog trips after 0.25 s)."""
+
+
+def _check_timing(data: dict[str, Any], rig: RigConfig, source: str) -> None:
+    """Every wait bounded, every heartbeat in time: ``receive_timeout_ms`` at most
+    ``RECEIVE_TIMEOUT_MAX_S``; the heartbeat's period shorter than the devices' watchdog
+    (``watchdog.heartbeat_timeout_s``) and a CANopen node's consumer time, or the devices
+    go safe between two heartbeats and the drive is blamed for it."""
+    timeout_ms = data["receive_timeout_ms"]
+    if timeout_ms > RECEIVE_TIMEOUT_MAX_S * 1e3:
+        raise ConfigError(f"{source}: receive_timeout_ms: {timeout_ms:g} ms: at most "
+                          f"{RECEIVE_TIMEOUT_MAX_S * 1e3:g} ms (a tick never waits longer "
+                          "for its telemetry)")
+    period_s = 1.0 / data["heartbeat_hz"]
+    limits = [(float(rig.data["watchdog"]["heartbeat_timeout_s"]),
+               f"{rig.source}'s watchdog.heartbeat_timeout_s")]
+    if rig.binding.canopen is not None:
+        limits.append((rig.data["bus"]["heartbeat_consumer_ms"] / 1e3,
+                       f"{rig.source}'s bus.heartbeat_consumer_ms"))
+    for limit_s, where in limits:
+        if not period_s < limit_s:
+            raise ConfigError(
+                f"{source}: heartbeat_hz: {data['heartbeat_hz']:g} Hz is a heartbeat every "
+                f"{period_s * 1e3:.0f} ms, not within {where} of {limit_s * 1e3:.0f} ms: "
+                "the devices would go safe between two heartbeats; raise heartbeat_hz above "
+                f"{1.0 / limit_s:g} Hz")
 
 
 def virtual_bus(rig_name: str) -> str:

@@ -176,6 +176,10 @@ def execute_run(
     """Run ``run`` and record it. ``device_rig``: the rig file whose devices and physics the
     in-process virtual rig emulates instead of the run's own (a lab's devices as they are,
     against a rig file under test: ``harness commission --devices-rig``)."""
+    if not run.rig.binding.bound:
+        raise RunRefused(f"{run.source}: rig {run.rig.name}: every device is bound "
+                         "'binding: none': nothing on the bus to run against (devices: in the "
+                         "rig file)")
     spec = parse_bus(bus or run.data["bus"])
     clock_name = clock or run.data["clock"]
     if device_rig is None and run.data.get("devices_rig"):
