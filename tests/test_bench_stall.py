@@ -16,7 +16,8 @@ from rig_models.faults import TELEMETRY_DEVICES, parse_fault
 def _run(tmp_path, fault: str, duration_s: float = 3.0, **over):
     """``fault`` on its device, or on every device when it names none."""
     run = load_run("slew-rw", {"duration_s": duration_s, "clock": "realtime", **over})
-    specs = [fault] if ":" in fault else [f"{fault}:{d}" for d in TELEMETRY_DEVICES]
+    head, eq, value = fault.partition("=")
+    specs = [fault] if ":" in head else [f"{head}:{d}{eq}{value}" for d in TELEMETRY_DEVICES]
     return execute_run(run, out_dir=tmp_path, show_progress=False,
                        faults=[parse_fault(f) for f in specs]).summary
 
@@ -46,3 +47,12 @@ def test_one_device_silent_while_the_others_answer_is_still_its_fault(tmp_path):
     assert s["stopped_by"] == "fault"
     fault = s["faults"][0]
     assert fault["device"] == "hub_sensor" and fault["kind"] == "silent", fault
+
+
+@pytest.mark.slow
+def test_every_device_delayed_past_the_grace_is_the_bench_behind_not_a_device(tmp_path):
+    # every device's telemetry held back 40 ticks (80 ms, past the 50 ms grace) for 0.4 s
+    s = _run(tmp_path, "delay_frames@1.0+0.4=40")
+    assert s["stopped_by"] == "completed", s["faults"]
+    bench = s["monitor_bench"]
+    assert bench["stalls"] + bench["behind_episodes"] >= 1, bench

@@ -1141,8 +1141,23 @@ class FaultMonitor:
         device's own silence."""
         if self._stall_from is None:
             others = [w.driver.last_tick for w in self._lost if w is not watch]
-            if not others or max(others) > watch.driver.last_tick + watch.divider:
-                return None  # another answered after its next was due: its own silence
+            if not others:
+                return None
+            if max(others) > watch.driver.last_tick + watch.divider:
+                # another answered after this one's next was due: its own silence, unless
+                # every other device is behind as well (a backlog on the transport: frames
+                # late in bursts, a device answering every 5th SYNC the first past its
+                # limit), for at most bench_stall_s
+                if not self._bench_behind(tick, watch, since_start=True):
+                    return None
+                assert self._behind_since is not None
+                behind_s = (tick - self._behind_since) * self.dt_s
+                if behind_s <= self._bench_stall_s:
+                    return True
+                return self._event(tick, "bus", "late", (
+                    f"every device's telemetry has come late for {behind_s:.3f} s (the "
+                    "transport or the host behind, not one device); monitor.bench_stall_s "
+                    f"{self._bench_stall_s:g} s"))
             # none has answered since this device's next answer was due: the bench may have
             # stopped them all (a device answering every 5th SYNC is the first past its
             # limit); it is a stall for as long as no device answers
