@@ -428,6 +428,7 @@ class FaultMonitor:
         self.bench_stalls = 0
         self.bench_behind = 0  # episodes of every device's frames late beyond the grace
         self._behind_since: int | None = None
+        self._behind_last = 0
         self.bench_stall_max_s = 0.0
         lost_period = math.lcm(*(w.divider for w in self._lost)) if self._lost else 1
         self._lost_due_period = lost_period if lost_period <= 10_000 else 0
@@ -1195,9 +1196,12 @@ class FaultMonitor:
                 for w in others):
             self._behind_since = None
             return False
-        if self._behind_since is None:
+        if self._behind_since is None or tick - self._behind_last > self.realtime_grace:
+            # a new episode: none in progress, or the last ended a grace ago (the checks
+            # that ask run only while a device is past a limit)
             self._behind_since = tick
             self.bench_behind += 1
+        self._behind_last = tick
         return True
 
     def _end_stall(self, tick: int) -> None:
