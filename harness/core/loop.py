@@ -194,6 +194,7 @@ def run_loop(
     new_row, commit, drain = recorder.row, recorder.commit, recorder.drain
     pack_row = _ROW.pack_into
     check = monitor.check if monitor is not None else None
+    not_held = getattr(monitor, "note_not_held", None) if realtime else None
     degrees = math.degrees
     on_time_ticks = 0
     nan = math.nan
@@ -275,6 +276,8 @@ def run_loop(
                 prev_overrun = overrun
             else:
                 overrun = False
+            if not_held is not None and (overrun or lateness >= HELD_FRACTION * dt_s):
+                not_held(tick)  # the monitor: frames missing around it are the bench's
             if missing > 0 and not overrun and lateness < HELD_FRACTION * dt_s:
                 stats.missing_frames_on_time += missing
                 if len(stats.missing_on_time_ticks) < MAX_MISS_TICKS:

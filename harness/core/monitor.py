@@ -429,6 +429,7 @@ class FaultMonitor:
         self.bench_behind = 0  # episodes of every device's frames late beyond the grace
         self._behind_since: int | None = None
         self._behind_last = 0
+        self.not_held_tick = -(1 << 62)  # the last tick the loop did not hold (wall clock)
         self.bench_stall_max_s = 0.0
         lost_period = math.lcm(*(w.divider for w in self._lost)) if self._lost else 1
         self._lost_due_period = lost_period if lost_period <= 10_000 else 0
@@ -1184,16 +1185,22 @@ class FaultMonitor:
         accelerometer's samples behind the SYNC count, ``watch`` None): lost or late,
         unless every other device is behind too, each by at least half the grace in time
         (its frames not come, over its frames per SYNC, times its divider; since it was
-        first heard from with ``since_start``, else beyond the least over its window): then
-        the bench (the transport, the host) is delivering late, not one device. Counted
+        first heard from with ``since_start``, else beyond the least over its window), or
+        the loop itself did not hold a tick within the frames' reach
+        (``note_not_held``): then the bench (the transport, the host, the harness's own
+        loop) is delivering late, not one device. Counted
         once per episode (``bench_behind``); the missing frames are the bench's timing
         criteria's to judge."""
         others = [w for w in self._lost if w is not watch and w.base_rx is not None
                   and (watch is not None or w.name != "accelerometer")]
         half = 0.5 * self.realtime_grace
-        if not others or any(
+        # a tick the loop did not hold (it overran, or woke half a period late) within
+        # the frames' reach: what is missing since is the bench's, whatever each device shows
+        reach = (watch.span if watch is not None else 0) + 2 * self.realtime_grace
+        not_held = tick - self.not_held_tick <= reach
+        if not not_held and (not others or any(
                 (w.deficit if since_start else w.behind) / w.frames * w.divider < half
-                for w in others):
+                for w in others)):
             self._behind_since = None
             return False
         if self._behind_since is None or tick - self._behind_last > self.realtime_grace:
@@ -1203,6 +1210,11 @@ class FaultMonitor:
             self.bench_behind += 1
         self._behind_last = tick
         return True
+
+    def note_not_held(self, tick: int) -> None:
+        """The loop did not hold ``tick`` (an overrun, or woken half a period late): the
+        frames missing around it are the bench's (``_bench_behind``)."""
+        self.not_held_tick = tick
 
     def _end_stall(self, tick: int) -> None:
         """Telemetry came again after a stall of the whole bench: counted and measured
