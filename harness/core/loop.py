@@ -277,7 +277,8 @@ def run_loop(
             else:
                 overrun = False
             if not_held is not None and (overrun or lateness >= HELD_FRACTION * dt_s):
-                not_held(tick)  # the monitor: frames missing around it are the bench's
+                # the monitor: frames missing around a long one are the bench's
+                not_held(tick, max(lateness, -clock.time_left(tick)))
             if missing > 0 and not overrun and lateness < HELD_FRACTION * dt_s:
                 stats.missing_frames_on_time += missing
                 if len(stats.missing_on_time_ticks) < MAX_MISS_TICKS:

@@ -1196,8 +1196,7 @@ class FaultMonitor:
         half = 0.5 * self.realtime_grace
         # a tick the loop did not hold (it overran, or woke half a period late) within
         # the frames' reach: what is missing since is the bench's, whatever each device shows
-        reach = (watch.span if watch is not None else 0) + 2 * self.realtime_grace
-        not_held = tick - self.not_held_tick <= reach
+        not_held = tick - self.not_held_tick <= 2 * self.realtime_grace
         if not not_held and (not others or any(
                 (w.deficit if since_start else w.behind) / w.frames * w.divider < half
                 for w in others)):
@@ -1211,10 +1210,12 @@ class FaultMonitor:
         self._behind_last = tick
         return True
 
-    def note_not_held(self, tick: int) -> None:
-        """The loop did not hold ``tick`` (an overrun, or woken half a period late): the
-        frames missing around it are the bench's (``_bench_behind``)."""
-        self.not_held_tick = tick
+    def note_not_held(self, tick: int, late_s: float) -> None:
+        """The loop did not hold ``tick``: it woke or finished ``late_s`` late. One late by
+        half the grace or more keeps frames back long enough to look like a device's
+        silence or loss: those around it are the bench's (``_bench_behind``)."""
+        if late_s >= 0.5 * self.realtime_grace * self.dt_s:
+            self.not_held_tick = tick
 
     def _end_stall(self, tick: int) -> None:
         """Telemetry came again after a stall of the whole bench: counted and measured
