@@ -140,7 +140,8 @@ def test_a_stop_request_ends_the_plan_at_once_with_nothing_sent():
 
 def test_sigterm_during_the_plan_exits_130_before_the_first_frame(tmp_path):
     """The process: a 30-day OPPF run's plan (seconds of CPU) reports its progress; the
-    first SIGTERM then ends it, exit 130, no run folder."""
+    first SIGTERM then ends it at once (the run has not begun: nothing is open or sent),
+    exit 130, no run folder."""
     import os
     import signal
     import subprocess
@@ -167,7 +168,7 @@ def test_sigterm_during_the_plan_exits_130_before_the_first_frame(tmp_path):
     rest = proc.communicate(timeout=60)[1]
     assert proc.returncode == 130, seen + rest
     assert time.monotonic() - t0 < 5.0
-    assert "in the limit plan; nothing sent" in rest, rest
+    assert "before the run began; nothing sent" in rest, rest
     assert not (tmp_path / "logs").exists() or not any((tmp_path / "logs").iterdir())
 
 

@@ -130,8 +130,7 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
         for name, run in runs:
             if name is not None:
                 print(f"harness: {run.name}", file=sys.stderr)
-            stop.begin()
-            try:
+            try:  # execute_run begins the run (stop.begin) once its plan is checked
                 result = execute_run(run, out_dir=args.out, bus=args.bus, clock=args.clock,
                                      live_view_url=args.view, show_progress=not args.quiet,
                                      dry_run=args.dry_run, faults=faults, should_stop=stop,

@@ -219,6 +219,12 @@ def execute_run(
                   file=sys.stderr)
     if not dry_run:  # a dry run sends no command: nothing moves
         refuse_beyond_limits(run, controller, should_stop, show_progress)
+    # from here on something is opened and sent: a first Ctrl-C/SIGTERM stops at a tick
+    # (harness.core.interrupts); until here (the controller's factory, the limit plan) it
+    # ended the command at once, nothing sent
+    begin = getattr(should_stop, "begin", None)
+    if callable(begin):
+        begin()
     SpaceGuard(out_dir).check()  # a folder already (nearly) full: refused, nothing sent
     try:
         run_dir = make_run_dir(out_dir, run.name)
