@@ -430,6 +430,8 @@ class FaultMonitor:
         self._behind_since: int | None = None
         self._behind_last = 0
         self.not_held_tick = -(1 << 62)  # the last tick the loop did not hold (wall clock)
+        self._watchdog_ticks = math.ceil(
+            float(rig.data["watchdog"]["heartbeat_timeout_s"]) / dt_s) if rig is not None else 0
         self.bench_stall_max_s = 0.0
         lost_period = math.lcm(*(w.divider for w in self._lost)) if self._lost else 1
         self._lost_due_period = lost_period if lost_period <= 10_000 else 0
@@ -956,7 +958,9 @@ class FaultMonitor:
                     if self._rotor_off_since is None:
                         self._rotor_off_since = tick
                     if tick - self._rotor_off_since >= lag:
-                        return self._disabled(tick, "disturbance_rotor", rotor.values)
+                        event = self._disabled(tick, "disturbance_rotor", rotor.values)
+                        if event is not None:
+                            return event
         if piezo is not None and piezo.last_tick == tick:
             pv = piezo.values
             if pv.get("overcurrent"):
@@ -1382,9 +1386,21 @@ class FaultMonitor:
             self._wheel_off_since = None
         return None
 
-    def _disabled(self, tick: int, device: str, values: dict[str, float]) -> FaultEvent:
+    def _disabled(self, tick: int, device: str, values: dict[str, float]
+                  ) -> FaultEvent | None:
         """A drive the harness commands enabled reports it is not (another master's
-        controlword, a quick stop, a drive that dropped its power stage)."""
+        controlword, a quick stop, a drive that dropped its power stage). None on the wall
+        clock within the devices' watchdog time (and the drive's lag) of a tick the loop
+        held back by half the grace or more: its heartbeat may have come too late and the
+        drive rightly went safe by itself (the bench's doing, counted in
+        ``bench_behind``)."""
+        if self.realtime_grace and tick - self.not_held_tick <= self._watchdog_ticks \
+                + self._enable_lag.get(device, 0):
+            if self._behind_since is None or tick - self._behind_last > self.realtime_grace:
+                self._behind_since = tick
+                self.bench_behind += 1
+            self._behind_last = tick
+            return None
         status = values.get("status")
         if status is None:
             state = "its enabled flag is 0"
