@@ -92,18 +92,27 @@ def test_channels_stream_block_by_block(run_dir):
     assert len(sizes) >= 3 and max(sizes) <= 2 * 2500 and sum(sizes) == 6001
 
 
-def _frames_equal(recorded_frames, time_s, can_id, error, length, data):
+def _frames_equal(recorded_frames, host_time_s, can_id, error, length, data, tx=None,
+                  time_s=None, t=None):
+    """The frames as can.blf has them (host time stamps, direction); ``time_s`` on the run's
+    time: each SYNC at its tick's row time ``t``."""
     assert len(can_id) == len(recorded_frames)
-    t0 = recorded_frames[0][0]
     for k in (0, 1, len(can_id) // 2, len(can_id) - 1):
         fr = recorded_frames[k]
         assert int(can_id[k]) == fr[1] and bool(error[k]) == fr[4]
         assert int(length[k]) == len(fr[7])
         assert bytes(np.asarray(data[k], dtype=np.uint8)[: len(fr[7])]) == fr[7]
-        assert time_s[k] == pytest.approx(fr[0] - t0, abs=1e-6)
+        assert host_time_s[k] == fr[0]
     ids = np.array([f[1] for f in recorded_frames])
     assert np.array_equal(np.asarray(can_id, dtype=np.int64), ids)
     assert int(np.sum(error)) == sum(f[4] for f in recorded_frames) > 0
+    if tx is not None:
+        assert np.array_equal(np.asarray(tx, dtype=bool), [not f[5] for f in recorded_frames])
+    if time_s is not None:
+        time_s = np.asarray(time_s, dtype=float)
+        assert np.all(np.diff(time_s) >= 0) and time_s[0] >= 0
+        sync = time_s[(ids == 128) & ~np.asarray(error, dtype=bool)]  # not an error frame
+        assert np.array_equal(sync, t[: len(sync)]) and len(sync) == len(t)
 
 
 def test_mat_reads_back_with_scipy(run_dir, recorded, tmp_path):
@@ -123,8 +132,8 @@ def test_mat_reads_back_with_scipy(run_dir, recorded, tmp_path):
         json.loads((run_dir / "verdict.json").read_text())["verdict"]
     assert json.loads(meta["config_json"])["run"]["name"] == "slew-rw"
     assert m["can_data"].shape == (len(frames), 8)
-    _frames_equal(frames, m["can_time_s"], m["can_id"], m["can_error_frame"],
-                  m["can_length"], m["can_data"])
+    _frames_equal(frames, m["can_host_time_s"], m["can_id"], m["can_error_frame"],
+                  m["can_length"], m["can_data"], m["can_tx"], m["can_time_s"], t)
 
 
 def test_parquet_reads_back_with_pyarrow(run_dir, recorded, tmp_path):
@@ -145,8 +154,9 @@ def test_parquet_reads_back_with_pyarrow(run_dir, recorded, tmp_path):
     assert meta["verdict"]["verdict"] in ("PASS", "MARGINAL", "FAIL", "ERROR")
     fr = pq.read_table(next(p for p in paths if p.name.endswith(".can.parquet")))
     data = np.frombuffer(fr["data"].combine_chunks().buffers()[1], np.uint8).reshape(-1, 8)
-    _frames_equal(frames, fr["time_s"].to_numpy(), fr["can_id"].to_numpy(),
-                  fr["error_frame"].to_numpy(), fr["length"].to_numpy(), data)
+    _frames_equal(frames, fr["host_time_s"].to_numpy(), fr["can_id"].to_numpy(),
+                  fr["error_frame"].to_numpy(), fr["length"].to_numpy(), data,
+                  fr["tx"].to_numpy(), fr["time_s"].to_numpy(), t)
 
 
 def test_mf4_reads_back_with_asammdf(run_dir, recorded, tmp_path):
@@ -167,6 +177,10 @@ def test_mf4_reads_back_with_asammdf(run_dir, recorded, tmp_path):
         assert json.loads(atts["config.json"])["run"]["name"] == "slew-rw"
         data = mdf.get("CAN_DataFrame")
         err = mdf.get("CAN_ErrorFrame")
+        host = mdf.get("can.data_frame.host_time_s")
+        start = mdf.header.start_time.timestamp()
+        assert data.attachment[1].name == "sgsrt.dbc"  # the rig's DBC, for decoding
+        assert b"BO_ 128 SYNC" in data.attachment[0]
         groups = {g.channel_group.acq_name for g in mdf.groups}
         assert {"channels", "CAN"} <= groups
     # both groups together, in time order, are the log's frames
@@ -178,15 +192,20 @@ def test_mf4_reads_back_with_asammdf(run_dir, recorded, tmp_path):
     for k in (0, len(ok) // 2, len(ok) - 1):
         n = len(ok[k][7])
         assert bytes(d["CAN_DataFrame.DataBytes"][k][:n]) == ok[k][7]
-        assert data.timestamps[k] == pytest.approx(ok[k][0] - frames[0][0], abs=1e-6)
+        assert host.samples[k] == ok[k][0]  # the host's time stamp, record for record
+    # the run's time: each SYNC at its tick's row
+    sync = data.timestamps[d["CAN_DataFrame.ID"] == 128]
+    assert np.array_equal(sync, t) and np.array_equal(host.timestamps, data.timestamps)
+    assert np.array_equal(d["CAN_DataFrame.Dir"], [0 if f[5] else 1 for f in ok])  # 1: Tx
     assert len(err.samples) == len(bad) > 0
     # a bus-logging reader that knows only the ASAM layout: python-can's own MF4 reader
     import can
 
-    back = [(m.arbitration_id, bytes(m.data), m.timestamp) for m in can.MF4Reader(str(path))
-            if not m.is_error_frame]
-    assert [(i, d) for i, d, _ in back] == [(f[1], f[7]) for f in ok]
-    assert back[-1][2] == pytest.approx(ok[-1][0], abs=1e-5)  # absolute time: the header's
+    back = [(m.arbitration_id, bytes(m.data), m.timestamp, m.is_rx)
+            for m in can.MF4Reader(str(path)) if not m.is_error_frame]
+    assert [(i, d, rx) for i, d, _, rx in back] == [(f[1], f[7], f[5]) for f in ok]
+    # absolute time: the header's start (the host time of run time 0) + the run time
+    assert back[-1][2] == pytest.approx(start + data.timestamps[-1], abs=1e-5)
 
 
 def test_csv_reads_back_with_the_csv_module(run_dir, recorded, tmp_path):
@@ -206,8 +225,10 @@ def test_csv_reads_back_with_the_csv_module(run_dir, recorded, tmp_path):
     with by_end["can.csv"].open(newline="") as f:
         fr = list(csv.DictReader(f))
     data = np.array([[int(r[f"byte{i}"]) for i in range(8)] for r in fr])
-    _frames_equal(frames, [float(r["time_s"]) for r in fr], [int(r["can_id"]) for r in fr],
-                  [int(r["error_frame"]) for r in fr], [int(r["length"]) for r in fr], data)
+    _frames_equal(frames, [float(r["host_time_s"]) for r in fr],
+                  [int(r["can_id"]) for r in fr], [int(r["error_frame"]) for r in fr],
+                  [int(r["length"]) for r in fr], data, [int(r["tx"]) for r in fr],
+                  [float(r["time_s"]) for r in fr], t)
 
 
 def test_bad_input_is_refused_naming_the_file(run_dir, tmp_path, capsys):

@@ -105,6 +105,11 @@ SUMMARY_MEASURES: dict[str, str] = {
     "monitor_warnings.tip_accel": "count",
     "monitor_warnings.accel_range": "count",
     "monitor_warnings.telemetry_missing": "count",
+    # what the monitor held to be the bench's, not a device's (docs/faults.md)
+    "monitor_bench.stalls": "count",
+    "monitor_bench.behind_episodes": "count",
+    "monitor_bench.longest_stall_s": "s",
+    "monitor_bench.stale_physics_windows": "count",
     # timing on the wire (harness.core.wire_timing): null where the bus cannot measure it
     "wire_timing.syncs_time_stamped": "count",
     "wire_timing.sync_echoes_late": "count",
