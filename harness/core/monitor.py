@@ -578,6 +578,10 @@ class FaultMonitor:
         # arrive together and the monitor sees the last): its checks skip the window
         hub_stale = pw.hub_n < STALE_FRACTION * pw.every / pw.hub_div
         wheel_stale = pw.wheel_n < STALE_FRACTION * pw.every / pw.wheel_div
+        if self.not_held_tick >= tick - pw.every - self.realtime_grace:
+            # the loop itself held a tick back in the window (note_not_held): its samples
+            # came bunched, their ticks are when they came, not when they were taken
+            hub_stale = wheel_stale = True
         if (hub_stale and pw.hub_n) or (wheel_stale and pw.wheel_n):
             pw.stale_windows += 1
         if pw.hub_n >= 2 and pw.angle is not None and pw.rate is not None and not hub_stale:
