@@ -757,6 +757,19 @@ class VirtualRig:
             self.counters.watchdog_trips += 1
 
     # ------------------------------------------------------------------ physics
+    def record_truth_tail(self, n_steps: int) -> None:
+        """Keep the last ``n_steps`` steps' (time, state, true tip acceleration) in
+        ``truth_tail`` (bounded): a run's noise-free truth read forward, which a rig with
+        inputs after the manoeuvre (friction, a table out of level) needs; propagating the
+        last state back through the free plant does not hold there."""
+        tail: deque[tuple[float, np.ndarray, float]] = deque(maxlen=max(1, n_steps))
+        self.truth_tail = tail
+
+        def keep(rig: VirtualRig) -> None:
+            tail.append((rig.time_s, rig.x.copy(), float(rig.y[2])))
+
+        self.add_step_hook(keep)
+
     def add_step_hook(self, hook: Callable[[VirtualRig], None]) -> None:
         """Call ``hook(rig)`` after every physics step (tests, fault injection)."""
         self._hooks.append(hook)

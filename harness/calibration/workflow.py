@@ -167,7 +167,10 @@ def output_folder(out: Path, rig_name: str, actuator: str) -> Path:
 
 
 def _run(run: RunConfig, runs_dir: Path, bus: str | None, clock: str) -> RunResult:
-    result = execute_run(run, out_dir=runs_dir, bus=bus, clock=clock, show_progress=False)
+    # the virtual rig's truth over the residual window, read forward (its longest window
+    # and the margin before it; bounded whatever the run's length)
+    result = execute_run(run, out_dir=runs_dir, bus=bus, clock=clock, show_progress=False,
+                         truth_tail_s=MAX_WINDOW_S + 2 * MARGIN_S + 1.0)
     s = result.summary
     if s["stopped_by"] != "completed":
         faults = s.get("faults") or []

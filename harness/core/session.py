@@ -172,10 +172,13 @@ def execute_run(
     should_stop: Callable[[], str | None] | None = None,
     rig_process: bool = False,
     device_rig: Any = None,
+    truth_tail_s: float = 0.0,
 ) -> RunResult:
     """Run ``run`` and record it. ``device_rig``: the rig file whose devices and physics the
     in-process virtual rig emulates instead of the run's own (a lab's devices as they are,
-    against a rig file under test: ``harness commission --devices-rig``)."""
+    against a rig file under test: ``harness commission --devices-rig``). ``truth_tail_s``:
+    the in-process virtual rig keeps its last this many seconds of noise-free truth
+    (``VirtualRig.record_truth_tail``; harness calibrate's residuals)."""
     if not run.rig.binding.bound:
         raise RunRefused(f"{run.source}: rig {run.rig.name}: every device is bound "
                          "'binding: none': nothing on the bus to run against (devices: in the "
@@ -261,7 +264,8 @@ def execute_run(
             faults = []
         try:
             result = _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
-                              show_progress, dry_run, faults, should_stop, device_rig)
+                              show_progress, dry_run, faults, should_stop, device_rig,
+                              truth_tail_s)
         except RunRefused:
             # nothing was sent and the folder holds only config.yaml: left behind, it would
             # read as a run killed on the way ('harness logs --failed')
@@ -448,7 +452,7 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
              load: Any, run_dir: Path, live_view_url: str | None, show_progress: bool,
              dry_run: bool, faults: list[FaultSpec] | None,
              should_stop: Callable[[], str | None] | None,
-             device_rig: Any = None) -> RunResult:
+             device_rig: Any = None, truth_tail_s: float = 0.0) -> RunResult:
     dt_s = run.dt_s
     protocol = load_protocol()
     kernel_sync = run.data["sync_source"] == "kernel"
@@ -484,6 +488,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
             rig_bus = open_bus(spec)
             rig = VirtualRig(device_rig if device_rig is not None else run.rig, rig_bus, dt_s,
                              faults=run.faults + list(faults or []))
+            if truth_tail_s > 0:
+                rig.record_truth_tail(math.ceil(truth_tail_s / dt_s) + 2)
             if clock_name == "lockstep":
                 pump = rig.service
             else:
