@@ -176,6 +176,16 @@ RIG_SCHEMA: dict[str, Any] = {
         # the wheel's bearing friction the model leaves out (beyond its friction_* keys):
         # a torque below it may not turn a wheel at rest, a coasting wheel may slow by it
         "wheel_friction_n_m": Field("number", "N m", default=1.0e-3, minimum=0.0),
+        # each beam mode's frequency: the beam model against the beam (paper 003, Table 1:
+        # measured over calculated 2.5 % and 2.2 % off)
+        "frequency_fraction": Field("number", "fraction", default=0.05, minimum=0.0,
+                                    maximum=1.0),
+        # each beam mode's damping ratio: paper 003's 0.05 is a modelling choice, not a
+        # measurement; a bolted aluminium beam's structural damping is 1-2 %
+        "damping_fraction": Field("number", "fraction", default=0.8, minimum=0.0),
+        # a drive's torque lag and a valve's delays: the file's are typical figures for
+        # such devices (10 ms, 4 ms), not this rig's measurement
+        "timing_s": Field("number", "s", default=0.005, minimum=0.0),
     },
     # limits of a run's criteria that differ on this rig, by criterion name:
     # {final_error: {max_abs_deg: 0.2}}; applied by the harness's verdict layer

@@ -1,10 +1,13 @@
 """`harness commission`: prove the rig file's bindings by the physics (docs/commission.md).
 
-Sensors at rest, then a short, bounded, scripted excitation of every bound device; a
-verdict per device and quantity (value, expected, limit, margin) in commission.json,
-report.html and commission.rrd. Exit codes as ``harness run``'s: 0 PASS, 1 FAIL, 2 bad
-input or refused (nothing sent), 4 an error, 130 interrupted (a fault the monitor raises
-is a failed check of the quantity it names: 1).
+Sensors at rest, then a short, bounded, scripted excitation of every bound device; the
+rig's model measured from it (friction, lag, inertia, couples, the beam's modes, biases);
+a verdict per device and quantity against the physics of that measured model (value,
+expected, limit, margin) and per measured rig-file key, in commission.json, report.html
+and commission.rrd. Exit codes: 0 PASS, 1 FAIL (a binding; a fault the monitor raises is a
+failed check of the quantity it names), 2 bad input or refused (nothing sent), 4 an error,
+7 DIFFERS (every binding proved, the rig differs from its file beyond the file's
+tolerance), 130 interrupted.
 """
 
 from __future__ import annotations
@@ -27,9 +30,20 @@ ring-down. A miss names the quantity and the likely cause (a factor of 1000, 2 p
 180/pi, a sign, an offset). Every excitation is checked against the run's and the rig's
 limits first.
 
+The rig's model is measured from the same runs (the wheel's friction from its coast-down
+and its torque lag, the hub's inertia from the momentum exchange, each valve's couple, the
+beam's modes from a ring-down, the sensors' biases) and each quantity is judged against
+the physics with those measurements in it. A rig that differs from its file beyond the
+file's tolerances (its inertia, its beam's damping, ...) is no binding error: the verdict
+is DIFFERS (exit 7), naming each key, the file's value and the measured one;
+--write-rig FILE then writes the rig file with the measured values to review.
+
+exit codes: 0 PASS, 1 FAIL (a binding), 2 bad input (nothing sent), 4 error,
+7 DIFFERS (the rig differs from its file), 130 interrupted
+
 example:
   harness commission --rig sgsrt-canopen
-  harness commission --rig my-rig.yaml --bus socketcan:can0
+  harness commission --rig my-rig.yaml --bus socketcan:can0 --write-rig my-rig.measured.yaml
 """
 
 
@@ -50,6 +64,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help="the in-process virtual rig's devices and physics from this rig "
                    "file instead (a lab's devices as they are, against the rig file under "
                    "test; the virtual bus only)")
+    p.add_argument("--write-rig", type=Path, metavar="FILE",
+                   help="write a rig file (FILE.yaml: extends the rig under test) with the "
+                   "measured model values, each with its 1-sigma, when no binding fails; "
+                   "review it, then commission with --rig FILE")
     p.add_argument("--json", action="store_true", help="the result as JSON on stdout")
     p.set_defaults(func=cmd_commission)
 
@@ -62,7 +80,7 @@ def cmd_commission(args: argparse.Namespace) -> int:
     from rig_models.schema import ConfigError
 
     opts = Options(rig=args.rig, bus=args.bus, clock=args.clock, out=args.out,
-                   devices_rig=args.devices_rig)
+                   devices_rig=args.devices_rig, write_rig=args.write_rig)
     try:
         result = commission(opts, lambda m: print(m, file=sys.stderr, flush=True))
     except (ConfigError, RunRefused, BusSpecError, ValueError) as exc:
@@ -79,20 +97,27 @@ def cmd_commission(args: argparse.Namespace) -> int:
         print(f"harness commission: error: {type(exc).__name__}: {exc}"
               + (f" (recording in {where})" if where else ""), file=sys.stderr)
         return 4
+    from harness.commissioning.report import _fmt
+
     if args.json:
         from harness.commissioning.report import _jsonable
 
         print(json.dumps(_jsonable(result.to_dict()), indent=2))
     else:
         for c in result.checks:
-            if c.verdict in ("FAIL", "NOT RUN"):
+            if c.verdict in ("FAIL", "NOT RUN") or (c.verdict == "DIFFERS"
+                                                    and result.verdict == "DIFFERS"):
                 value = "-" if c.value is None else f"{c.value:.4g}"
-                print(f"{c.verdict} {c.name}: {c.check}: value {value}, expected "
-                      f"{c.expected}, limit {c.limit}: {c.cause or c.why}")
+                sigma = "" if c.sigma is None else f" +- {c.sigma:.2g}"
+                print(f"{c.verdict} {c.name}: {c.check}: value {value}{sigma}, expected "
+                      f"{_fmt(c.expected)}, limit {_fmt(c.limit)}: {c.cause or c.why}")
         for n in result.notes:
             print(f"note: {n}")
-        judged = [c for c in result.checks if c.verdict in ("PASS", "FAIL")]
+        judged = [c for c in result.checks if c.verdict in ("PASS", "FAIL") and not c.key]
         n_pass = sum(c.verdict == "PASS" for c in judged)
-        print(f"{result.verdict}: {n_pass} of {len(judged)} checks passed "
+        model = [c for c in result.checks if c.key and c.verdict in ("PASS", "DIFFERS")]
+        n_same = sum(c.verdict == "PASS" for c in model)
+        print(f"{result.verdict}: {n_pass} of {len(judged)} binding checks passed, {n_same} of "
+              f"{len(model)} measured rig-file values within the file's tolerance "
               f"({result.wall_time_s:.1f} s); report: {Path(result.folder) / 'report.html'}")
     return result.exit_code

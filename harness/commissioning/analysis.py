@@ -1,19 +1,24 @@
 """The recorded commissioning runs read against the physics (``checks`` writes the rows).
 
-At rest: each sensor's offset and noise. Moving, per excitation (``plan.Phase``): the
-measured change of each quantity from its level just before the excitation against what
-the physics predicts from the commands actually sent:
+At rest: each sensor's offset (against the file's bias, 0 unless it gives one) and noise.
+Moving, per excitation (``plan.Phase``): the measured change of each quantity from its
+level just before the excitation against what the physics predicts from the commands
+actually sent, through the *measured* model (``model.MeasuredModel``: the rig file's model
+with its friction, lag, inertia, couples and beam as commissioning measured them, each
+that is not a binding's factor; ``harness.history.twin`` runs it):
 
-- wheel speed: -(the torque's integral) / rotor inertia, through the rig model's wheel
-  (its lag and limits), per pulse sign; the wheel's torque reading against its command;
-- hub rate: the torque's integral over the hub's inertia plus the beam's response, through
-  the rig model (``harness.history.twin``); the momentum balance: the hub rate against
-  minus the wheel's measured momentum change over the hub's inertia (plus the model's
-  beam response); the hub angle's change against the rate's integral;
+- wheel speed: -(the torque's integral) / rotor inertia, through the model's wheel (its
+  lag, friction and limits), per pulse sign, over the pulse and its settling (the coast
+  after it is the friction's, measured); the wheel's torque reading against its command;
+- hub rate: the torque's integral over the hub's inertia plus the beam's response; the
+  momentum balance: the hub rate against minus the wheel's measured momentum change over
+  the hub's inertia (plus the model's beam response); the hub angle's change against the
+  integral of the rate less its bias at rest;
 - valves: each valve's impulse (the hub rate's change times the inertia) against couple x
   on-time through the model, and its read-back;
 - piezo: each patch sensor against the model's response to its own channel's chirp;
-- accelerometer: the tip's ring-down against the model's (its modes, first one first);
+- accelerometer: the tip's response to the wheel, the valves and the ring against the
+  model's (its modes, first one first);
 - rotor: its speed against its command, its angle's derivative against its speed.
 """
 
@@ -35,6 +40,7 @@ from harness.commissioning.checks import (
     resolution,
 )
 from harness.commissioning.plan import CommissionPlan
+from rig_models.devices import G0_M_S2
 
 BASE_S = 0.2  # the level before an excitation: the mean over this long before it
 SETTLE_S = 0.5  # the rest run's first samples (the monitor's start-up) are not judged
@@ -66,7 +72,8 @@ def rest_checks(plan: CommissionPlan, cols: Any, dt_s: float) -> list[Check]:
         out.append(noise_check("hub_sensor", "angle", ang, "rad", hub["angle_noise_rms_rad"],
                                hub["angle_lsb_rad"], f, e, res_a))
         out.append(mean_check("hub_sensor", "rate", rate, "rad/s", hub["rate_noise_rms_rad_s"],
-                              max(res_r, hub["rate_lsb_rad_s"]), tol["rate_bias_rad_s"], e))
+                              max(res_r, hub["rate_lsb_rad_s"]), tol["rate_bias_rad_s"], e,
+                              expected=float(hub.get("rate_bias_rad_s") or 0.0)))
         out.append(noise_check("hub_sensor", "rate", rate, "rad/s",
                                hub["rate_noise_rms_rad_s"], hub["rate_lsb_rad_s"], f, e,
                                res_r))
@@ -74,8 +81,11 @@ def rest_checks(plan: CommissionPlan, cols: Any, dt_s: float) -> list[Check]:
         a = cols.column("/tip/accel_m_s2")[win]
         e = _every(rig, "accelerometer")
         res = resolution(b, "accelerometer", "accel")
+        angle = np.radians(cols.column("/attitude/angle_deg")[win]) \
+            if "hub_sensor" in plan.bound else np.zeros(1)
         out.append(mean_check("accelerometer", "accel", a, "m/s^2", acc["noise_rms_m_s2"],
-                              max(res, acc["lsb_m_s2"]), tol["accel_bias_m_s2"], e))
+                              max(res, acc["lsb_m_s2"]), tol["accel_bias_m_s2"], e,
+                              expected=accel_at_rest(acc, float(np.mean(angle)))))
         out.append(noise_check("accelerometer", "accel", a, "m/s^2", acc["noise_rms_m_s2"],
                                acc["lsb_m_s2"], f, e, res))
     if "piezo_amplifier" in plan.bound:
@@ -100,12 +110,21 @@ def rest_checks(plan: CommissionPlan, cols: Any, dt_s: float) -> list[Check]:
     return out
 
 
-def _twin(plan: CommissionPlan, cols: Any, dt_s: float) -> dict[str, np.ndarray]:
+def accel_at_rest(acc: dict[str, Any], hub_angle_rad: float) -> float:
+    """The rig file's model of the accelerometer's reading at rest: its bias and the
+    gravity its tilted axis picks up at this hub angle, times its scale error (0 when the
+    file gives none of them)."""
+    g = G0_M_S2 * math.sin(float(acc.get("tilt_rad") or 0.0)) * math.cos(
+        hub_angle_rad - float(acc.get("tilt_azimuth_rad") or 0.0))
+    return (1.0 + float(acc.get("scale_error") or 0.0)) * g + float(acc.get("bias_m_s2") or 0.0)
+
+
+def _twin(model: Any, cols: Any, dt_s: float) -> dict[str, np.ndarray]:
     from harness.history.twin import COMMANDS, simulate
 
     n = cols.rows
     commands = {c: cols.column(c) for c in COMMANDS[:4]}
-    return simulate(plan.rig.data, dt_s, n, commands)
+    return simulate(model.data, dt_s, n, commands)
 
 
 def _delta(x: np.ndarray, t: np.ndarray, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
@@ -116,11 +135,14 @@ def _delta(x: np.ndarray, t: np.ndarray, t0: float, t1: float) -> tuple[np.ndarr
     return x[sel] - level, sel
 
 
-def moving_checks(plan: CommissionPlan, cols: Any, dt_s: float) -> list[Check]:
+def moving_checks(plan: CommissionPlan, cols: Any, dt_s: float, model: Any) -> list[Check]:
+    """The moving run's checks against the physics of ``model`` (a ``MeasuredModel``: the
+    rig file's model with what commissioning measured of it)."""
     rig, b = plan.rig, plan.rig.binding
     tol = _tol(rig)
     t = cols.time_s[: cols.rows]
-    twin = _twin(plan, cols, dt_s)
+    twin = _twin(model, cols, dt_s)
+    physics = model.physics
     out: list[Check] = []
     t_end = float(t[-1]) if t.size else 0.0
     done = [p for p in plan.phases if p.quiet_end_s <= t_end + 1e-9]
@@ -131,8 +153,9 @@ def moving_checks(plan: CommissionPlan, cols: Any, dt_s: float) -> list[Check]:
                              f"its end at {p.quiet_end_s:.3f} s"))
     plan = CommissionPlan(plan.rig, plan.rig_ref, plan.bound, done, plan.duration_s)
     hub = rig.section("hub_sensor")
-    inertia = float(rig.plant.inertia_kg_m2)
+    inertia = float(physics.plant.inertia_kg_m2)
     rotor_j = float(rig.section("reaction_wheel")["rotor_inertia_kg_m2"])
+    settle = max(10 * float(physics.section("reaction_wheel")["torque_lag_s"]), 0.1)
     rate = np.radians(cols.column("/attitude/rate_deg_s"))
     rate_twin = np.radians(twin["/attitude/rate_deg_s"])
     ang = np.radians(cols.column("/attitude/angle_deg"))
@@ -148,8 +171,9 @@ def moving_checks(plan: CommissionPlan, cols: Any, dt_s: float) -> list[Check]:
             continue
         t0, t1 = ph.start_s, ph.quiet_end_s
         w = cols.column("/wheel/speed_rad_s")
-        dw, sel = _delta(w, t, t0, t1)
-        dw_twin, _ = _delta(twin["/wheel/speed_rad_s"], t, t0, t1)
+        # the pulse and its settling only: the coast after it is the friction's (measured)
+        dw, sel_w = _delta(w, t, t0, min(ph.end_s + settle, t1))
+        dw_twin, _ = _delta(twin["/wheel/speed_rad_s"], t, t0, min(ph.end_s + settle, t1))
         res_w = resolution(b, "reaction_wheel", "speed")
         e_w = _every(rig, "reaction_wheel")
         out.append(ratio_check(
@@ -157,8 +181,10 @@ def moving_checks(plan: CommissionPlan, cols: Any, dt_s: float) -> list[Check]:
             f"(pulse {sign})", dw, dw_twin, res_w / math.sqrt(12),
             tol["torque_fraction"] + tol["inertia_fraction"], e_w,
             why=f"expected {float(dw_twin[-1]):.4g} rad/s at the end, measured "
-                f"{float(dw[-1]):.4g}; a miss is the speed's conversion or the torque "
-                "command's", t=t[sel]))
+                f"{float(dw[-1]):.4g}, the model's friction "
+                f"{physics.section('reaction_wheel')['friction_coulomb_n_m']:.3g} N m; a miss "
+                "is the speed's conversion or the torque command's", t=t[sel_w]))
+        sel = (t >= t0) & (t <= t1)
         tq = cols.column("/wheel/torque_n_m")
         on = (t >= ph.start_s) & (t < ph.end_s + 0.1)
         res_t = resolution(b, "reaction_wheel", "torque")
@@ -175,8 +201,10 @@ def moving_checks(plan: CommissionPlan, cols: Any, dt_s: float) -> list[Check]:
                 tol["inertia_fraction"] + tol["torque_fraction"], e_hub, t=t[sel]))
             # momentum balance: the rigid part from the measured wheel speed, the beam's
             # part from the model
-            beam_part = dr_twin + rotor_j / inertia * dw_twin
-            pred = -rotor_j / inertia * dw + beam_part
+            dw_all, _ = _delta(w, t, t0, t1)
+            dw_all_twin, _ = _delta(twin["/wheel/speed_rad_s"], t, t0, t1)
+            beam_part = dr_twin + rotor_j / inertia * dw_all_twin
+            pred = -rotor_j / inertia * dw_all + beam_part
             out.append(ratio_check(
                 "hub_sensor", "rate", f"momentum balance: hub rate change vs -(wheel momentum "
                 f"change) / hub inertia (pulse {sign})", dr, pred, rate_sigma,
@@ -191,7 +219,9 @@ def moving_checks(plan: CommissionPlan, cols: Any, dt_s: float) -> list[Check]:
         t0, t1 = ph.start_s, ph.quiet_end_s
         dr, sel = _delta(rate, t, t0, t1)
         dr_twin, _ = _delta(rate_twin, t, t0, t1)
-        couple = rig.section("thruster_valves")["couple_n_m"]
+        tv = physics.section("thruster_valves")
+        couple = tv["couple_n_m"] if sign == "+" or tv.get("couple_negative_n_m") is None \
+            else tv["couple_negative_n_m"]
         out.append(ratio_check(
             "thruster_valves", f"valve_{'pos' if sign == '+' else 'neg'}",
             f"impulse (hub rate change x inertia) vs couple x on-time ({couple:g} N m x "
@@ -213,28 +243,31 @@ def moving_checks(plan: CommissionPlan, cols: Any, dt_s: float) -> list[Check]:
             "the read-back is bound to the other valve's bit or a wrong object, or the "
             "command to the wrong valve"))
 
-    if hub_bound and (plan.phase("wheel+") or plan.phase("valve+")):
-        t0 = min(p.start_s for p in plan.phases if p.name[:5] in ("wheel", "valve"))
-        t1 = max(p.quiet_end_s for p in plan.phases if p.name[:5] in ("wheel", "valve"))
+    hub_moves = [p for p in plan.phases if p.name[:5] in ("wheel", "valve") or p.name == "ring"]
+    if hub_bound and hub_moves:
+        t0 = min(p.start_s for p in hub_moves)
+        t1 = max(p.quiet_end_s for p in hub_moves)
         sel = (t >= t0 - BASE_S) & (t <= t1)
-        ts, a_s, r_s = t[sel], ang[sel], rate[sel]
+        # the rate's bias at rest (measured) is no motion of the angle's
+        ts, a_s, r_s = t[sel], ang[sel], rate[sel] - model.rate_bias_rad_s
         integral = np.concatenate(([0.0], np.cumsum(0.5 * (r_s[1:] + r_s[:-1]) * np.diff(ts))))
         res_a = hub["angle_lsb_rad"]
         out.append(ratio_check(
             "hub_sensor", "angle", "angle change vs the rate's integral", a_s - a_s[0],
             integral, math.sqrt(hub["angle_noise_rms_rad"] ** 2 + res_a ** 2 / 12),
             INTEGRATION_FRACTION, e_hub,
-            why="a miss with the rate's checks passing is the angle's conversion", t=ts))
+            why="a miss with the rate's checks passing is the angle's conversion; the rate "
+                f"less its bias at rest {model.rate_bias_rad_s:.3g} rad/s", t=ts))
 
     if "accelerometer" in plan.bound:
-        moving = [p for p in plan.phases if p.name[:5] in ("wheel", "valve")]
+        moving = hub_moves
         if moving:
             t0, t1 = moving[0].start_s, moving[-1].quiet_end_s
             acc = rig.section("accelerometer")
             a = cols.column("/tip/accel_m_s2")
             da, sel = _delta(a, t, t0, t1)
             da_twin, _ = _delta(twin["/tip/accel_m_s2"], t, t0, t1)
-            f1 = float(rig.plant.hub_free_modes()[0][0]) / (2 * math.pi)
+            f1 = float(physics.plant.hub_free_modes()[0][0]) / (2 * math.pi)
             res = acc["lsb_m_s2"]
             corr = float(np.corrcoef(da, da_twin)[0, 1]) if da.size > 2 and np.std(da) > 0 \
                 else 0.0

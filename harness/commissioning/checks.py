@@ -47,15 +47,17 @@ class Check:
     limit: float | list[float] | None
     unit: str
     margin: float | None
-    verdict: str  # PASS, FAIL, NOT RUN
+    verdict: str  # PASS, FAIL, NOT RUN; a rig-file key: DIFFERS, INFO, NOT JUDGED too
     cause: str = ""
     why: str = ""
     # (time s, measured, expected) of a ratio check, for commission.rrd; not in the JSON
     series: tuple[np.ndarray, np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+    sigma: float | None = None  # a measured rig-file key's 1-sigma
+    key: str = ""  # the rig-file key a row measures (hub.inertia_kg_m2), else ""
 
     def to_dict(self) -> dict[str, Any]:
         d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "series"}
-        for k in ("value", "expected", "margin"):
+        for k in ("value", "expected", "margin", "sigma"):
             if isinstance(d[k], float) and not math.isfinite(d[k]):
                 d[k] = None
         return d
@@ -97,17 +99,20 @@ def ratio_check(device: str, quantity: str, check: str, meas: np.ndarray,
 
 
 def mean_check(device: str, quantity: str, values: np.ndarray, unit: str, noise: float,
-               res: float, bias: float, every: int = 1) -> Check:
+               res: float, bias: float, every: int = 1, expected: float = 0.0) -> Check:
+    """The mean at rest against ``expected`` (the rig file's model of the sensor's reading
+    at rest: its bias, 0 unless the file gives one) within the bias tolerance ``bias``."""
     v = values[np.isfinite(values)][::max(every, 1)]
     if v.size < 2:
-        return Check(device, quantity, "offset at rest", None, 0.0, None, unit, None,
+        return Check(device, quantity, "offset at rest", None, expected, None, unit, None,
                      "NOT RUN", why="no samples")
     mean = float(np.mean(v))
     sigma = math.sqrt(noise ** 2 + res ** 2 / 12)
     limit = bias + SIGMAS * sigma / math.sqrt(v.size) + 0.5 * res
-    margin = limit - abs(mean)
+    margin = limit - abs(mean - expected)
     verdict = "PASS" if margin >= 0 else "FAIL"
-    return Check(device, quantity, "offset at rest", mean, 0.0, limit, unit, margin, verdict,
+    return Check(device, quantity, "offset at rest", mean, expected, limit, unit, margin,
+                 verdict,
                  "" if verdict == "PASS" else "an offset: a sensor's offset applied twice "
                  "or not at all, an offset in the wrong unit (the reading's, not SI), or the "
                  "device is not at rest",

@@ -1,13 +1,17 @@
 """`harness commission`'s runs, in order (docs/commission.md).
 
-1. Plan both runs and check the moving one against every limit (``harness.core.limits``)
-   before anything is sent.
+1. Load the rig file (once: every run and check uses it), plan both runs and check the
+   moving one against every limit (``harness.core.limits``) before anything is sent.
 2. The rest run (sensors only, nothing armed): on CANopen each node's identity, device
    type and scaling objects; each sensor's offset and noise. A scaling object that
    disagrees with the rig file stops here: nothing moves on a conversion known wrong.
-3. The moving run (``plan``): each quantity against the physics (``analysis``).
+3. The moving run (``plan``): the rig's model measured (``model``: friction, lag,
+   inertia, couples, the beam's modes, biases), then each quantity against the physics of
+   that measured model (``analysis``).
 4. commission.json, report.html, commission.rrd (``report``); the verdict: FAIL if any
-   check FAILs, else PASS; a run stopped by a fault is ERROR (exit 3).
+   check FAILs (a binding), else DIFFERS if the rig differs from its file beyond the
+   file's tolerance, else PASS; a run stopped by a fault is ERROR (exit 3). With
+   ``--write-rig`` and no FAIL, a rig file with the measured values (``rig_writer``).
 
 Both runs go through ``execute_run`` (the session's loop, monitor, recording and CAN log,
 each in its own folder under ``runs/``).
@@ -26,15 +30,19 @@ from typing import Any
 from harness.bus import parse_bus
 from harness.commissioning.analysis import moving_checks, rest_checks
 from harness.commissioning.checks import Check
+from harness.commissioning.model import MeasuredModel, measure
 from harness.commissioning.plan import CommissionPlan, plan_commissioning
 from harness.commissioning.scaling import scaling_checks
 from harness.core.paths import safe_child, safe_name
-from harness.core.runs import build_controller, run_from_dict
+from harness.core.runs import RUN_SCHEMA, RunConfig, build_controller, virtual_bus
 from harness.core.session import RunRefused, RunResult, execute_run, refuse_beyond_limits
-from rig_models.rig_file import RIGS_DIR, load_rig
-from rig_models.schema import ConfigError
+from rig_models.rig_file import RIGS_DIR, RigConfig, load_rig
+from rig_models.schema import ConfigError, validate
 
-EXIT = {"PASS": 0, "FAIL": 1, "ERROR": 4}
+EXIT = {"PASS": 0, "FAIL": 1, "ERROR": 4, "DIFFERS": 7}
+"""0 PASS, 1 FAIL (a binding), 4 ERROR (a run stopped), 7 DIFFERS (every binding proved,
+the rig differs from its file beyond the file's tolerance); 2 bad input and 130
+interrupted are the command's."""
 
 
 @dataclass
@@ -44,6 +52,7 @@ class Options:
     clock: str | None = None
     out: Path = Path("logs")
     devices_rig: str | None = None
+    write_rig: Path | None = None  # where the measured rig file goes (``rig_writer``)
 
 
 @dataclass
@@ -56,6 +65,8 @@ class Commissioning:
     verdict: str = "PASS"
     notes: list[str] = field(default_factory=list)
     wall_time_s: float = 0.0
+    model: MeasuredModel | None = None
+    written_rig: Path | None = None
 
     @property
     def exit_code(self) -> int:
@@ -64,12 +75,24 @@ class Commissioning:
     def failed(self) -> list[Check]:
         return [c for c in self.checks if c.verdict == "FAIL"]
 
+    def differs(self) -> list[Check]:
+        return [c for c in self.checks if c.verdict == "DIFFERS"]
+
+    def measured(self) -> list[Check]:
+        """The rows of the rig-file keys commissioning measured."""
+        return [c for c in self.checks if c.key]
+
     def to_dict(self) -> dict[str, Any]:
         o = self.options
         return {"rig": o.rig, "rig_name": self.plan.rig.name, "bus": o.bus or "virtual:sgsrt",
                 "devices_rig": o.devices_rig, "verdict": self.verdict,
                 "exit_code": self.exit_code, "bound": list(self.plan.bound),
                 "failed": [f"{c.name}: {c.check}: {c.cause}" for c in self.failed()],
+                "differs": [f"{c.key}: {c.cause}" for c in self.differs()],
+                "measured": {c.key: {"value": c.value, "sigma": c.sigma, "file": c.expected,
+                                     "verdict": c.verdict, "unit": c.unit}
+                             for c in self.measured() if c.value is not None},
+                "written_rig": None if self.written_rig is None else str(self.written_rig),
                 "checks": [c.to_dict() for c in self.checks], "runs": self.runs,
                 "phases": [{"name": p.name, "start_s": p.start_s, "end_s": p.end_s,
                             "quiet_end_s": p.quiet_end_s} for p in self.plan.phases],
@@ -102,13 +125,32 @@ def _stopped(result: RunResult) -> str | None:
     return f"stopped by {s['stopped_by']}: {s.get('error') or 'no reason given'}"
 
 
+def _run_config(raw: dict[str, Any], source: str, rig: RigConfig) -> RunConfig:
+    """A planned run on the rig already loaded: the run schema's and the controller's
+    checks of ``harness.core.runs.run_from_dict`` (a planned run has no faults, variants,
+    criteria or rig overrides), without reading the rig file again."""
+    from harness.controllers.registry import controller_type
+
+    data = validate(raw, RUN_SCHEMA, source)
+    ctrl = data["controller"]
+    data["controller"] = validate(ctrl, controller_type(ctrl["type"]).schema, source,
+                                  "controller")
+    if data["bus"] is None:
+        data["bus"] = virtual_bus(rig.name)
+    return RunConfig(source=source, data=data, rig=rig)
+
+
 def commission(opts: Options, progress: Callable[[str], None] = lambda m: None
                ) -> Commissioning:
     """Raises ConfigError / RunRefused / BusSpecError (exit 2) before anything is sent."""
     start = time.perf_counter()
-    rig = load_rig(opts.rig)
+    rig = load_rig(opts.rig)  # the one read of the rig file: every run and check uses it
     _ = rig.binding  # a binding that does not build is refused here, naming the key
     device_rig = load_rig(opts.devices_rig) if opts.devices_rig else None
+    if opts.write_rig is not None:
+        from harness.commissioning.rig_writer import check_target
+
+        opts.write_rig = check_target(opts.write_rig, rig, opts.rig)
     bus = opts.bus or "virtual:sgsrt"
     spec = parse_bus(bus)
     clock = opts.clock or ("lockstep" if spec.in_process else "realtime")
@@ -116,8 +158,8 @@ def commission(opts: Options, progress: Callable[[str], None] = lambda m: None
         raise ConfigError(f"--devices-rig: the in-process virtual rig emulates another rig "
                           f"file's devices; bus {spec} is not the virtual bus")
     plan = plan_commissioning(rig, _rig_ref(opts.rig))
-    rest_run = run_from_dict(plan.rest_run(bus, clock), source="commission rest run")
-    moving_run = run_from_dict(plan.moving_run(bus, clock), source="commission moving run")
+    rest_run = _run_config(plan.rest_run(bus, clock), "commission rest run", rig)
+    moving_run = _run_config(plan.moving_run(bus, clock), "commission moving run", rig)
     refuse_beyond_limits(moving_run, build_controller(moving_run))
     c = Commissioning(opts, plan)
     c.folder = output_folder(opts.out, rig.name)
@@ -173,7 +215,12 @@ def _runs(c: Commissioning, plan: CommissionPlan, rest_run: Any, moving_run: Any
         c.verdict = "ERROR"
         c.notes.append(f"the moving run stopped: {_stopped(moving)}")
         return _finish(c, start)
-    c.checks += moving_checks(plan, moving.columns(), dt_s)
+    progress("commission: the rig's model measured, each quantity judged against it ...")
+    cols = moving.columns()
+    c.model = measure(plan, rest.columns(), cols, dt_s)
+    c.notes += c.model.notes
+    c.checks += moving_checks(plan, cols, dt_s, c.model)
+    c.checks += c.model.rows
     return _finish(c, start)
 
 
@@ -192,7 +239,27 @@ def fault_check(fault: dict[str, Any]) -> Check:
 
 def _finish(c: Commissioning, start: float) -> Commissioning:
     if c.verdict != "ERROR":
-        c.verdict = "FAIL" if c.failed() else "PASS"
+        if c.failed():
+            # two answers, never mixed: with a binding failing, what was measured may be
+            # its misreading; the model's differences wait for the binding to be fixed
+            c.verdict = "FAIL"
+            for x in c.differs():
+                x.verdict, x.cause = "NOT JUDGED", (
+                    "not judged while a binding fails (the measurement may be its "
+                    "misreading): fix the binding, then commission again; " + x.cause)
+        else:
+            c.verdict = "DIFFERS" if c.differs() else "PASS"
+    if c.options.write_rig is not None:
+        if c.verdict in ("PASS", "DIFFERS") and c.model is not None:
+            from harness.commissioning.rig_writer import write_rig
+
+            c.written_rig = write_rig(c.options.write_rig, c)
+            c.notes.append(f"the measured rig file: {c.written_rig} (review it, then "
+                           f"commission with --rig {c.written_rig})")
+        else:
+            c.notes.append(f"--write-rig: {c.options.write_rig} not written: the verdict "
+                           f"is {c.verdict} (a rig file is written from a commissioning "
+                           "whose bindings all passed)")
     c.wall_time_s = time.perf_counter() - start
     from harness.commissioning.report import write_outputs
 
