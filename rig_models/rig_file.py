@@ -161,14 +161,16 @@ RIG_SCHEMA: dict[str, Any] = {
         "heartbeat_timeout_s": Field("number", "s", default=0.25, **POSITIVE),
     },
     # how well this rig file knows its rig: bounds of the model's errors, from which
-    # `harness commission` derives its limits (docs/commission.md)
+    # `harness commission` derives its limits (docs/commission.md). A ratio's fraction is at
+    # most 0.5: a band 1 +- 1 holds a ratio of 0 (a quantity that never moves) and a lab
+    # cannot mean that
     "tolerances": {
         "inertia_fraction": Field("number", "fraction", default=0.05, minimum=0.0,
-                                  maximum=1.0),
-        "torque_fraction": Field("number", "fraction", default=0.05, minimum=0.0, maximum=1.0),
-        "speed_fraction": Field("number", "fraction", default=0.05, minimum=0.0, maximum=1.0),
-        "couple_fraction": Field("number", "fraction", default=0.10, minimum=0.0, maximum=1.0),
-        "modal_fraction": Field("number", "fraction", default=0.25, minimum=0.0, maximum=1.0),
+                                  maximum=0.5),
+        "torque_fraction": Field("number", "fraction", default=0.05, minimum=0.0, maximum=0.5),
+        "speed_fraction": Field("number", "fraction", default=0.05, minimum=0.0, maximum=0.5),
+        "couple_fraction": Field("number", "fraction", default=0.10, minimum=0.0, maximum=0.5),
+        "modal_fraction": Field("number", "fraction", default=0.25, minimum=0.0, maximum=0.5),
         "noise_factor": Field("number", "x the noise spec", default=2.0, minimum=1.0),
         "accel_bias_m_s2": Field("number", "m/s^2", default=0.05, minimum=0.0),
         "rate_bias_rad_s": Field("number", "rad/s", default=1.0e-4, minimum=0.0),
@@ -179,10 +181,11 @@ RIG_SCHEMA: dict[str, Any] = {
         # each beam mode's frequency: the beam model against the beam (paper 003, Table 1:
         # measured over calculated 2.5 % and 2.2 % off)
         "frequency_fraction": Field("number", "fraction", default=0.05, minimum=0.0,
-                                    maximum=1.0),
+                                    maximum=0.5),
         # each beam mode's damping ratio: paper 003's 0.05 is a modelling choice, not a
         # measurement; a bolted aluminium beam's structural damping is 1-2 %
-        "damping_fraction": Field("number", "fraction", default=0.8, minimum=0.0),
+        "damping_fraction": Field("number", "fraction", default=0.8, minimum=0.0,
+                                  maximum=0.95),
         # a drive's torque lag and a valve's delays: the file's are typical figures for
         # such devices (10 ms, 4 ms), not this rig's measurement
         "timing_s": Field("number", "s", default=0.005, minimum=0.0),

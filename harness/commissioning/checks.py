@@ -93,7 +93,7 @@ def ratio_check(device: str, quantity: str, check: str, meas: np.ndarray,
     margin = limit - abs(r - 1.0)
     verdict = "PASS" if margin >= 0 else "FAIL"
     return Check(device, quantity, check, r, 1.0, limit, "ratio", margin, verdict,
-                 "" if verdict == "PASS" else likely_cause(r, limit, se),
+                 "" if verdict == "PASS" else likely_cause(r, se, tol),
                  (why + "; " if why else "") + f"standard error {se:.2g}, tolerance {tol:g}",
                  None if t is None else (t[ok], m, p))
 

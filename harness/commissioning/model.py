@@ -177,7 +177,8 @@ def model_row(rig: Any, key: str, label: str, estimate: est.Estimate, unit: str,
         ratio = value / expected if expected else math.inf
         if scale_like and not (ratio > 0 and abs(math.log(ratio)) < math.log(MODEL_FACTOR_MAX)):
             verdict = "FAIL"
-            cause = (f"measured {ratio:.4g} x the file's: " + likely_cause(ratio, 0.1) +
+            se = sigma / abs(expected) if expected else 0.0
+            cause = (f"measured {ratio:.4g} x the file's: " + likely_cause(ratio, se) +
                      "; a binding's factor, not a model difference: a quantity it is measured "
                      "from is misread (their own checks say which)")
         else:

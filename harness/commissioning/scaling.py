@@ -83,7 +83,7 @@ def scaling_checks(binding: Any, nodes: list[dict[str, Any]] | None) -> list[Che
                                       f"is bound to 0x{q.ref.index:04X} ({q.ref.name}), an "
                                       f"object in {unit_of}: a wrong object")
                         else:
-                            cause += likely_cause(got / expected, SCALE_REL)
+                            cause += likely_cause(got / expected)
                     out.append(Check(device, q.quantity, f"conversion of 0x{q.ref.index:04X} "
                                      f"vs the device's scaling object {label}", got, expected,
                                      SCALE_REL, "SI per count (relative limit)",

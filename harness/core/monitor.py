@@ -312,7 +312,8 @@ def _cause(measured: float, predicted: float, band: float, still: str) -> str:
     if abs(predicted) <= band:
         return (f"a reading that moves where {still}: a wrong object or signal, an offset "
                 "that changes, or a torque the rig file does not know of")
-    return likely_cause(measured / predicted, band / abs(predicted))
+    # the band over SIGMAS: the ratio's noise, as well as a window's sums tell it
+    return likely_cause(measured / predicted, band / abs(predicted) / SIGMAS)
 
 
 def _quantity_step(rig: Any, device: str, quantity: str) -> float:
@@ -676,7 +677,7 @@ class FaultMonitor:
         said = (f"over {fit.n} windows ({span_s:.3g} s) the hub's momentum changed by "
                 f"{k:+.3g} +- {se:.2g} x the prediction (its rate's change x the rig file's "
                 f"inertia {pw.hub_inertia:g} kg m^2; allowed 1 +- {allowed:.2g})")
-        cause = likely_cause(k, allowed, se)
+        cause = likely_cause(k, se)
         if fit is self._fit_wheel:
             return self._event(tick, "hub_sensor", "implausible", (
                 f"momentum balance against the wheel: {said}; likely {cause} of the hub "

@@ -165,22 +165,40 @@ FACTORS: tuple[tuple[float, str], ...] = (
 )
 
 
-def likely_cause(ratio: float, tol: float, se: float = 0.0) -> str:
-    """What a ratio far from 1 most likely says about the binding (``tol``: how near a
-    factor it must be, relative; ``se``: its standard error, for telling it from 0)."""
+NEAR_FACTOR = 0.05
+"""A ratio within this (relative) of a factor, or within its own noise, is named for it."""
+NO_RESPONSE = ("no response: the quantity is bound to an object or signal that does not "
+               "carry it, or the sensor is pinned at a constant")
+NEAR_FACTOR_MAX = 0.25
+"""... or within the model's tolerance, up to this."""
+
+
+def likely_cause(ratio: float, se: float = 0.0, tol: float = 0.0) -> str:
+    """What a ratio far from 1 most likely says about the binding: ``se`` is the ratio's
+    standard error, ``tol`` the model's own relative uncertainty in it (at most
+    ``NEAR_FACTOR_MAX`` is taken). A ratio below half the smallest factor is "no response",
+    at any tolerance; else the one factor nearest in log (1, a sign, or one of ``FACTORS``)
+    is named when the ratio lies within ``SIGMAS`` standard errors, ``tol`` or
+    ``NEAR_FACTOR`` of it; else a ratio within its noise of 0 is "no response". A loose
+    tolerance names no other factor: a reversed sign is "a sign", never "a sign and a factor
+    of 1000"; g read as m/s^2 is g, not 60/(2 pi)."""
     if not math.isfinite(ratio):
         return "no usable reading (NaN or infinite)"
-    near = max(tol, 0.05)
     sign = ratio < 0
     mag = abs(ratio)
-    for factor, text in FACTORS:
-        if abs(mag / factor - 1.0) <= near:
-            return ("a sign and " if sign else "") + text
-    if mag <= max(SIGMAS * se, 0.02):
-        return ("no response: the quantity is bound to an object or signal that does not "
-                "carry it, or the sensor is pinned at a constant")
-    if sign and abs(mag - 1.0) <= near:
-        return "a sign (the quantity's direction is reversed: a negative scale, or wired " \
-               "the other way)"
+    if not mag >= 0.5e-3:  # below half the smallest factor: nothing there
+        return NO_RESPONSE
+    factor, text = min(((1.0, ""), *FACTORS), key=lambda f: abs(math.log(mag / f[0])))
+    if abs(mag / factor - 1.0) <= max(NEAR_FACTOR, min(tol, NEAR_FACTOR_MAX),
+                                      SIGMAS * se / mag):
+        if factor == 1.0:
+            if sign:
+                return "a sign (the quantity's direction is reversed: a negative scale, or " \
+                       "wired the other way)"
+            return ("a ratio near 1 beyond its band: the rig file's model (inertia, couple, "
+                    "gains) or its tolerances, not a binding's factor")
+        return ("a sign and " if sign else "") + text
+    if mag <= SIGMAS * se:  # within its noise of 0, near no factor
+        return NO_RESPONSE
     return (("a sign and " if sign else "") + f"a factor of {mag:.4g}: a wrong scale, a "
             "wrong object or signal, or the rig file's model (inertia, couple, gains) is off")
