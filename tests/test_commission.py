@@ -201,3 +201,36 @@ def test_devices_rig_only_on_the_virtual_bus(tmp_path):
     r = harness_in_process("commission", "--devices-rig", "sgsrt", "--bus",
                            "socketcand:127.0.0.1:1", "--out", str(tmp_path))
     assert r.returncode == 2 and "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("truth", TRUTHS)
+def test_a_reversed_hub_sensor_fails_once_at_the_hub_the_valves_follow_from_it(tmp_path,
+                                                                              truth):
+    """Angle and rate both reversed: the hub sensor's rate fails naming the sign; the
+    valves, the inertia and the couples, read through the hub's rate, say they follow from
+    it instead of failing on their own ("swapped")."""
+    hub = _device("sgsrt-dbc2", "hub_sensor")
+    for q in ("angle", "rate"):
+        hub["telemetry"][q]["scale"] = -hub["telemetry"][q]["scale"]
+    rig = _rig_file(tmp_path, "hub-reversed", "sgsrt-dbc2", {"hub_sensor": hub})
+    res = _run(tmp_path, rig, "sgsrt-dbc2" + truth)
+    failed = {c.name for c in res.failed()}
+    assert failed == {"hub_sensor.rate"}, [(c.name, c.cause) for c in res.failed()]
+    assert all(c.cause.startswith("a sign") for c in res.failed())
+    follows = [c for c in res.checks if c.verdict == "NOT JUDGED"
+               and c.cause.startswith("follows from hub_sensor.rate")]
+    assert {c.device for c in follows} >= {"thruster_valves"}, follows
+
+
+@pytest.mark.parametrize("truth", TRUTHS)
+def test_swapped_valves_fail_once_as_swapped_healthy_sensors_pass(tmp_path, truth):
+    v = _device("sgsrt-dbc2", "thruster_valves")
+    c, t = v["commands"], v["telemetry"]
+    c["valve_pos"], c["valve_neg"] = c["valve_neg"], c["valve_pos"]
+    t["valve_pos_open"], t["valve_neg_open"] = t["valve_neg_open"], t["valve_pos_open"]
+    rig = _rig_file(tmp_path, "valves-swapped", "sgsrt-dbc2", {"thruster_valves": v})
+    res = _run(tmp_path, rig, "sgsrt-dbc2" + truth)
+    failed = {c.name for c in res.failed()}
+    assert failed == {"thruster_valves.valve_pos", "thruster_valves.valve_neg"}, \
+        [(c.name, c.cause) for c in res.failed()]
+    assert all("valve swapped" in c.cause for c in res.failed())

@@ -67,6 +67,54 @@ class Check:
         return f"{self.device}.{self.quantity}"
 
 
+HUB_READ = ("thruster_valves", "hub.inertia_kg_m2", "thruster_valves.couple_n_m",
+            "thruster_valves.couple_negative_n_m")
+"""What commissioning reads through the hub's rate: the valves' impulse, the inertia and
+the couples (momentum exchange)."""
+
+
+def attribute_causes(checks: list[Check]) -> None:
+    """One cause, named once: a check whose failure follows from another's says so and is
+    not judged on its own (in place).
+
+    - the hub sensor's rate failing its own checks (against the wheel's torque and
+      momentum): everything read through the hub's rate (``HUB_READ``) follows from it;
+    - the valves failing their impulse (the hub's rate passing): the accelerometer's
+      ring-down against the model, which the valves' commands drive too, follows from
+      them."""
+    def root(device: str, quantity: str | None = None) -> Check | None:
+        return next((c for c in checks if c.verdict == "FAIL" and not c.key
+                     and c.device == device and (quantity is None or c.quantity == quantity)),
+                    None)
+
+    def follows(c: Check, from_: Check) -> None:
+        c.verdict = "NOT JUDGED"
+        c.cause = (f"follows from {from_.name} ({from_.check}: {from_.cause}): judged again "
+                   f"once that is fixed; on its own: {c.cause}")
+
+    hub = root("hub_sensor", "rate")
+    if hub is not None:
+        for c in checks:
+            if c.verdict == "FAIL" and (c.device in HUB_READ or c.key in HUB_READ):
+                follows(c, hub)
+        return
+    valves = root("thruster_valves")
+    if valves is not None:
+        both = [c for c in checks if c.verdict == "FAIL" and not c.key
+                and c.device == "thruster_valves" and c.value is not None and c.value < 0]
+        if {c.quantity for c in both} >= {"valve_pos", "valve_neg"}:
+            for c in both:  # each valve turns the hub the other way: one cause, both valves
+                c.cause = ("the positive and negative valve swapped (their commands and "
+                           "read-back), or the couple's sign: both valves turn the hub the "
+                           f"other way (ratio {c.value:+.3g})")
+        for c in checks:
+            if c.verdict != "FAIL" or c is valves:
+                continue
+            if (c.device == "accelerometer" and "ring-down" in c.check) or (
+                    c.key in HUB_READ[2:] and c.value is not None and c.value < 0):
+                follows(c, valves)
+
+
 def nearest_factor(ratio: float, spread: float) -> str:
     """The factor of ``FACTORS`` nearest a ratio of noises (a scale error multiplies the
     noise by it), when within ``spread`` (the noise's own, noise_factor) either way."""

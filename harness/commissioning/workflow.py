@@ -29,7 +29,7 @@ from typing import Any
 
 from harness.bus import parse_bus
 from harness.commissioning.analysis import moving_checks, rest_checks
-from harness.commissioning.checks import Check
+from harness.commissioning.checks import Check, attribute_causes
 from harness.commissioning.model import MeasuredModel, measure
 from harness.commissioning.plan import CommissionPlan, plan_commissioning
 from harness.commissioning.scaling import scaling_checks
@@ -238,6 +238,7 @@ def fault_check(fault: dict[str, Any]) -> Check:
 
 
 def _finish(c: Commissioning, start: float) -> Commissioning:
+    attribute_causes(c.checks)  # a failure that follows from another's says so
     if c.verdict != "ERROR":
         if c.failed():
             # two answers, never mixed: with a binding failing, what was measured may be

@@ -189,8 +189,10 @@ def likely_cause(ratio: float, se: float = 0.0, tol: float = 0.0) -> str:
     if not mag >= 0.5e-3:  # below half the smallest factor: nothing there
         return NO_RESPONSE
     factor, text = min(((1.0, ""), *FACTORS), key=lambda f: abs(math.log(mag / f[0])))
-    if abs(mag / factor - 1.0) <= max(NEAR_FACTOR, min(tol, NEAR_FACTOR_MAX),
-                                      SIGMAS * se / mag):
+    near = max(NEAR_FACTOR, min(tol, NEAR_FACTOR_MAX), SIGMAS * se / mag)
+    if sign and factor == 1.0:  # a reversed reading with the model's own error on it
+        near = max(near, NEAR_FACTOR_MAX)
+    if abs(mag / factor - 1.0) <= near:
         if factor == 1.0:
             if sign:
                 return "a sign (the quantity's direction is reversed: a negative scale, or " \
