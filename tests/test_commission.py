@@ -234,3 +234,42 @@ def test_swapped_valves_fail_once_as_swapped_healthy_sensors_pass(tmp_path, trut
     assert failed == {"thruster_valves.valve_pos", "thruster_valves.valve_neg"}, \
         [(c.name, c.cause) for c in res.failed()]
     assert all("valve swapped" in c.cause for c in res.failed())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGINT"])
+def test_a_signal_during_commissioning_exits_130_rig_safe_commission_json_written(tmp_path,
+                                                                                  sig):
+    """As `harness run` takes them: the first SIGTERM or SIGINT stops the moving run at its
+    next tick (the rig left safe), commission.json says INTERRUPTED, exit 130."""
+    import json
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    root = Path(__file__).resolve().parent.parent
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "harness", "commission", "--clock", "realtime", "--out",
+         str(tmp_path / "out")], stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+        env=dict(os.environ, PYTHONPATH=str(root)), cwd=tmp_path)
+    assert proc.stderr is not None
+    seen = ""
+    deadline = time.monotonic() + 180
+    while "commission 2/2" not in seen and time.monotonic() < deadline:
+        line = proc.stderr.readline()
+        if not line:
+            break
+        seen += line
+    assert "commission 2/2" in seen, seen
+    time.sleep(1.0)
+    proc.send_signal(getattr(signal, sig))
+    out, rest = proc.communicate(timeout=60)
+    assert proc.returncode == 130, seen + rest
+    (report,) = (tmp_path / "out").glob("*/commission.json")
+    data = json.loads(report.read_text())
+    assert data["verdict"] == "INTERRUPTED" and data["exit_code"] == 130
+    moving = json.loads((Path(data["runs"]["moving"]) / "summary.json").read_text())
+    assert moving["stopped_by"] == "interrupted"
+    assert "INTERRUPTED" in out

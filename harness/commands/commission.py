@@ -16,6 +16,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 DESCRIPTION = """\
 Commission a rig: prove that every bound quantity means what the rig file says, by the
@@ -73,14 +74,26 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def cmd_commission(args: argparse.Namespace) -> int:
+    """Ctrl-C and SIGTERM as ``harness run`` takes them (harness.core.interrupts): before a
+    run begins, at once; during one, at its next tick, the rig left safe; exit 130 with
+    commission.json marked INTERRUPTED."""
+    from harness.commissioning.workflow import Options
+    from harness.core.interrupts import stop_on_signals
+
+    with stop_on_signals() as stop:
+        opts = Options(rig=args.rig, bus=args.bus, clock=args.clock, out=args.out,
+                       devices_rig=args.devices_rig, write_rig=args.write_rig,
+                       should_stop=stop)
+        return _commission(args, opts)
+
+
+def _commission(args: argparse.Namespace, opts: Any) -> int:
     from harness.bus import BusSpecError
-    from harness.commissioning.workflow import Options, commission
+    from harness.commissioning.workflow import commission
     from harness.core.session import RunRefused
     from harness.record.output import OutputError
     from rig_models.schema import ConfigError
 
-    opts = Options(rig=args.rig, bus=args.bus, clock=args.clock, out=args.out,
-                   devices_rig=args.devices_rig, write_rig=args.write_rig)
     try:
         result = commission(opts, lambda m: print(m, file=sys.stderr, flush=True))
     except (ConfigError, RunRefused, BusSpecError, ValueError) as exc:
@@ -89,8 +102,9 @@ def cmd_commission(args: argparse.Namespace) -> int:
     except OutputError as exc:
         print(f"harness commission: {exc}", file=sys.stderr)
         return 4
-    except KeyboardInterrupt:
-        print("harness commission: interrupted", file=sys.stderr)
+    except KeyboardInterrupt:  # before anything began: nothing sent
+        print("harness commission: interrupted before a run began; nothing sent",
+              file=sys.stderr)
         return 130
     except Exception as exc:  # a run raised (a driver, the bus): one line, the runs kept
         where = getattr(exc, "run_dir", None)

@@ -39,10 +39,11 @@ from harness.core.session import RunRefused, RunResult, execute_run, refuse_beyo
 from rig_models.rig_file import RIGS_DIR, RigConfig, load_rig
 from rig_models.schema import ConfigError, validate
 
-EXIT = {"PASS": 0, "FAIL": 1, "ERROR": 4, "DIFFERS": 7}
+EXIT = {"PASS": 0, "FAIL": 1, "ERROR": 4, "DIFFERS": 7, "INTERRUPTED": 130}
 """0 PASS, 1 FAIL (a binding), 4 ERROR (a run stopped), 7 DIFFERS (every binding proved,
-the rig differs from its file beyond the file's tolerance); 2 bad input and 130
-interrupted are the command's."""
+the rig differs from its file beyond the file's tolerance), 130 INTERRUPTED (Ctrl-C or
+SIGTERM: the rig left safe, commission.json says how far it got); 2 bad input is the
+command's."""
 
 
 @dataclass
@@ -53,6 +54,9 @@ class Options:
     out: Path = Path("logs")
     devices_rig: str | None = None
     write_rig: Path | None = None  # where the measured rig file goes (``rig_writer``)
+    # the command's stop request (harness.core.interrupts.StopRequest): a first Ctrl-C or
+    # SIGTERM stops a run at its next tick, the rig left safe
+    should_stop: Callable[[], str | None] | None = None
 
 
 @dataclass
@@ -146,6 +150,9 @@ def commission(opts: Options, progress: Callable[[str], None] = lambda m: None
     start = time.perf_counter()
     rig = load_rig(opts.rig)  # the one read of the rig file: every run and check uses it
     _ = rig.binding  # a binding that does not build is refused here, naming the key
+    if not rig.binding.bound:
+        raise ConfigError(f"{rig.source}: every device is bound 'binding: none': nothing on "
+                          "the bus to commission (devices: in the rig file)")
     device_rig = load_rig(opts.devices_rig) if opts.devices_rig else None
     if opts.write_rig is not None:
         from harness.commissioning.rig_writer import check_target
@@ -165,12 +172,22 @@ def commission(opts: Options, progress: Callable[[str], None] = lambda m: None
     c.folder = output_folder(opts.out, rig.name)
     try:
         return _runs(c, plan, rest_run, moving_run, device_rig, clock, start, progress)
+    except KeyboardInterrupt:
+        # a signal before a run began, or a second one while one ran (the run left the rig
+        # safe on its way out): what was recorded stays, commission.json says so
+        return _interrupted(c, start, "interrupted (Ctrl-C or SIGTERM) between the runs")
     except RunRefused:
         # refused before anything was sent (a CANopen set-up that failed, a bus that does
         # not open): no folder is left, as for a refused run, unless a run was recorded
         if not c.runs:
             shutil.rmtree(c.folder, ignore_errors=True)
         raise
+
+
+def _interrupted(c: Commissioning, start: float, why: str) -> Commissioning:
+    c.verdict = "INTERRUPTED"
+    c.notes.append(f"{why}; the rig left safe, nothing judged")
+    return _finish(c, start)
 
 
 def _runs(c: Commissioning, plan: CommissionPlan, rest_run: Any, moving_run: Any,
@@ -184,8 +201,11 @@ def _runs(c: Commissioning, plan: CommissionPlan, rest_run: Any, moving_run: Any
 
     progress(f"commission 1/2: at rest ({', '.join(plan.bound)}; nothing armed) ...")
     rest = execute_run(rest_run, out_dir=runs_dir, bus=opts.bus, clock=clock,
-                       show_progress=False, dry_run=True, device_rig=device_rig)
+                       show_progress=False, dry_run=True, device_rig=device_rig,
+                       should_stop=opts.should_stop)
     c.runs["rest"] = str(rest.run_dir)
+    if rest.summary["stopped_by"] == "interrupted":
+        return _interrupted(c, start, "the rest run was interrupted (Ctrl-C or SIGTERM)")
     stop = _stopped(rest)
     if stop is not None:
         c.verdict = "ERROR"
@@ -202,8 +222,11 @@ def _runs(c: Commissioning, plan: CommissionPlan, rest_run: Any, moving_run: Any
     names = ", ".join(p.name for p in plan.phases)
     progress(f"commission 2/2: moving ({names}; {plan.duration_s:.1f} s of rig time) ...")
     moving = execute_run(moving_run, out_dir=runs_dir, bus=opts.bus, clock=clock,
-                         show_progress=False, device_rig=device_rig)
+                         show_progress=False, device_rig=device_rig,
+                         should_stop=opts.should_stop)
     c.runs["moving"] = str(moving.run_dir)
+    if moving.summary["stopped_by"] == "interrupted":
+        return _interrupted(c, start, "the moving run was interrupted (Ctrl-C or SIGTERM)")
     faults = moving.summary.get("faults") or []
     if faults:
         # the monitor stopped the run at a reading beyond a limit or implausible: on a rig
@@ -239,7 +262,7 @@ def fault_check(fault: dict[str, Any]) -> Check:
 
 def _finish(c: Commissioning, start: float) -> Commissioning:
     attribute_causes(c.checks)  # a failure that follows from another's says so
-    if c.verdict != "ERROR":
+    if c.verdict not in ("ERROR", "INTERRUPTED"):
         if c.failed():
             # two answers, never mixed: with a binding failing, what was measured may be
             # its misreading; the model's differences wait for the binding to be fixed
