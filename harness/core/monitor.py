@@ -192,6 +192,7 @@ class PlausibilityWindow:
                  "rate_tv", "wheel_speed_near", "rate0", "valve_int", "rotor_on",
                  "friction_coulomb", "friction_viscous", "friction_tol", "friction_int",
                  "rate_bias_model", "torque_at_sample", "friction_at_sample",
+                 "direction", "reversed_at", "ring_ticks", "reverse_min",
                  "stale_windows", "hub_div", "wheel_div",
                  "hub_inertia", "couple", "balance_min", "inertia_fraction",
                  "couple_fraction", "wheel_checked")
@@ -220,6 +221,12 @@ class PlausibilityWindow:
         # check must not judge stale data
         self.stale_windows = 0
         self.hub_div = self.wheel_div = 1
+        # the sign of the last excitation (wheel torque, or the valves' couple), the tick it
+        # last reversed, and how long a reversal keeps the momentum balance from judging
+        self.direction = 0
+        self.reversed_at = -(1 << 62)
+        self.ring_ticks = 0
+        self.reverse_min = math.inf
         # the momentum balance (``FaultMonitor._balance``): off until ``balance``
         self.hub_inertia = self.couple = 0.0
         self.balance_min = math.inf
@@ -234,6 +241,7 @@ class PlausibilityWindow:
         ``BALANCE_MIN_FRACTION`` of ``min_torque`` over the window."""
         self.hub_inertia, self.couple = hub_inertia, couple
         self.balance_min = BALANCE_MIN_FRACTION * min_torque * window_s
+        self.reverse_min = 0.1 * min_torque
         self.inertia_fraction, self.couple_fraction = inertia_fraction, couple_fraction
 
     def restart(self, tick: int) -> None:
@@ -280,6 +288,12 @@ STALE_FRACTION = 0.9
 SYNC that asks) come each in a tick of its own; fewer, the samples were late (a stalled
 host, a slow transport) and the window is counted as stale (``monitor_stale_windows`` in
 summary.json), not judged."""
+
+BALANCE_RING_PERIODS = 2.0
+"""After the excitation reverses (the wheel's torque, the valves' couple), the momentum
+balance judges no window for this many periods of the first hub-free mode: a reversal can
+pump the beam's modes, and the momentum they then carry and give back is not in the rigid
+prediction."""
 
 BALANCE_SIGMAS = 4.0
 """The momentum balance's slope is judged this many standard errors from its band."""
@@ -559,6 +573,11 @@ class FaultMonitor:
         if "hub_sensor" in self.div and (wheel_on or valves_on):
             valves = rig.section("thruster_valves")
             couple = float(valves["couple_n_m"])
+            # a reversal of the excitation can pump a mode: the balance waits two periods of
+            # the first hub-free mode after one (the free decay's bursts at resonance gave
+            # the rigid prediction a slope of -1.65 over 70 windows)
+            w1 = float(rig.plant.hub_free_modes()[0][0])
+            self._pw.ring_ticks = math.ceil(BALANCE_RING_PERIODS * 2 * math.pi / w1 / self.dt_s)
             self._pw.balance(
                 hub_inertia=float(rig.plant.inertia_kg_m2), couple=couple,
                 window_s=self._pw.every * self.dt_s,
@@ -652,6 +671,8 @@ class FaultMonitor:
         one window's worth (``balance_min``). Windows with the disturbance rotor turning
         (its torque is not measured), a driven wheel whose own speed check did not run, or
         both actuators at once are left out."""
+        if tick - pw.reversed_at < pw.every + pw.ring_ticks:
+            return None  # the excitation reversed: the beam may ring with the momentum
         wheel = 0.0
         if pw.wheel_n >= 2:
             if not pw.wheel_checked and pw.torque_abs > 0.0:
@@ -1016,7 +1037,17 @@ class FaultMonitor:
                     pw.wheel_ok = False  # held at its limit or off: torque not applied
                 pw.speed_last, pw.wheel_tick = speed, tick
                 pw.torque_at_sample, pw.friction_at_sample = pw.torque_int, pw.friction_int
-            pw.valve_int += state.valve_state
+            valve = state.valve_state
+            pw.valve_int += valve
+            # the excitation's direction: a reversal can pump the beam's modes, whose
+            # momentum the rigid prediction leaves out (the balance waits it out)
+            drive = sent.wheel_torque_n_m if valve == 0 else valve * pw.couple
+            if abs(drive) >= pw.reverse_min:  # a hold's small corrections are no reversal
+                direction = 1 if drive > 0 else -1
+                if direction != pw.direction:
+                    if pw.direction:
+                        pw.reversed_at = tick
+                    pw.direction = direction
             if state.rotor_speed_rad_s:
                 pw.rotor_on = True
             if pw.wheel_n:
