@@ -42,8 +42,10 @@ ENTRY_POINT_GROUP = "sgsrt_harness.controllers"
 HARNESS_DISTRIBUTION = "sgsrt-harness"
 
 BUILTIN_ENTRY_POINTS: dict[str, str] = {
+    "chirp": "harness.controllers.excitation:build_chirp",
     "commission_script": "harness.controllers.commission_script:build_commission_script",
     "hold": "harness.controllers.registry:build_hold",
+    "multisine": "harness.controllers.excitation:build_multisine",
     "pd_wheel": "harness.controllers.registry:build_pd_wheel",
     "shaped_wheel_slew": "harness.controllers.shaped_wheel_slew:build_shaped_wheel_slew",
     "square_wave": "harness.controllers.registry:build_square_wave",
