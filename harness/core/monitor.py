@@ -439,7 +439,9 @@ class FaultMonitor:
         # a stall of the whole bench on the wall clock (_bench_stall): since when, how many
         self._stall_from: int | None = None
         self._resumed_at: int | None = None
-        self._bench_stall_s = float(monitor.get("bench_stall_s", 1.0))
+        # never shorter than two graces: a device is called silent only past the grace
+        self._bench_stall_s = max(float(monitor.get("bench_stall_s", 1.0)),
+                                  2.0 * float(monitor.get("realtime_grace_s", 0.0)))
         self.bench_stalls = 0
         self.bench_behind = 0  # episodes of every device's frames late beyond the grace
         self._behind_since: int | None = None
