@@ -38,7 +38,7 @@ def _run(out: Path, *args: str) -> Path:
 
 @pytest.fixture(scope="module")
 def lockstep_50s(tmp_path_factory) -> Path:
-    """The issue's run: slew-rw as it ships, 50 s in lockstep (about 7 s of wall time)."""
+    """slew-rw as it ships, 50 s in lockstep (about 7 s of wall time)."""
     return _run(tmp_path_factory.mktemp("lockstep50"))
 
 
@@ -80,7 +80,7 @@ def _bus_view_matches(run_dir: Path, frames) -> None:
 
 
 def test_a_50s_lockstep_runs_frames_and_channels_share_one_time_axis(lockstep_50s, tmp_path):
-    """The issue: channels 0-50 s, frames 0-3.9 s (the host's clock). Now each SYNC is at
+    """Frames once carried the host's clock (channels 0-50 s, frames 0-3.9 s). Now each SYNC is at
     its tick's channel time, to the bit, and every frame within the run's 50 s."""
     channels, frames = _parquet(lockstep_50s, tmp_path)
     t = channels["time_s"].to_numpy()

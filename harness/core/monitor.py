@@ -1244,13 +1244,17 @@ class FaultMonitor:
                 for w in others)):
             self._behind_since = None
             return False
+        self._note_behind(tick)
+        return True
+
+    def _note_behind(self, tick: int) -> None:
+        """Count an episode of the bench's lateness: a new one when none is in progress or
+        the last ended a grace ago (the checks that ask run only while a device is past a
+        limit)."""
         if self._behind_since is None or tick - self._behind_last > self.realtime_grace:
-            # a new episode: none in progress, or the last ended a grace ago (the checks
-            # that ask run only while a device is past a limit)
             self._behind_since = tick
             self.bench_behind += 1
         self._behind_last = tick
-        return True
 
     def note_not_held(self, tick: int, late_s: float) -> None:
         """The loop did not hold ``tick``: it woke or finished ``late_s`` late. One late by
@@ -1434,10 +1438,7 @@ class FaultMonitor:
         ``bench_behind``)."""
         if self.realtime_grace and tick - self.not_held_tick <= self._watchdog_ticks \
                 + self._enable_lag.get(device, 0):
-            if self._behind_since is None or tick - self._behind_last > self.realtime_grace:
-                self._behind_since = tick
-                self.bench_behind += 1
-            self._behind_last = tick
+            self._note_behind(tick)
             return None
         status = values.get("status")
         if status is None:
