@@ -23,6 +23,8 @@ class PDWheelController:
     inertia_kg_m2: float
     max_torque_n_m: float
     feedforward: bool = True
+    # a retargeted slew's peak acceleration (rad/s^2); 0: the first profile's
+    slew_accel_rad_s2: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("kp_n_m_per_rad", "kd_n_m_s_per_rad", "max_torque_n_m"):
@@ -36,10 +38,21 @@ class PDWheelController:
         """Gains that place the rigid-body closed loop at ``bandwidth_rad_s``."""
         return cls(profile, inertia_kg_m2 * bandwidth_rad_s**2,
                    2.0 * damping_ratio * bandwidth_rad_s * inertia_kg_m2, inertia_kg_m2,
-                   max_torque_n_m, feedforward)
+                   max_torque_n_m, feedforward, profile.peak_accel_rad_s2)
 
     def reset(self) -> None:
         pass
+
+    def retarget(self, angle_rad: float, t_s: float) -> None:
+        """Slew to ``angle_rad`` from ``t_s`` on: the shortest cycloidal profile from the
+        reference at ``t_s`` (mid-slew, the reference's rate is dropped to zero) with the
+        first profile's peak acceleration. A test sequence's ``slew:`` and ``hold:`` call it
+        between two ticks; no allocation beyond the new profile."""
+        start = self.profile(t_s)[0]
+        accel = self.slew_accel_rad_s2 or self.profile.peak_accel_rad_s2
+        if not accel > 0:
+            accel = 0.8 * self.max_torque_n_m / self.inertia_kg_m2
+        self.profile = CycloidalSlew.shortest(angle_rad - start, accel, t_s, start)
 
     def reference(self, t_s: float) -> tuple[float, float, float]:
         return self.profile(t_s)

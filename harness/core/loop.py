@@ -148,6 +148,7 @@ def run_loop(
     step_budget_s: float = math.inf,
     wire: WireTiming | None = None,
     controller_name: str = "the controller",
+    sequence: Any = None,
 ) -> LoopStats:
     """Run ``n_ticks`` ticks. ``pump`` lets an in-process virtual rig answer (lockstep).
     ``stats`` (filled in place) stays with the caller even when the loop raises.
@@ -158,7 +159,11 @@ def run_loop(
     tick's state (``RigState.copy``): the monitor and the recording read the original.
     Whatever its ``step()`` raises, or a return that is not a ``RigCommand``, ends the run
     with ``ControllerError`` naming ``controller_name`` (a ``KeyboardInterrupt`` while a
-    stop was asked for, ``should_stop``, is the signal's: the run is interrupted)."""
+    stop was asked for, ``should_stop``, is the signal's: the run is interrupted).
+    ``sequence``: the run's sequence (``harness.sequences.runner.SequenceRunner``, also the
+    controller): the run ends when it has ``finished``; on a monitor fault it is told
+    (``on_fault``) and, while it goes on deciding, the loop keeps ticking with every command
+    safe and the heartbeat disarmed (the monitor then checks nothing more)."""
     stats = stats if stats is not None else LoopStats()
     step = controller.step  # type: ignore[attr-defined]
     copy_state = RigState.copy
@@ -207,6 +212,8 @@ def run_loop(
     wall0 = perf()
     tick = 0
     prev_overrun = False
+    held_safe = False  # a sequence's run after a monitor fault: commands safe, disarmed
+    safe_cmd = RigCommand()
     try:
         clock.start()  # the kernel's SYNC (KernelSyncClock) starts here: inside, left safe
         for tick in range(n_ticks):
@@ -215,11 +222,13 @@ def run_loop(
                 stats.error = f"stopped by {should_stop()}"
                 recorder.log_event(tick * dt_s, "/events/harness", stats.error, "WARN")
                 break
+            if sequence is not None and sequence.finished:
+                break  # the sequence is over: so is the run
             if not lockstep:
                 lateness = clock.wait(tick)
             t_start = perf()
             if tick % heartbeat_every == 0:
-                interface.send_heartbeat(armed=True)
+                interface.send_heartbeat(armed=not held_safe)
             send_sync(tick)
             if pump is not None:
                 pump()
@@ -255,6 +264,8 @@ def run_loop(
                 raise ControllerError(
                     f"{controller_name}: step() returned {_not_a_command(cmd)}, not a "
                     f"RigCommand, at tick {tick} (t = {tick * dt_s:.3f} s)")
+            if held_safe:
+                cmd = safe_cmd
             step_total += t_step
             if t_step > step_max:
                 step_max = t_step
@@ -304,14 +315,19 @@ def run_loop(
             )
             commit()
             stats.ticks = tick + 1
-            if check is not None:
+            if check is not None and not held_safe:
                 event = check(tick, state, sent)
                 if event is not None:
                     stats.stopped_by = "fault"
                     stats.faults.append(event)
                     recorder.log_event(t_s, f"/events/{event.device}", str(event), "ERROR")
                     print(f"\nharness: FAULT {event}; leaving the rig safe", file=sys.stderr)
-                    break
+                    if sequence is None or not sequence.on_fault(t_s, event):
+                        break
+                    # the sequence decides how the fault was handled: the rig held safe
+                    held_safe = True
+                    interface.command_safe()
+                    interface.send_heartbeat(armed=False)
             # block logging and the CAN log's writer run outside the tick's critical path
             if realtime:
                 if clock.time_left(tick) > 0.5 * dt_s:

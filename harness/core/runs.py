@@ -58,6 +58,10 @@ RUN_SCHEMA: dict[str, Any] = {
     "variants": Field("any", default=None),
     "receive_timeout_ms": Field("number", "ms", default=50.0, exclusive_minimum=0.0),
     "faults": Field("any", default=None),
+    # a test that reacts: steps evaluated in the tick (harness.sequences, docs/sequences.md)
+    "sequence": Field("any", default=None),
+    # values a sequence names as ${name}; a suite's matrix sweeps them (variables.NAME)
+    "variables": Field("any", default=None),
     "expect": Field("any", default=None),
     "monitor": MONITOR_SCHEMA,
     "limits": LIMITS_SCHEMA,
@@ -200,6 +204,9 @@ def run_from_dict(raw: Any, source: str = "run", base_dir: Path | None = None,
     data["controller"] = validate(ctrl, controller_type(ctrl["type"]).schema, source,
                                   "controller")
     rig = load_rig(data["rig"])
+    if data["variables"] is not None and not data["sequence"]:
+        raise ConfigError(f"{source}: variables: only a sequence reads them (${{name}}); "
+                          "this run has no sequence")
     if data["rig_overrides"]:
         if not isinstance(data["rig_overrides"], dict):
             raise ConfigError(f"{source}: rig_overrides: expected a mapping")
@@ -207,6 +214,8 @@ def run_from_dict(raw: Any, source: str = "run", base_dir: Path | None = None,
                             source=f"{rig.source} + rig_overrides of {source}",
                             base_dir=rig.base_dir)
     _check_timing(data, rig, source)
+    if data["sequence"] is not None:
+        sequence_spec(data, rig, source)
     _check_expect(data, rig, source, base_dir, check_files)
     if data["bus"] is None:
         data["bus"] = virtual_bus(rig.name)
@@ -264,7 +273,55 @@ def _check_expect(data: dict[str, Any], rig: RigConfig, source: str, base_dir: P
     parse_criteria(expect, source, check_files=check_files)
 
 
+def rig_devices(rig: RigConfig) -> frozenset[str]:
+    """The devices the rig file binds (telemetry or commands)."""
+    return frozenset(rig.binding.bound)
+
+
+def sequence_spec(data: dict[str, Any], rig: RigConfig, source: str) -> Any:
+    """The run's checked ``sequence:`` (``harness.sequences.spec.SequenceSpec``)."""
+    from harness.sequences.quantities import quantities_for
+    from harness.sequences.spec import parse_sequence
+
+    def can_inject(fault: FaultSpec, where: str) -> None:
+        from rig_models.virtual_rig import check_fault_insertion
+
+        try:
+            check_fault_insertion(rig, [fault])
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+
+    return parse_sequence(data["sequence"], data["variables"], source,
+                          tuple(data["actuators"]), quantities_for(rig_devices(rig)),
+                          can_inject)
+
+
 def build_controller(run: RunConfig) -> Any:
+    """The run's controller; with a ``sequence:``, wrapped by the sequence's runner
+    (``harness.sequences.runner.SequenceRunner``), which the loop then calls."""
+    controller = _build_controller(run)
+    if run.data.get("sequence") is None:
+        return controller
+    from harness.sequences.quantities import quantities_for
+    from harness.sequences.runner import SequenceRunner
+
+    spec = sequence_spec(run.data, run.rig, run.source)
+    if not callable(getattr(controller, "retarget", None)):
+        for step in spec.all_steps:
+            for a, where in [(step.actions, step.where)] + [(w.actions, f"{w.where}.do")
+                                                           for w in step.when]:
+                if a.slew_rad is not None or a.hold:
+                    key = "slew" if a.slew_rad is not None else "hold"
+                    raise ConfigError(
+                        f"{where}.{key}: the run's controller ({run.controller['type']}) "
+                        "cannot retarget (it has no retarget(angle_rad, t_s)); pd_wheel can")
+    import math
+
+    return SequenceRunner(spec, controller, quantities_for(rig_devices(run.rig)),
+                          math.radians(run.data["settle_band_deg"]), run.dt_s)
+
+
+def _build_controller(run: RunConfig) -> Any:
     ctype = controller_type(run.controller["type"])
     try:
         controller = ctype.build(run.controller, run.rig, run.dt_s)

@@ -62,6 +62,7 @@ from harness.review.annotations import ReviewAnnotator
 from harness.review.bus import write_bus
 from harness.review.events import log_event
 from harness.review.layouts import PlotStats, layout_for_run, write_layout_file
+from harness.sequences.runner import SequenceRunner
 from rig_models.faults import FaultSpec
 from rig_models.rig_file import load_rig, rig_identity
 from rig_models.schema import ConfigError
@@ -524,6 +525,11 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                                        quiet_ticks=monitor.startup_ticks)
         monitor.on_warning = _warning_logger(recorder, show_progress)
         reference = getattr(controller, "reference", None)
+        sequence = controller if isinstance(controller, SequenceRunner) else None
+        if sequence is not None:  # what the sequence's actions reach: the bus, the recording
+            sequence.insert_fault = getattr(interface, "insert_fault", None)
+            sequence.clear_faults = getattr(interface, "clear_faults", None)
+            sequence.log_event = recorder.log_event
         # timing on the wire: from here on every frame's time stamp (the set-up's are not)
         wire = WireTiming(dt_s, interface.drivers,
                           "none" if pump is not None else interface.start_wire_timing(),
@@ -537,7 +543,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                 reference=reference, progress=_progress if show_progress else None,
                 stats=stats, monitor=monitor, should_stop=should_stop,
                 step_budget_s=run.step_budget_s, wire=wire,
-                controller_name=controller_type(run.controller["type"]).describe())
+                controller_name=controller_type(run.controller["type"]).describe(),
+                sequence=sequence)
         finally:
             if show_progress:
                 print("", file=sys.stderr)
@@ -568,6 +575,9 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
             if co_nodes is not None:  # each node's identity, device type, scaling objects
                 summary["canopen_nodes"] = co_nodes
             summary["faults"] = [f.to_dict() for f in stats.faults]
+            if sequence is not None:
+                sequence.close(max(0, stats.ticks - 1) * dt_s)
+                summary["sequence"] = sequence.summary()
             summary["injected_faults"] = [vars(f) for f in (rig.injector.faults if rig else [])]
             failure = recorder.space_stop or recorder.failed or can_log.failed
             if failure is None:
@@ -577,6 +587,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                     failure = exc
                 else:
                     _log_end(recorder, stats, summary, dt_s)
+                    if sequence is not None:
+                        _log_steps(recorder, summary["sequence"])
                     _final_layout(recorder, run, run_dir, plot_stats)
     finally:
         setup.restore()
@@ -715,6 +727,17 @@ def _log_end(recorder: Recorder, stats: LoopStats, summary: dict[str, Any],
         recorder.log_summary(summary)
     except Exception as exc:  # never lose the run for its text
         print(f"harness: could not write the summary to the recording ({exc})",
+              file=sys.stderr)
+
+
+def _log_steps(recorder: Recorder, sequence: dict[str, Any]) -> None:
+    """The sequence's step timeline into the recording (harness.review.sequence)."""
+    try:
+        from harness.review.sequence import write_steps
+
+        write_steps(recorder.bounded_stream, sequence)
+    except Exception as exc:  # the steps are in summary.json and the events regardless
+        print(f"harness: could not record the sequence's step timeline ({exc})",
               file=sys.stderr)
 
 

@@ -298,6 +298,21 @@ def time_plot(plot: Plot, end_s: float | None, channels: Iterable[str] | None = 
         defaults=[rr.SeriesLines(aggregation_policy=plot_aggregation(plot))])
 
 
+SEQUENCE_STEP = "/sequence/step"
+"""A sequence's step timeline: the number of the step under way (0 between and after)."""
+
+
+def sequence_plot(end_s: float | None) -> rrb.TimeSeriesView:
+    """A sequence's steps over the run: which step was under way (its number, 1 first), with
+    each step's end marked by its outcome (``harness.review.sequence``)."""
+    import rerun as rr
+
+    return rrb.TimeSeriesView(
+        name="sequence: step under way", contents=[SEQUENCE_STEP, "/sequence/ends/**"],
+        axis_x=whole_run_axis(end_s), plot_legend=rrb.PlotLegend(corner="LeftTop"),
+        defaults=[rr.SeriesLines(aggregation_policy="Off")])
+
+
 def events_view() -> rrb.TextLogView:
     """Every event (``/events/**``): its time, level and text (the viewer keeps the time
     and source columns narrow, so each text names its source and time itself)."""
@@ -399,6 +414,8 @@ def layout_for_run(run: Mapping[str, Any], channels: Iterable[str] | None = None
     keys = main_plots(kind, data.get("actuators") or ())
     main = [time_plot(PLOTS[k], end, chans, ranges, corner.get(k, "LeftTop"), bands)
             for k in keys]
+    if data.get("sequence"):
+        main.append(sequence_plot(end))
     if kind == "free_decay":
         spec = spectrum_views()
         run_page: rrb.Container = rrb.Vertical(

@@ -40,6 +40,7 @@ from harness.testing.evaluate import (
     worst_verdict,
 )
 from harness.testing.measures import unit_text
+from harness.testing.steps import first_injection_s, step_results, without_sequence_faults
 from rig_models.rig_file import binding_text, rig_identity
 from rig_models.schema import ConfigError
 
@@ -506,6 +507,14 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
                     for c in criteria if c.kind != "left_safe"]
         criteria = [c for c in criteria if c.kind == "left_safe"]
         note = "dry run (nothing commanded): only left_safe and the run's own checks judged"
+    elif first_injection_s(summary) is not None and summary.get("stopped_by") == "fault":
+        # a sequence's injected fault stopped the motion: its steps say whether the rig was
+        # made safe in time; the nominal run's criteria do not apply, as in a fault test
+        left_out = [not_judged(c, "the sequence's injected fault stopped the run by design")
+                    for c in criteria if c.kind != "left_safe" and not c.applies_to_stopped]
+        criteria = [c for c in criteria if c.kind == "left_safe" or c.applies_to_stopped]
+        note = "a sequence with an injected fault: its steps, left_safe and the criteria " \
+               "that apply to a stopped run judged"
     elif any(c.kind == "fault" for c in criteria):
         # a fault test: the fault stops the run by design, so the nominal run's criteria
         # (final error, settling, a clean bus) do not apply; the rig must see it and be
@@ -522,9 +531,10 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
     why = stopped_early(summary) if not note else None
     judged = [c for c in criteria if not why or c.applies_to_stopped]
     done = dict(zip((id(c) for c in judged), evaluate(judged, facts), strict=True))
-    results = [done[id(c)] if id(c) in done else not_judged(c, str(why))
-               for c in criteria] + left_out + results + (run_checks(criteria, summary)
-                                                          if summary else [])
+    results = step_results(summary) + [
+        done[id(c)] if id(c) in done else not_judged(c, str(why))
+        for c in criteria] + left_out + results + (
+        run_checks(criteria, without_sequence_faults(summary)) if summary else [])
     verdict = make_verdict(results, identity_of(run_dir, cfg, summary, expect_file), run_dir)
     if note and verdict.verdict == "PASS":
         verdict.reason = f"{note}; {verdict.reason}"

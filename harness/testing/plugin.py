@@ -450,6 +450,11 @@ class SuiteItem(pytest.Item):
         assert res is not None
         self.user_properties.append(("verdict", res["verdict"]))
         self.user_properties.extend(self._rig_properties())  # after the verdict, the first
+        # a sequence's steps, each with its outcome and why (JUnit readers list properties
+        # of passed tests too; a failure's text lists them again)
+        self.user_properties.extend(
+            (c["name"], f"{c.get('verdict')}: {c.get('message', '')}")
+            for c in res.get("criteria", []) if c.get("kind") == "step")
         if res["verdict"] == "FAIL":
             raise SuiteFailure(res["reason"])
         if res["verdict"] == "INCONCLUSIVE":

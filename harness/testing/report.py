@@ -627,6 +627,14 @@ def _html(doc: dict[str, Any], out_dir: Path) -> str:
                              f"<code>{html.escape(cmd)}</code></p>")
             if r["kind"] == "run" and (timing := timing_line(out_dir, r["run_dir"])):
                 parts.append(f"<p>Timing: {html.escape(timing)}</p>")
+        steps = [c for c in r["criteria"] or [] if c.get("kind") == "step"]
+        if steps:  # a sequence: its steps in the order they ran, each with why
+            parts.append("<p>Sequence, step by step:</p>")
+            parts.append(_html_table([[c.get("name", ""), str(c.get("value", "")),
+                                       c.get("verdict", ""), c.get("message", "")]
+                                      for c in steps],
+                                     ["step", "outcome", "verdict", "what decided it"],
+                                     verdict_col=2))
         if r["criteria"]:
             parts.append(_html_table(_criteria_rows(r["criteria"]), HEADER,
                                      verdict_col=VERDICT_COL))

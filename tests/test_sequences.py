@@ -1,0 +1,170 @@
+"""Test sequences in the tick: the engineer's test as a run file, its failures named by step,
+a when: that reacts in the tick, bad input refused before anything is sent."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from harness.core.runs import load_run, run_from_dict
+from harness.core.session import execute_run
+from harness.testing.judge import judge_run
+from rig_models.schema import ConfigError
+
+RUN = "sequence-slew-fault"
+
+
+def _run(tmp_path: Path, overrides: dict | None = None, **kw):
+    run = load_run(RUN, overrides)
+    result = execute_run(run, out_dir=tmp_path, show_progress=False, **kw)
+    return result, judge_run(result.run_dir)
+
+
+def _steps(verdict) -> dict[str, object]:
+    return {c.name: c for c in verdict.criteria if c.kind == "step"}
+
+
+def _base(**over) -> dict:
+    raw = {"name": "seq", "duration_s": 5.0, "actuators": ["reaction_wheel"],
+           "controller": {"type": "pd_wheel", "angle_deg": 0.0, "start_s": 0.0},
+           "sequence": {"steps": [{"name": "wait", "for_s": 1.0}]}}
+    raw.update(over)
+    return raw
+
+
+@pytest.mark.parametrize("rig", ["sgsrt", "sgsrt-canopen", "sgsrt-dbc2"])
+def test_engineers_test_passes_on_every_binding(tmp_path, rig):
+    result, v = _run(tmp_path, {"rig": rig, "variables": {"angle_deg": 4.0}})
+    steps = _steps(v)
+    assert v.verdict == "PASS", v.reason
+    assert [s.verdict for s in steps.values()] == ["PASS", "PASS", "PASS"], \
+        [c.message for c in steps.values()]
+    seq = result.summary["sequence"]
+    injected = seq["injected"]
+    assert [f["kind"] for f in injected] == ["valve_stuck_open"]
+    # the fault was injected in the tick the wheel first passed 100 rad/s, detected by the
+    # monitor, and the rig held safe well within the 0.5 s the test allows
+    assert result.summary["faults"][0]["kind"] == "stuck open"
+    made_safe = seq["events"]["detected"] - seq["events"]["fault"]
+    assert 0 < made_safe < 0.5
+    assert result.summary["stopped_by"] == "fault"
+    out = seq["steps"][0]
+    assert out["measures"]["settle_time_s"] > 0
+    assert abs(out["measures"]["final_error_deg"]) < 0.05
+    assert v.exit_code == 0
+
+
+def test_the_injection_follows_its_condition_in_the_same_tick(tmp_path):
+    result, _ = _run(tmp_path, {"variables": {"angle_deg": 4.0}})
+    from harness.testing.judge import read_channels
+
+    ch = read_channels(result.run_dir / "run.rrd", {"/wheel/speed_rad_s"})
+    t, w = ch["/wheel/speed_rad_s"]
+    t_fault = result.summary["sequence"]["events"]["fault"]
+    back = t >= result.summary["sequence"]["steps"][1]["started_s"]
+    first = t[back][np.argmax(w[back] > 100.0)]
+    assert t_fault == pytest.approx(first, abs=1e-9)
+
+
+def test_a_settle_band_the_rig_cannot_hold_fails_naming_the_step(tmp_path):
+    result, v = _run(tmp_path, {"variables": {"angle_deg": 4.0, "band_deg": 1e-5}})
+    steps = _steps(v)
+    first = steps["step 1: slew out"]
+    assert first.verdict == "FAIL" and first.value == "TIMEOUT"
+    assert "abs(hub.angle_deg - 4.0) < 1e-05 for 2 s" in first.message
+    assert steps["step 2: slew back, valve stuck at speed"].verdict == "NOT JUDGED"
+    assert steps["finally 3: end safe"].verdict == "PASS"  # whatever happens, end safe
+    assert v.verdict == "FAIL" and v.exit_code == 1
+    assert "slew out" in v.reason
+
+
+def test_a_fault_not_made_safe_in_time_fails_naming_the_step(tmp_path):
+    # a valve that may take 0.6 s to close cannot be called stuck before then: the harness
+    # cannot make the rig safe within the 0.5 s the test asks
+    result, v = _run(tmp_path, {"variables": {"angle_deg": 4.0},
+                                "rig_overrides": {"thruster_valves": {"close_delay_s": 0.6}}})
+    step = _steps(v)["step 2: slew back, valve stuck at speed"]
+    assert step.verdict == "FAIL", step.message
+    assert "rig.safe within 0.5 s after fault" in step.message
+    assert v.verdict == "FAIL"
+
+
+def test_a_when_on_a_recorded_channel_reacts_in_its_tick(tmp_path):
+    raw = _base(duration_s=30.0, sequence={"steps": [
+        {"name": "slew", "slew": {"angle_deg": 5.0},
+         "when": [{"if": "attitude.error_deg > 1 becomes true",
+                   "do": {"command": {"wheel_torque_n_m": 0.0}, "mark": "coast"}}],
+         "wait_until": "run.time_s > 20 s", "timeout_s": 25}]})
+    run = run_from_dict(raw)
+    result = execute_run(run, out_dir=tmp_path, show_progress=False)
+    from harness.testing.judge import read_channels
+
+    ch = read_channels(result.run_dir / "run.rrd",
+                       {"/attitude/error_deg", "/wheel/torque_cmd_n_m"})
+    t, err = ch["/attitude/error_deg"]
+    _, torque = ch["/wheel/torque_cmd_n_m"]
+    k = int(np.argmax(err > 1.0))  # the first tick the recorded error is past 1 deg
+    assert result.summary["sequence"]["events"]["coast"] == pytest.approx(t[k])
+    assert torque[k - 1] != 0.0 and np.all(torque[k:] == 0.0)
+
+
+@pytest.mark.parametrize("change, key", [
+    ({"wait_until": "hub.angel_deg > 1", "timeout_s": 2}, "wait_until"),
+    ({"wait_until": "hub.angle_rad_s > 1", "timeout_s": 2}, "wait_until"),
+    ({"wait_until": "wheel.speed_rad_s > 1 deg", "timeout_s": 2}, "wait_until"),
+    ({"wait_until": "hub.angle_deg > 1"}, "timeout_s"),
+    ({"wait_until": "hub.angle_deg > 1 for 5 s", "timeout_s": 2}, "wait_until"),
+    ({"for_s": 1, "verify": "rig.safe within 1 s after fault"}, "verify[0]"),
+    ({"for_s": 1, "inject": {"kind": "drive_fault", "device": "reaction_wheel"}}, "inject"),
+    ({"for_s": 1, "slew": {"angle_deg": "${nope}"}}, "slew"),
+])
+def test_bad_sequences_are_refused_naming_the_step_and_key(change, key):
+    step = {"name": "bad step", **change}
+    with pytest.raises(ConfigError) as err:
+        run_from_dict(_base(sequence={"steps": [step]}, variables={"angle_deg": 1.0}))
+    text = str(err.value)
+    assert "sequence.steps[0] (bad step)" in text or "${nope}" in text, text
+    assert key.split("[")[0] in text, text
+
+
+def test_a_rig_without_fault_insertion_refuses_an_inject(tmp_path):
+    raw = _base(sequence={"steps": [{"name": "f", "for_s": 1,
+                                     "inject": {"kind": "silent_sensor",
+                                                "device": "hub_sensor"}}]},
+                rig_overrides={"bus": {"fault_insertion_id": None}})
+    with pytest.raises(ConfigError, match=r"steps\[0\] \(f\)\.inject.*fault_insertion_id"):
+        run_from_dict(raw)
+
+
+def test_a_controller_that_cannot_retarget_is_refused(tmp_path):
+    from harness.core.runs import build_controller
+
+    raw = _base(controller={"type": "hold"},
+                sequence={"steps": [{"name": "s", "slew": {"angle_deg": 1.0}, "for_s": 1}]})
+    with pytest.raises(ConfigError, match=r"steps\[0\] \(s\)\.slew: .*cannot retarget"):
+        build_controller(run_from_dict(raw))
+
+
+def test_steps_are_in_verdict_json_and_the_summary(tmp_path):
+    raw = _base(duration_s=3.0, sequence={"steps": [
+        {"name": "hold still", "verify": "abs(hub.rate_deg_s) < 1", "for_s": 1.0},
+        {"name": "never", "wait_until": "hub.angle_deg > 30", "timeout_s": 0.5,
+         "on_fail": "continue"},
+        {"name": "last", "for_s": 0.2}]})
+    result = execute_run(run_from_dict(raw), out_dir=tmp_path, show_progress=False)
+    v = judge_run(result.run_dir)
+    doc = json.loads((result.run_dir / "verdict.json").read_text()) \
+        if (result.run_dir / "verdict.json").exists() else v.to_dict()
+    names = [c["name"] for c in doc["criteria"] if c["kind"] == "step"]
+    assert names == ["step 1: hold still", "step 2: never", "step 3: last"]
+    outcomes = [s["outcome"] for s in result.summary["sequence"]["steps"]]
+    assert outcomes == ["PASS", "TIMEOUT", "PASS"]  # on_fail: continue went on
+    assert result.summary["sequence"]["ended_by"] == "completed"
+    # the run ended with its sequence, not at its duration
+    assert result.stats.ticks < round(3.0 * 500)
+    assert math.isclose(result.summary["sequence"]["steps"][1]["ended_s"] -
+                        result.summary["sequence"]["steps"][1]["started_s"], 0.5, abs_tol=0.003)
