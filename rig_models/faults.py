@@ -7,7 +7,9 @@ change a device's state. Every kind is listed in FAULT_KINDS with what it does.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+import struct
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from rig_models.schema import ConfigError
@@ -51,6 +53,51 @@ DEVICE_FAULTS = {"drop_frames", "delay_frames", "corrupt_payload", "wrong_length
                  "drive_fault", "drive_disabled", "node_reboot", "node_stopped", "sdo_abort"}
 CANOPEN_FAULTS = {"node_heartbeat_lost", "node_emcy", "drive_fault", "drive_disabled",
                   "node_reboot", "node_stopped", "sdo_abort"}
+UNKNOWN_ID = 0x6A5
+"""The id of the ``unknown_ids`` fault's frames: used by no device of any shipped binding
+(a rig file's ``bus.fault_insertion_id`` must differ from it)."""
+
+# ------------------------------------------------------------------ the fault-insertion unit
+FAULT_CLEAR = "clear"
+"""The fault-insertion frame's kind that ends every fault of the rig (given at start or
+inserted) from the next SYNC on."""
+FAULT_CODES: dict[str, int] = {
+    FAULT_CLEAR: 0,
+    "drop_frames": 1,
+    "delay_frames": 2,
+    "corrupt_payload": 3,
+    "wrong_length": 4,
+    "bad_checksum": 5,
+    "unknown_ids": 6,
+    "stuck_sensor": 7,
+    "silent_sensor": 8,
+    "accel_saturation": 9,
+    "wheel_fault": 10,
+    "wheel_overspeed": 11,
+    "valve_stuck_open": 12,
+    "piezo_overcurrent": 13,
+    "error_frames": 14,
+    "bus_off": 15,
+    "node_heartbeat_lost": 16,
+    "node_emcy": 17,
+    "drive_fault": 18,
+    "drive_disabled": 19,
+    "node_reboot": 20,
+    "node_stopped": 21,
+    "sdo_abort": 22,
+}
+"""The fault-insertion frame's kind codes: fixed numbers, a new kind takes the next free
+one (never a renumbering: a lab's sequences and logs carry these bytes)."""
+KIND_OF_CODE = {code: kind for kind, code in FAULT_CODES.items()}
+NO_DEVICE = 0xFF
+FAULT_INSERTION_LENGTH = 8
+DURATION_UNIT_S = 0.01
+_PAYLOAD = struct.Struct("<BBHf")
+
+
+class FaultFrameError(ValueError):
+    """A fault-insertion frame the rig cannot act on (its message names the frame and the
+    field)."""
 
 
 @dataclass(frozen=True)
@@ -173,3 +220,87 @@ class FaultInjector:
             held.clear()
             return out
         return [data]
+
+
+def encode_fault_insertion(spec: FaultSpec) -> bytes:
+    """The fault-insertion frame's 8 bytes (little-endian) for ``spec`` (its ``at_s`` is
+    not sent: the rig starts the fault at its next SYNC): kind code u8 (``FAULT_CODES``),
+    device u8 (index in ``TELEMETRY_DEVICES``, 0xFF none), duration u16 in 10 ms (0: to the
+    end), value float32 (NaN: none). ``ConfigError`` naming the field it cannot carry."""
+    code = FAULT_CODES.get(spec.kind)
+    if code is None:
+        raise ConfigError(f"fault insertion: kind: expected one of {sorted(FAULT_CODES)}, "
+                          f"got {spec.kind!r}")
+    if spec.device:
+        if spec.device not in TELEMETRY_DEVICES:
+            raise ConfigError(f"fault insertion {spec.kind}: device: expected one of "
+                              f"{list(TELEMETRY_DEVICES)}, got {spec.device!r}")
+        device = TELEMETRY_DEVICES.index(spec.device)
+    elif spec.kind in DEVICE_FAULTS:
+        raise ConfigError(f"fault insertion {spec.kind}: device: {spec.kind} needs a device "
+                          f"from {list(TELEMETRY_DEVICES)}")
+    else:
+        device = NO_DEVICE
+    dur = spec.duration_s
+    if not math.isfinite(dur) or dur < 0:
+        raise ConfigError(f"fault insertion {spec.kind}: duration_s: expected a number >= 0 "
+                          f"(s; 0 to the end), got {dur!r}")
+    units = round(dur / DURATION_UNIT_S)
+    if dur > 0 and units == 0:
+        raise ConfigError(f"fault insertion {spec.kind}: duration_s: {dur!r} s is less than "
+                          "the frame's 10 ms step (0 would mean to the end)")
+    if units > 0xFFFF:
+        raise ConfigError(f"fault insertion {spec.kind}: duration_s: at most 655.35 s (or 0 "
+                          f"to the end), got {dur!r}")
+    value = math.nan if spec.value is None else float(spec.value)
+    if math.isinf(value) or (spec.value is not None and math.isnan(value)):
+        raise ConfigError(f"fault insertion {spec.kind}: value: expected a finite number or "
+                          f"none, got {spec.value!r}")
+    if not math.isnan(value) and abs(value) > 3.4e38:
+        raise ConfigError(f"fault insertion {spec.kind}: value: {value!r} does not fit a "
+                          "float32")
+    return _PAYLOAD.pack(code, device, units, value)
+
+
+def encode_fault_clear() -> bytes:
+    """The fault-insertion frame that ends every fault of the rig from its next SYNC on."""
+    return _PAYLOAD.pack(FAULT_CODES[FAULT_CLEAR], NO_DEVICE, 0, math.nan)
+
+
+def decode_fault_insertion(data: bytes | bytearray, where: str
+                           ) -> tuple[str, str, float, float | None]:
+    """(kind, device, duration_s, value) of a fault-insertion frame; ``FaultFrameError``
+    naming ``where`` (the frame) and the field when it is not one the rig can act on. ``kind``
+    ``FAULT_CLEAR``: end every fault."""
+    if len(data) != FAULT_INSERTION_LENGTH:
+        raise FaultFrameError(f"{where}: expected {FAULT_INSERTION_LENGTH} bytes, got {len(data)}")
+    code, dev, units, value = _PAYLOAD.unpack(bytes(data))
+    kind = KIND_OF_CODE.get(code)
+    if kind is None:
+        raise FaultFrameError(f"{where}: kind code {code} is not one of the fault kinds (0-"
+                         f"{max(KIND_OF_CODE)})")
+    if dev == NO_DEVICE:
+        device = ""
+    elif dev < len(TELEMETRY_DEVICES):
+        device = TELEMETRY_DEVICES[dev]
+    else:
+        raise FaultFrameError(f"{where}: device code {dev} is not a device (0-"
+                         f"{len(TELEMETRY_DEVICES) - 1}, or 0xFF none)")
+    if kind in DEVICE_FAULTS and not device:
+        raise FaultFrameError(f"{where}: {kind} needs a device, the frame names none")
+    return (kind, device, units * DURATION_UNIT_S,
+            None if math.isnan(value) else float(value))
+
+
+def ended(faults: list[FaultSpec], end_s: float) -> list[FaultSpec]:
+    """``faults`` each ended at ``end_s`` (none active from then on), in the same order: a
+    fault that would start at or after ``end_s`` becomes one of no kind (never active)."""
+    out = []
+    for f in faults:
+        if f.at_s >= end_s - 1e-12:
+            out.append(replace(f, kind=""))
+        elif f.duration_s <= 0 or f.at_s + f.duration_s > end_s:
+            out.append(replace(f, duration_s=end_s - f.at_s))
+        else:
+            out.append(f)
+    return out

@@ -153,6 +153,10 @@ RIG_SCHEMA: dict[str, Any] = {
         # CANopen: how long each node waits for the harness's heartbeat before its error
         # behaviour makes it safe (its 0x1016 consumer time)
         "heartbeat_consumer_ms": Field("int", "ms", default=200, minimum=1, maximum=65535),
+        # the fault-insertion unit: the standard id of the frame on which the virtual rig
+        # takes a fault at run time (rig_models.faults.encode_fault_insertion); absent: the
+        # rig has no such unit. No frame of the binding may have it (drivers.binding)
+        "fault_insertion_id": Field("int", default=None, minimum=1, maximum=0x7FF),
     },
     # how each device speaks on the bus (drivers/binding): sgsrt (default), dbc, canopen or
     # none, checked by drivers.binding.build_binding (errors name the key)
@@ -267,6 +271,11 @@ class RigConfig:
         # built again (an EDS parsed twice)
         cfg.__dict__["binding"] = self.binding
         return cfg
+
+    @property
+    def fault_insertion_key(self) -> tuple[int, bool] | None:
+        """(id, extended) of the fault-insertion unit's frame; None: the rig has none."""
+        return self.binding.fault_insertion
 
     @property
     def answer_timing(self) -> tuple[float, float]:
@@ -452,9 +461,21 @@ def rig_from_dict(raw: Any, source: str = "rig", base_dir: Path | None = None) -
     _check_physics(data, source)
     cfg = RigConfig(source=source, data=absolutize(data, base_dir), base_dir=base_dir)
     cfg.binding  # noqa: B018 (built to be checked)
+    _check_fault_insertion_id(cfg)
     if cfg.data["as_built"] is not None:
         cfg.as_built_rig()  # the model with the overlay: checked as a whole too
     return cfg
+
+
+def _check_fault_insertion_id(cfg: RigConfig) -> None:
+    """What the binding cannot see: the fault-insertion frame's id is not the id of the
+    virtual rig's own ``unknown_ids`` fault frames."""
+    from rig_models.faults import UNKNOWN_ID
+
+    key = cfg.fault_insertion_key
+    if key is not None and key[0] == UNKNOWN_ID:
+        raise ConfigError(f"{cfg.source}: bus.fault_insertion_id: 0x{UNKNOWN_ID:03X} is the id "
+                          "of the virtual rig's unknown_ids fault frames")
 
 
 def _pruned(data: dict[str, Any]) -> dict[str, Any]:

@@ -42,11 +42,20 @@ from rig_models.devices import (
     ReactionWheel,
     ThrusterValves,
 )
-from rig_models.faults import FaultInjector, FaultSpec
+from rig_models.faults import (
+    CANOPEN_FAULTS,
+    FAULT_CLEAR,
+    UNKNOWN_ID,
+    FaultFrameError,
+    FaultInjector,
+    FaultSpec,
+    decode_fault_insertion,
+    encode_fault_insertion,
+    ended,
+)
 from rig_models.rig_file import RigConfig
 from rig_models.schema import ConfigError
 
-UNKNOWN_ID = 0x6A5  # used by no device of the DBC
 CAN_ERR_BUSERROR = 0x080  # SocketCAN error classes (linux/can/error.h)
 CAN_ERR_BUSOFF = 0x040
 LOCKSTEP_BACKSTOP_S = 10.0
@@ -206,6 +215,28 @@ def check_virtual_rig(rig: RigConfig, faults: list[FaultSpec] | tuple[FaultSpec,
         check_emulation(co)
 
 
+def check_fault_insertion(rig: RigConfig,
+                          faults: list[FaultSpec] | tuple[FaultSpec, ...] = ()) -> None:
+    """``ConfigError`` if ``rig`` cannot take a fault at run time (``bus.fault_insertion_id``
+    absent: it has no fault-insertion unit), or cannot take one of ``faults`` so: the rules
+    of ``check_virtual_rig``, a CANopen kind on a device the rig does not bind to CANopen,
+    ``sdo_abort`` (a set-up fault: at run time the set-up is over), a fault the frame
+    cannot carry. Called before a run whose sequence inserts faults."""
+    if rig.fault_insertion_key is None:
+        raise ConfigError(f"{rig.source}: bus.fault_insertion_id: absent: this rig has no "
+                          "fault-insertion unit (a fault cannot be inserted at run time)")
+    for f in faults:
+        encode_fault_insertion(f)
+        if f.kind == "sdo_abort":
+            raise ConfigError(f"fault sdo_abort:{f.device}: acts during the set-up only; it "
+                              "cannot be inserted at run time")
+        if f.kind in CANOPEN_FAULTS and rig.binding.kinds.get(f.device) != "canopen":
+            raise ConfigError(f"fault {f.kind}:{f.device}: the {f.device} is not a CANopen "
+                              f"device on this rig (devices.{f.device}.binding is "
+                              f"{rig.binding.kinds.get(f.device)!r})")
+    check_virtual_rig(rig, faults)
+
+
 class VirtualRig:
     def __init__(self, rig: RigConfig, bus: can.BusABC, dt_s: float,
                  faults: list[FaultSpec] | None = None) -> None:
@@ -342,6 +373,12 @@ class VirtualRig:
             b.sync.key: self._on_sync}
         if b.heartbeat is not None:
             self._handlers[b.heartbeat.key] = self._on_heartbeat
+        # the fault-insertion unit (bus.fault_insertion_id): faults taken at run time, in
+        # order, and who is told of each (the rig process writes them to its log)
+        self.inserted_faults: list[FaultSpec] = []
+        self.on_fault_inserted: Callable[[str], None] | None = None
+        if b.fault_insertion is not None:
+            self._handlers[b.fault_insertion] = self._on_fault_insertion
         apply = {"reaction_wheel": self._wheel_cmd, "thruster_valves": self._valve_cmd,
                  "piezo_amplifier": self._piezo_cmd, "disturbance_rotor": self._rotor_cmd}
         self._apply = apply
@@ -628,7 +665,6 @@ class VirtualRig:
     def _apply_canopen_faults(self) -> None:
         """Faults CANopen's way, once each at its time, on the device's node."""
         from rig_models.canopen.node import NmtState
-        from rig_models.faults import CANOPEN_FAULTS
 
         co = self.co_devices
         done = self._co_faults_done
@@ -673,6 +709,60 @@ class VirtualRig:
         if inj.active(t, "piezo_overcurrent") and not self.piezo.overcurrent:
             self.piezo.overcurrent = True
             self.piezo.make_safe()
+
+    # ------------------------------------------------------------------ faults at run time
+    def _next_sync_time(self) -> float:
+        """The rig time of the next SYNC's answer (the first SYNC does not step)."""
+        return self.time_s + self.dt_s if self.tick >= 0 else self.time_s
+
+    def _on_fault_insertion(self, data: bytes) -> None:
+        """A fault-insertion frame: the fault starts at the next SYNC, as one given at start
+        with that ``at_s`` would; a frame the rig cannot act on is malformed (logged)."""
+        key = self.binding.fault_insertion
+        where = f"fault-insertion frame (0x{key[0]:03X})" if key else "fault-insertion frame"
+        try:
+            kind, device, duration_s, value = decode_fault_insertion(data, where)
+        except FaultFrameError as exc:
+            self._tell(f"refused {exc} ({bytes(data).hex(' ')})")
+            raise FrameError(str(exc)) from None
+        if kind == FAULT_CLEAR:
+            self.clear_faults()
+            return
+        self.insert_fault(FaultSpec(kind, self._next_sync_time(), duration_s, device, value))
+
+    def insert_fault(self, spec: FaultSpec) -> None:
+        """Take ``spec`` now (its ``at_s`` as given): what the rig left out for a run
+        without faults (its plain telemetry senders, the CANopen nodes' direct sender) is
+        built, so the fault acts exactly as one given at construction."""
+        plain = not self.injector.faults
+        self.injector.faults.append(spec)
+        self.inserted_faults.append(spec)
+        if plain:
+            self._build_emitters()
+            if self.co_devices is not None and self.bus is not None:
+                for node in self.co_devices.nodes.values():
+                    node.send = self._send_raw
+        if self.co_devices is not None and spec.kind == "sdo_abort":
+            node = self.co_devices.node_of(spec.device)
+            if node is not None:
+                node.sdo_abort_next(int(spec.value) if spec.value is not None else 0x1017,
+                                    0x08000020)
+        what = spec.kind + (f":{spec.device}" if spec.device else "")
+        dur = f" for {spec.duration_s:g} s" if spec.duration_s > 0 else ""
+        val = f", value {spec.value:g}" if spec.value is not None else ""
+        self._tell(f"fault inserted at t = {self.time_s:.3f} s (tick {self.sync_index}): "
+                   f"{what} from t = {spec.at_s:.3f} s{dur}{val}")
+
+    def clear_faults(self) -> None:
+        """End every fault (given at start or inserted) from the next SYNC on."""
+        end = self._next_sync_time()
+        self.injector.faults[:] = ended(self.injector.faults, end)
+        self._tell(f"faults cleared at t = {self.time_s:.3f} s (tick {self.sync_index}): none "
+                   f"from t = {end:.3f} s")
+
+    def _tell(self, text: str) -> None:
+        if self.on_fault_inserted is not None:
+            self.on_fault_inserted(text)
 
     # ------------------------------------------------------------------ commands
     def _on_heartbeat(self, data: bytes) -> None:

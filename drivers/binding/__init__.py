@@ -55,6 +55,8 @@ from drivers.device_file import kind_of
 __all__ = ["BindingError", "RigBinding", "absolutize", "build_binding", "resolve_file", "KINDS"]
 
 KINDS = ("sgsrt", "dbc", "canopen", "none")
+FAULT_INSERTION_NAME = "FAULT_INSERTION"
+"""The fault-insertion unit's frame as logs and reports name it (``bus.fault_insertion_id``)."""
 DRIVERS_DIR = Path(__file__).resolve().parent.parent
 
 # the sgsrt protocol: device -> (telemetry message, command message)
@@ -100,6 +102,8 @@ class RigBinding:
     # what is wrong in the device files but not in what the rig binds (a DBC's message no
     # device uses): a line each, the harness shows them before a run
     warnings: list[str] = field(default_factory=list)
+    # the fault-insertion unit's frame (``bus.fault_insertion_id``), None: the rig has none
+    fault_insertion: tuple[int, bool] | None = None
 
     @property
     def bound(self) -> tuple[str, ...]:
@@ -548,6 +552,10 @@ def build_binding(data: Mapping[str, Any], base_dir: Path | None = None) -> RigB
     binding = RigBinding(kinds, sync, heartbeat, telemetry, commands, sequence, files,
                          canopen_bus)
     _check_distinct(binding)
+    fid = bus.get("fault_insertion_id")
+    if fid is not None:
+        binding.fault_insertion = (int(fid), False)
+        _check_fault_insertion(binding)
     binding.warnings = _unbound_problems(binding)
     return binding
 
@@ -599,3 +607,49 @@ def _check_distinct(b: RigBinding) -> None:
         if k in special:
             raise BindingError(f"devices: a telemetry frame (0x{k[0]:X}) has the id of the SYNC "
                                "or heartbeat")
+
+
+def _canopen_reserved(co: Any) -> dict[int, str]:
+    """id -> what it is, for every COB-ID a CANopen network with these nodes uses or
+    reserves by its predefined connection set (CiA 301), and every PDO's own COB-ID."""
+    out = {0x000: "the NMT command", 0x080: "the CANopen SYNC", 0x100: "the CANopen TIME",
+           0x7E4: "LSS", 0x7E5: "LSS"}
+    names = {0x080: "EMCY", 0x180: "TPDO1", 0x200: "RPDO1", 0x280: "TPDO2", 0x300: "RPDO2",
+             0x380: "TPDO3", 0x400: "RPDO3", 0x480: "TPDO4", 0x500: "RPDO4",
+             0x580: "SDO response", 0x600: "SDO request", 0x700: "heartbeat"}
+    for nid, node in co.nodes.items():
+        for base, what in names.items():
+            out.setdefault(base + nid, f"{what} of CANopen node {nid}")
+        for p in (*node.tpdos, *node.rpdos):
+            out.setdefault(p.cob_id, f"a PDO of CANopen node {nid}")
+    out.setdefault(0x700 + co.master_id, "the master's heartbeat")
+    return out
+
+
+def _check_fault_insertion(b: RigBinding) -> None:
+    """The fault-insertion frame's id is no frame of the binding: not a device's telemetry
+    or command, not the SYNC or heartbeat, no message of a DBC file the rig binds, no
+    COB-ID of its CANopen network."""
+    assert b.fault_insertion is not None
+    key = b.fault_insertion
+    fid = key[0]
+    where = f"bus.fault_insertion_id: 0x{fid:03X}"
+    if key == b.sync.key:
+        raise BindingError(f"{where} is the SYNC's id")
+    if b.heartbeat is not None and key == b.heartbeat.key:
+        raise BindingError(f"{where} is the master heartbeat's id")
+    for kind, table in (("telemetry", b.telemetry), ("commands", b.commands)):
+        for device, maps in table.items():
+            for m in maps:
+                if m.key == key:
+                    raise BindingError(f"{where} is {m.codec.name}'s id "
+                                       f"(devices.{device}.{kind})")
+    for path in sorted({p for p in b.files.values() if p.lower().endswith(".dbc")}):
+        for codec in load_protocol(path).by_id.values():
+            if codec.frame_id == fid and not codec.is_extended:
+                raise BindingError(f"{where} is message {codec.name}'s id in "
+                                   f"{Path(path).name}")
+    if b.canopen is not None:
+        what = _canopen_reserved(b.canopen).get(fid)
+        if what is not None:
+            raise BindingError(f"{where} is {what}'s COB-ID")

@@ -26,7 +26,9 @@ from drivers.reaction_wheel import ReactionWheelDriver
 from drivers.thruster_valves import ThrusterValvesDriver
 from harness.record.can_log import CanLog
 from harness.state import SAFE_COMMAND, RigCommand, RigState
+from rig_models.faults import FaultSpec, encode_fault_clear, encode_fault_insertion
 from rig_models.rig_file import RigConfig
+from rig_models.schema import ConfigError
 
 CAN_ERR_BUSOFF = 0x040  # SocketCAN error class (linux/can/error.h)
 KERNEL_SYNC_BACKLOG = 1000
@@ -143,6 +145,10 @@ class RigInterface:
         else:
             self._sync_payload = sync.encode
         self._commands = b.commands
+        # the fault-insertion unit's frame (bus.fault_insertion_id; None: the rig has none):
+        # sent by insert_fault, never an unknown id when read back (an echo, a replay)
+        self.fault_insertion_key = b.fault_insertion
+        self.rig_source = rig.source
         # the ids only a master sends: a frame with one of them that the harness did not
         # send comes from another master (one SYNC producer, one NMT master per network)
         self.own_ids = own_transmit_keys(b)
@@ -330,6 +336,27 @@ class RigInterface:
             self.wire_cmd_ts = msg.timestamp
         return True
 
+    def insert_fault(self, spec: FaultSpec) -> can.Message | None:
+        """Send the fault-insertion frame of ``spec`` (its ``at_s`` is not sent: the rig
+        starts the fault at its next SYNC, a fault inserted in tick k acts from tick k + 1)
+        the way commands go, so the run's CAN log has it as a sent frame. The frame sent
+        (None: the bus refused it, counted in ``send_errors``). ``ConfigError`` if the rig
+        has no fault-insertion unit or the frame cannot carry ``spec``."""
+        return self._send_key(self._fault_insertion(), encode_fault_insertion(spec))
+
+    def clear_faults(self) -> can.Message | None:
+        """Send the fault-insertion frame that ends every fault of the rig (given at start
+        or inserted) from its next SYNC on."""
+        return self._send_key(self._fault_insertion(), encode_fault_clear())
+
+    def _fault_insertion(self) -> tuple[int, bool]:
+        key = self.fault_insertion_key
+        if key is None:
+            raise ConfigError(f"{self.rig_source}: bus.fault_insertion_id: absent: this rig "
+                              "has no fault-insertion unit (a fault cannot be inserted at "
+                              "run time)")
+        return key
+
     def send_heartbeat(self, armed: bool) -> None:
         self._hb_counter = (self._hb_counter + 1) & 0xFF
         armed = armed and not self.dry_run
@@ -474,6 +501,8 @@ class RigInterface:
                 return True
         maps = self._by_key.get((msg.arbitration_id, msg.is_extended_id))
         if maps is None:
+            if (msg.arbitration_id, msg.is_extended_id) == self.fault_insertion_key:
+                return False  # the fault-insertion unit's frame: no device's, not unknown
             if (msg.arbitration_id, msg.is_extended_id) in self.own_ids:
                 self._foreign(msg)
                 return False

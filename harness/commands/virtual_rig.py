@@ -130,6 +130,9 @@ def cmd_virtual_rig(args: argparse.Namespace) -> int:
         timer.daemon = True
         timer.start()
     rig = VirtualRig(rig_cfg, bus, 1.0 / args.rate_hz, faults=faults)
+    # faults taken at run time by its fault-insertion unit: a line each in the log
+    rig.on_fault_inserted = lambda text: print(f"harness virtual-rig: {text}", file=sys.stderr,
+                                               flush=True)
     measures: dict[str, list[str]] = {}
     if args.realtime:
         from harness.core.clock import RealTimeSetup

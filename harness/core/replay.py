@@ -40,6 +40,7 @@ from typing import Any, cast
 
 import can
 
+from drivers.binding import FAULT_INSERTION_NAME
 from drivers.dbc import FrameCodec, FrameError, Protocol, load_protocol
 from harness.bus.rig_interface import RigInterface
 from harness.core.monitor import FaultEvent
@@ -312,9 +313,14 @@ def replay_messages(messages: Iterable[can.Message], rig: RigConfig, dt_s: float
         if tick is not None:
             closer.close(tick, rx, cmds)
 
+    fi_key = binding.fault_insertion
+    if fi_key is not None:
+        tx_ids = tx_ids | {fi_key[0]}
     for msg in messages:
         if not msg.is_error_frame:
             frames_by_id[msg.arbitration_id] += 1
+            if (msg.arbitration_id, msg.is_extended_id) == fi_key:
+                continue  # the fault-insertion unit's frame: neither telemetry nor command
         harness = not msg.is_error_frame and msg.arbitration_id in tx_ids
         if harness and msg.arbitration_id == sync.frame_id:
             close_tick()
@@ -365,8 +371,9 @@ def _replay_binding(messages: Iterable[can.Message], rig: RigConfig, dt_s: float
     service = Counter()
     frames_by_id: Counter[int] = Counter()
     harness_malformed: Counter[str] = Counter()
+    fi_key = b.fault_insertion
     tx_ids: set[int] = {sync.key[0]} | ({hb.key[0]} if hb is not None else set()) | {
-        k[0] for k in cmd}
+        k[0] for k in cmd} | ({fi_key[0]} if fi_key is not None else set())
     closer = _Ticks(iface, dt_s, on_tick, keep_ticks)
     sync_gaps = before = 0
     tick: int | None = None
@@ -403,7 +410,7 @@ def _replay_binding(messages: Iterable[can.Message], rig: RigConfig, dt_s: float
             service["NMT" if msg.arbitration_id == 0 else "SDO request"] += 1
             tx_ids.add(msg.arbitration_id)
             continue
-        if hb is not None and key == hb.key:
+        if (hb is not None and key == hb.key) or key == fi_key:
             continue
         if key in cmd:
             if tick is None:
@@ -765,9 +772,14 @@ def frame_names(rig: RigConfig | None) -> dict[int, tuple[str, str]]:
     messages, CANopen's PDOs and service frames (NMT, SYNC, EMCY, SDO, heartbeat) by node."""
     if rig is None or rig.binding.is_sgsrt():
         protocol = load_protocol()
-        return {c.frame_id: (c.name, "device") for c in protocol.by_id.values()}
+        out = {c.frame_id: (c.name, "device") for c in protocol.by_id.values()}
+        if rig is not None and rig.binding.fault_insertion is not None:
+            out[rig.binding.fault_insertion[0]] = (FAULT_INSERTION_NAME, "harness")
+        return out
     b = rig.binding
-    out: dict[int, tuple[str, str]] = {}
+    out = {}
+    if b.fault_insertion is not None:
+        out[b.fault_insertion[0]] = (FAULT_INSERTION_NAME, "harness")
     for f in b.frames():
         who = "harness" if f.kind in ("sync", "heartbeat", "cmd") else f.device
         out[f.key[0]] = (f.name if f.kind != "tlm" else f"{f.name} ({f.device})", who)

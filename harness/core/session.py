@@ -579,6 +579,8 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                 sequence.close(max(0, stats.ticks - 1) * dt_s)
                 summary["sequence"] = sequence.summary()
             summary["injected_faults"] = [vars(f) for f in (rig.injector.faults if rig else [])]
+            # taken at run time by the rig's fault-insertion unit (in-process rig)
+            summary["inserted_faults"] = [vars(f) for f in (rig.inserted_faults if rig else [])]
             failure = recorder.space_stop or recorder.failed or can_log.failed
             if failure is None:
                 try:

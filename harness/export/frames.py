@@ -166,7 +166,7 @@ def run_clock(meta: Mapping[str, Any], run_dir: Path) -> tuple[float, str]:
 def time_base(meta: Mapping[str, Any], run_dir: Path) -> TimeBase:
     """The run's binding (config.yaml's rig, as the judge reads it) and clock; ExportError
     naming the key when the binding cannot be built (a DBC file no longer there)."""
-    from drivers.binding import BindingError, build_binding, resolve_file
+    from drivers.binding import FAULT_INSERTION_NAME, BindingError, build_binding, resolve_file
 
     dt_s, clock = run_clock(meta, run_dir)
     rig = (meta.get("config") or {}).get("rig")
@@ -195,7 +195,9 @@ def time_base(meta: Mapping[str, Any], run_dir: Path) -> TimeBase:
     return TimeBase(dt_s, clock == "realtime", tuple(sync.key),  # type: ignore[arg-type]
                     int(sync.codec.length) if sgsrt else None, sync.decode,
                     int(getattr(sync, "modulus", 1 << 32)), sgsrt, clock, dbc, eds,
-                    {(tuple(f.key), f.name) for f in binding.frames()})  # type: ignore[misc]
+                    {(tuple(f.key), f.name) for f in binding.frames()}  # type: ignore[misc]
+                    | ({(binding.fault_insertion, FAULT_INSERTION_NAME)}
+                       if binding.fault_insertion is not None else set()))
 
 
 def _ns(t: np.ndarray) -> np.ndarray:
