@@ -50,7 +50,7 @@ def test_engineers_test_passes_on_every_binding(tmp_path, rig):
     # monitor, and the rig held safe well within the 0.5 s the test allows
     assert result.summary["faults"][0]["kind"] == "stuck open"
     made_safe = seq["events"]["detected"] - seq["events"]["fault"]
-    assert 0 < made_safe < 0.5
+    assert 0 < made_safe < 0.02
     assert result.summary["stopped_by"] == "fault"
     out = seq["steps"][0]
     assert out["measures"]["settle_time_s"] > 0
@@ -83,20 +83,22 @@ def test_a_settle_band_the_rig_cannot_hold_fails_naming_the_step(tmp_path):
 
 
 def test_a_fault_not_made_safe_in_time_fails_naming_the_step(tmp_path):
-    # a valve that may take 0.6 s to close cannot be called stuck before then: the harness
-    # cannot make the rig safe within the 0.5 s the test asks
-    result, v = _run(tmp_path, {"variables": {"angle_deg": 4.0},
-                                "rig_overrides": {"thruster_valves": {"close_delay_s": 0.6}}})
+    # a valve module that reports its state every 240th SYNC (0.48 s) is seen stuck only at
+    # its next report: a test that asks for the rig safe within 0.1 s fails on it (the
+    # nominal module, every 5th SYNC, is made safe within 0.02 s: the test above)
+    result, v = _run(tmp_path, {"variables": {"angle_deg": 4.0, "safe_within_s": 0.1},
+                                "rig_overrides": {
+                                    "bus": {"sync_divider": {"thruster_valves": 240}}}})
     step = _steps(v)["step 2: slew back, valve stuck at speed"]
     assert step.verdict == "FAIL", step.message
-    assert "rig.safe within 0.5 s after fault" in step.message
+    assert "rig.safe within 0.1 s after fault" in step.message
     assert v.verdict == "FAIL"
 
 
 def test_a_when_on_a_recorded_channel_reacts_in_its_tick(tmp_path):
     raw = _base(duration_s=30.0, sequence={"steps": [
         {"name": "slew", "slew": {"angle_deg": 5.0},
-         "when": [{"if": "attitude.error_deg > 1 becomes true",
+         "when": [{"if": "attitude.reference_deg > 2 becomes true",
                    "do": {"command": {"wheel_torque_n_m": 0.0}, "mark": "coast"}}],
          "wait_until": "run.time_s > 20 s", "timeout_s": 25}]})
     run = run_from_dict(raw)
@@ -104,10 +106,11 @@ def test_a_when_on_a_recorded_channel_reacts_in_its_tick(tmp_path):
     from harness.testing.judge import read_channels
 
     ch = read_channels(result.run_dir / "run.rrd",
-                       {"/attitude/error_deg", "/wheel/torque_cmd_n_m"})
-    t, err = ch["/attitude/error_deg"]
+                       {"/attitude/reference_deg", "/wheel/torque_cmd_n_m"})
+    t, ref = ch["/attitude/reference_deg"]
     _, torque = ch["/wheel/torque_cmd_n_m"]
-    k = int(np.argmax(err > 1.0))  # the first tick the recorded error is past 1 deg
+    k = int(np.argmax(ref > 2.0))  # the first tick the recorded reference is past 2 deg
+    assert k > 0
     assert result.summary["sequence"]["events"]["coast"] == pytest.approx(t[k])
     assert torque[k - 1] != 0.0 and np.all(torque[k:] == 0.0)
 

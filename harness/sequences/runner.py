@@ -48,13 +48,15 @@ class StepResult:
     value: str = ""  # its value at the decision
     measures: dict[str, float] = field(default_factory=dict)
     actions: list[str] = field(default_factory=list)
+    verified: list[str] = field(default_factory=list)  # a passed step's verifies, as held
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "index": self.index, "finally": self.final,
                 "outcome": self.outcome, "started_s": self.started_s,
                 "ended_s": self.ended_s, "reason": self.reason,
                 "condition": self.condition, "value": self.value,
-                "measures": self.measures, "actions": self.actions}
+                "measures": self.measures, "actions": self.actions,
+                "verified": self.verified}
 
 
 class _LiveStep:
@@ -68,8 +70,8 @@ class _LiveStep:
         self.verify = [c(v, quantities, step.where) for v in step.verify]
         self.when = [(w, c(w.condition, quantities, w.where)) for w in step.when]
         self.fired = [False] * len(self.when)
-        self.settle_band_rad = 0.0
         self.slew = False
+        self.target_rad = math.nan  # the step's slew target (its settle band is about it)
         self.out_of_band_s = 0.0  # the last time the error was outside the settle band
 
     def reset(self, t_s: float) -> None:
@@ -183,15 +185,17 @@ class SequenceRunner:
         res.started_s = t
         live.reset(t)
         self._log(t, f"step {step.name}: started", "INFO")
-        self._do(step.actions, t, res)
         live.slew = step.actions.slew_rad is not None or step.actions.hold
+        live.target_rad = (self.state.hub_angle_rad if step.actions.hold
+                           else step.actions.slew_rad if live.slew else math.nan)
         live.out_of_band_s = t
+        self._do(step.actions, t, res)
 
     def _decide(self, live: _LiveStep, t: float) -> bool:
         """Evaluate the current step; True when it ended (the next may start this tick)."""
         step, res = live.step, self.results[self.current]
         if live.slew:
-            err = abs(self.reference_rad - self.state.hub_angle_rad)
+            err = abs(live.target_rad - self.state.hub_angle_rad)
             if not err <= self.settle_band_rad:
                 live.out_of_band_s = t
         for cond in live.verify:
@@ -234,8 +238,10 @@ class SequenceRunner:
             res.value = cond.describe(self)
         if pending:
             res.reason += "; undecided at the end: " + "; ".join(c.text for c in pending)
+        if outcome == PASS:  # what each verify held to, at the step's end
+            res.verified = [f"{c.text}: {c.describe(self)}" for c in live.verify]
         if live.slew:
-            err = self.reference_rad - self.state.hub_angle_rad
+            err = live.target_rad - self.state.hub_angle_rad
             res.measures["final_error_deg"] = math.degrees(err)
             if abs(err) <= self.settle_band_rad:
                 res.measures["settle_time_s"] = live.out_of_band_s - res.started_s \

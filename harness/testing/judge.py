@@ -689,9 +689,11 @@ def format_block(v: Verdict, path: Path | None = None) -> str:
         margin = "" if c.margin is None else f"  margin {c.margin:.4g}"
         at = "" if c.worst_time_s is None else f"  worst at t = {c.worst_time_s:.3f} s"
         unit = unit_text(c.unit)
+        if c.kind == "step" and val == c.verdict:
+            val = ""  # a step's outcome is its verdict (TIMEOUT, ERROR shown as they are)
         lines.append(f"  {c.verdict:<{wv}} {c.name:<{w}}  {val} {unit}".rstrip()
                      + (f"  limit {lim}" if lim else "") + margin + at)
-        if c.verdict != "PASS":
+        if c.verdict != "PASS" or c.kind == "step":  # a step says what decided it
             lines.append(f"  {'':<{wv}} {'':<{w}}  {c.message}")
     if path is not None:
         lines.append(f"  verdict in {path}")

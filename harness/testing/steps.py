@@ -42,7 +42,7 @@ def step_results(summary: Mapping[str, Any]) -> list[CriterionResult]:
         verdict = _VERDICT.get(outcome, ERROR)
         ended = step.get("ended_s")
         started = step.get("started_s")
-        parts = [outcome]
+        parts = [] if outcome in ("PASS", "FAIL") else [outcome]
         if started is not None:
             parts.append(f"t = {float(started):.3f}-{float(ended):.3f} s"
                          if ended is not None else f"from t = {float(started):.3f} s")
@@ -50,6 +50,7 @@ def step_results(summary: Mapping[str, Any]) -> list[CriterionResult]:
             parts.append(str(step["reason"]))
         if step.get("condition"):
             parts.append(f"{step['condition']}: {step.get('value', '')}")
+        parts += [f"verified {v}" for v in step.get("verified") or [] if isinstance(v, str)]
         measures = step.get("measures") or {}
         if isinstance(measures, Mapping):
             parts += [f"{k} {float(v):.4g}" for k, v in measures.items()
