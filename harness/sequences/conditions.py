@@ -583,7 +583,7 @@ class _Parser:
             dim, scale = UNITS[nxt.text]
             return _C("num", None, value * scale, tok.pos, nxt.end, dim=dim, unit=nxt.text,
                       scale=scale)
-        if nxt.kind == "name" and nxt.text not in _WORDS:
+        if nxt.kind == "name" and nxt.text not in _WORDS and "." not in nxt.text:
             close = difflib.get_close_matches(nxt.text.lower(), list(UNITS), n=3, cutoff=0.5)
             hint = f"; did you mean {_or_list(close)}?" if close else ""
             raise self.error(nxt.pos, f"{nxt.text} after {tok.text} is not a unit{hint} "
