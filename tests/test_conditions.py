@@ -10,6 +10,8 @@ import sys
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from harness.sequences import conditions as cond_module
 from harness.sequences.conditions import (
@@ -163,6 +165,10 @@ def test_a_bare_number_takes_its_neighbours_unit():
     assert holds("abs(hub.angle_deg - 10) < 0.05", ctx) == TRUE
     assert holds("abs(hub.angle_deg - 10) < 0.02", ctx) == FALSE
     assert holds("abs(hub.angle_rad - 10) < 0.05", ctx) == FALSE
+    assert holds("0.05 > abs(hub.angle_deg - 10)", ctx) == TRUE
+    assert holds("0.02 >= abs(hub.angle_deg - 10)", ctx) == FALSE
+    assert holds("abs(10 - hub.angle_deg) > 0.02", ctx) == TRUE
+    assert holds("abs(hub.angle_deg - 10) <= 0.02 deg", ctx) == FALSE
     assert holds("2 * hub.angle_deg > 20", ctx) == TRUE       # a scale factor keeps deg
 
 
@@ -508,3 +514,44 @@ def test_reference_names_every_unit_function_and_temporal_form():
     assert len(TEMPORAL_FORMS) == 4
     for op in ("`or`", "`and`", "`not`", "`<=`", "`!=`", "`*`"):
         assert op in md, op
+
+
+# ------------------------------------------------------------------ hostile text
+
+
+def test_deep_nesting_is_bad_text_not_a_crash():
+    for text in ("(" * 5000 + "rig.safe" + ")" * 5000, "-" * 5000 + "1 > 0",
+                 "not " * 5000 + "rig.safe"):
+        with pytest.raises(ConditionError, match="nested too deeply"):
+            compile_condition(text, Q, WHERE)
+
+
+def test_a_division_by_a_zero_reading_is_nan_not_an_exception():
+    c = cond("hub.angle_deg / valves.state > 1")
+    assert c.update(Ctx(**{"hub.angle": 1.0, "valves.state": 0.0})) == FALSE
+    assert c.update(Ctx(**{"hub.angle": 1.0, "valves.state": 2.0})) == TRUE
+
+
+_PIECES = ["hub.angle_deg", "rig.safe", "wheel.speed_rpm", "valves.state", "1", "0.5",
+           " deg", " s", " ms", "(", ")", ",", "+", "-", "*", "/", "<", ">=", "==", " and ",
+           " or ", "not ", " for ", " becomes ", " stays ", " within ", " after ", "fault",
+           "true", "abs(", "min(", "'", "[", "_", ".", "$", "lambda"]
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.sampled_from(_PIECES), max_size=14))
+def test_any_text_compiles_or_is_a_condition_error(pieces):
+    """Whatever the text, compiling it gives a condition that updates and describes, or a
+    ConditionError: never another exception."""
+    text = "".join(pieces)
+    try:
+        c = compile_condition(text, Q, WHERE)
+    except ConditionError:
+        return
+    ctx = Ctx()
+    ctx.events["fault"] = 0.0
+    c.reset(0.0)
+    for k in range(3):
+        ctx.t_s = k * DT
+        assert c.update(ctx) in (TRUE, FALSE, PENDING)
+    assert isinstance(c.describe(ctx), str)
