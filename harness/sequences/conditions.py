@@ -293,6 +293,21 @@ _CMP_PY: dict[str, Callable[[Any, Any], bool]] = {
 _FLIP = {"<": ">", "<=": ">=", ">": "<", ">=": "<=", "==": "==", "!=": "!="}
 
 
+_CMP_ABS_K: dict[str, Callable[[Fn, float], Fn]] = {
+    "<": lambda f, k: lambda ctx: abs(f(ctx)) < k,
+    "<=": lambda f, k: lambda ctx: abs(f(ctx)) <= k,
+    ">": lambda f, k: lambda ctx: abs(f(ctx)) > k,
+    ">=": lambda f, k: lambda ctx: abs(f(ctx)) >= k,
+}
+"""``abs(x) OP k`` in one closure: the settle band's shape, the commonest condition."""
+
+
+def _cmp_k(op: str, x: _C, k: float) -> Fn:
+    if x.abs_of is not None and op in _CMP_ABS_K:
+        return _CMP_ABS_K[op](x.abs_of, k)
+    return _CMP_K[op](x.fn, k)  # type: ignore[arg-type]
+
+
 def _div(a: float, b: float) -> float:
     return a / b if b else math.nan
 
@@ -370,7 +385,7 @@ class _C:
     """
 
     __slots__ = ("kind", "fn", "const", "dim", "unit", "scale", "start", "end", "desc",
-                 "mt", "mf")
+                 "mt", "mf", "abs_of")
 
     def __init__(self, kind: str, fn: Fn | None, const: Any, start: int, end: int, *,
                  dim: str | None = None, unit: str = "", scale: float = 1.0,
@@ -383,6 +398,7 @@ class _C:
         if kind == "bool" and fn is None:
             mt, mf = (0.0, math.inf) if const else (math.inf, 0.0)
         self.mt, self.mf = mt, mf
+        self.abs_of: Fn | None = None  # ``abs(x)``: x's closure, fused into a comparison
 
     def call(self) -> Fn:
         return self.fn if self.fn is not None else _const(self.const)
@@ -480,6 +496,13 @@ class _Parser:
                                           f"temporal form in parentheses to combine it")
             raise self.error(tok.pos, f"expected an operator or the end, found {_shown(tok)}")
         return c
+
+    def parse_guarded(self) -> _C:
+        """``parse``, with nesting beyond Python's recursion limit refused as bad text."""
+        try:
+            return self.parse()
+        except RecursionError:
+            raise self.error(None, "nested too deeply") from None
 
     def temporal(self) -> _C:
         c = self.or_()
@@ -583,7 +606,7 @@ class _Parser:
             dim, scale = UNITS[nxt.text]
             return _C("num", None, value * scale, tok.pos, nxt.end, dim=dim, unit=nxt.text,
                       scale=scale)
-        if nxt.kind == "name" and nxt.text not in _WORDS:
+        if nxt.kind == "name" and nxt.text not in _WORDS and "." not in nxt.text:
             close = difflib.get_close_matches(nxt.text.lower(), list(UNITS), n=3, cutoff=0.5)
             hint = f"; did you mean {_or_list(close)}?" if close else ""
             raise self.error(nxt.pos, f"{nxt.text} after {tok.text} is not a unit{hint} "
@@ -616,9 +639,11 @@ class _Parser:
                 raise self.error(tok.pos, f"abs takes one value, found {len(args)}")
             x = args[0]
             f = x.fn
-            return _C("num", None if f is None else (lambda ctx: abs(f(ctx))),
-                      None if x.const is None else abs(x.const), tok.pos, close.end,
-                      dim=x.dim, unit=x.unit, scale=x.scale)
+            out = _C("num", None if f is None else (lambda ctx: abs(f(ctx))),
+                     None if x.const is None else abs(x.const), tok.pos, close.end,
+                     dim=x.dim, unit=x.unit, scale=x.scale)
+            out.abs_of = f
+            return out
         if len(args) < 2:
             raise self.error(tok.pos, f"{tok.text} takes two values or more, found {len(args)}")
         pick = min if tok.text == "min" else max
@@ -761,9 +786,9 @@ class _Parser:
         if a.fn is None and b.fn is None:
             return _C("bool", None, _CMP_PY[op](a.const, b.const), start, end)
         if b.fn is None:
-            fn = _CMP_K[op](a.fn, b.const)  # type: ignore[arg-type]
+            fn = _cmp_k(op, a, b.const)
         elif a.fn is None:
-            fn = _CMP_K[_FLIP[op]](b.fn, a.const)
+            fn = _cmp_k(_FLIP[op], b, a.const)
         else:
             fn = _CMP_F[op](a.fn, b.fn)
         sides = [(self.src(s), s.call(), s.scale, UNIT_LABELS.get(s.unit, ""))
@@ -1065,7 +1090,7 @@ def compile_condition(text: str, quantities: Mapping[str, Quantity], where: str)
     """Parse and compile a condition; ``where`` names it in errors (a step and its key).
     Raises ConditionError."""
     p = _Parser(text, quantities, where)
-    c = p.need_cond(p.parse(), "")
+    c = p.need_cond(p.parse_guarded(), "")
     if c.kind == "tri":
         update = c.fn
     elif c.fn is None:
@@ -1085,7 +1110,7 @@ def compile_value(text: str, quantities: Mapping[str, Quantity], where: str) -> 
     """Parse and compile an arithmetic expression: its ``evaluate(ctx)`` is in the unit it is
     written in (``hub.angle_deg + 5`` in degrees). Raises ConditionError."""
     p = _Parser(text, quantities, where)
-    c = p.parse()
+    c = p.parse_guarded()
     if c.kind != "num":
         raise p.error(c.start, f"expected a value (an arithmetic expression), found the "
                                f"condition {p.src(c)}")
