@@ -325,8 +325,10 @@ def run_loop(
                     if sequence is None or not sequence.on_fault(t_s, event):
                         break
                     # the sequence decides how the fault was handled: the rig held safe
+                    # (the safe command through the run's own frames, not command_safe: a
+                    # CANopen rig would leave operational and stop its telemetry)
                     held_safe = True
-                    interface.command_safe()
+                    sent = command(safe_cmd)
                     interface.send_heartbeat(armed=False)
             # block logging and the CAN log's writer run outside the tick's critical path
             if realtime:
