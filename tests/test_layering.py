@@ -4,7 +4,8 @@ on every module's source: imports at the top and inside functions alike.
 - nothing outside ``harness/commands/`` and ``harness/cli.py`` imports ``harness.commands``
   (a command parses arguments and calls a package; the tests may call a command);
 - ``rig_models`` never imports ``harness``;
-- the pure packages (``controllers``, ``shaping``, ``identification``) import no other
+- the pure packages (``controllers``, ``shaping``, ``identification``, ``sequences``)
+  import no other
   package of the harness but the ones their ``__init__`` names;
 - ``harness.bus`` and ``harness.record`` never import ``harness.core``.
 """
@@ -24,6 +25,7 @@ PURE = {
     "controllers": ("harness.shaping", "harness.state", "rig_models"),
     "shaping": ("rig_models",),
     "identification": (),
+    "sequences": ("harness.state", "rig_models"),
 }
 """A pure package: the packages of this repository it may import (its ``__init__`` says)."""
 

@@ -8,8 +8,12 @@ controller it returns has ``reset()`` and ``step(state) -> RigCommand``, called 
 is the full contract with a template.
 
 This module is the stable surface a plugin imports: ``Controller``, ``ControllerFactory``,
-``controller_factory``, ``Field``, ``RigCommand``, ``RigState``, ``RigConfig``. It imports
-only ``harness.state`` and ``rig_models``.
+``controller_factory``, ``Field``, ``RigCommand``, ``RigState``, ``RigConfig``, and the
+building blocks of the built-in slews: ``CycloidalSlew`` (a rest-to-rest profile from any
+angle), ``PDWheelController`` (PD + feed-forward on the wheel, tracking one) and
+``Retargetable``, what a controller has for a test sequence's ``slew:`` and ``hold:``
+(``retarget(angle_rad, t_s)``). It imports ``harness.state``, ``rig_models`` and those two
+modules of ``harness.controllers``.
 """
 
 from __future__ import annotations
@@ -17,12 +21,15 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol, TypeVar
 
+from harness.controllers.pd_wheel import PDWheelController
+from harness.controllers.slew_profile import CycloidalSlew
 from harness.state import SAFE_COMMAND, RigCommand, RigState
 from rig_models.rig_file import RigConfig
 from rig_models.schema import Field, Schema
 
-__all__ = ["SAFE_COMMAND", "TYPE_FIELD", "Controller", "ControllerFactory", "Field",
-           "RigCommand", "RigConfig", "RigState", "Schema", "controller_factory"]
+__all__ = ["SAFE_COMMAND", "TYPE_FIELD", "Controller", "ControllerFactory", "CycloidalSlew",
+           "Field", "PDWheelController", "Retargetable", "RigCommand", "RigConfig",
+           "RigState", "Schema", "controller_factory"]
 
 
 class Controller(Protocol):
@@ -32,6 +39,15 @@ class Controller(Protocol):
     def reset(self) -> None: ...
 
     def step(self, state: RigState) -> RigCommand: ...
+
+
+class Retargetable(Protocol):
+    """A controller a test sequence can send elsewhere: ``retarget(angle_rad, t_s)`` makes
+    its reference slew from where it is at ``t_s`` to ``angle_rad`` (a ``slew:`` step; a
+    ``hold:`` retargets to the hub's angle). Called between two ticks, never inside
+    ``step``; it must not block."""
+
+    def retarget(self, angle_rad: float, t_s: float) -> None: ...
 
 
 ControllerFactory = Callable[[dict[str, Any], RigConfig, float], Controller]

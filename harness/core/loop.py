@@ -321,9 +321,12 @@ def run_loop(
                     stats.stopped_by = "fault"
                     stats.faults.append(event)
                     recorder.log_event(t_s, f"/events/{event.device}", str(event), "ERROR")
-                    print(f"\nharness: FAULT {event}; leaving the rig safe", file=sys.stderr)
                     if sequence is None or not sequence.on_fault(t_s, event):
+                        print(f"\nharness: FAULT {event}; leaving the rig safe",
+                              file=sys.stderr)
                         break
+                    print(f"\nharness: FAULT {event}; the rig held safe while the sequence "
+                          "decides", file=sys.stderr)
                     # the sequence decides how the fault was handled: the rig held safe
                     # (the safe command through the run's own frames, not command_safe: a
                     # CANopen rig would leave operational and stop its telemetry)

@@ -70,6 +70,10 @@ class _LiveStep:
         self.verify = [c(v, quantities, step.where) for v in step.verify]
         self.when = [(w, c(w.condition, quantities, w.where)) for w in step.when]
         self.fired = [False] * len(self.when)
+        # what the tick calls, bound once
+        self.verify_updates = tuple((v.update, v) for v in self.verify)
+        self.when_updates = tuple((j, w, cond.update) for j, (w, cond) in enumerate(self.when))
+        self.wait_update = self.wait.update if self.wait is not None else None
         self.slew = False
         self.target_rad = math.nan  # the step's slew target (its settle band is about it)
         self.out_of_band_s = 0.0  # the last time the error was outside the settle band
@@ -109,7 +113,6 @@ class SequenceRunner:
         # the context the conditions read
         self.state = RigState()
         self.sent = RigCommand()
-        self.reference_rad = math.nan
         self.t_s = 0.0
         self.step_t0_s = 0.0
         self.step_index = 0
@@ -118,6 +121,7 @@ class SequenceRunner:
         self.events: dict[str, float] = {}
         self.current = 0
         self.started = False
+        self._live_now: _LiveStep | None = None  # the step under way
         self.override: RigCommand | None = None
         self.aborted = False
         self.finished = False
@@ -137,6 +141,13 @@ class SequenceRunner:
             raise AttributeError(name)
         return getattr(self.controller, name)
 
+    @property
+    def reference_rad(self) -> float:
+        """The controller's reference angle now (NaN without one): read only when a
+        condition asks for it."""
+        ref = self._reference
+        return ref(self.t_s)[0] if ref is not None else math.nan
+
     def event_time(self, name: str) -> float | None:
         return self.events.get(name)
 
@@ -150,10 +161,10 @@ class SequenceRunner:
         cmd = self._inner_step(state)
         self.state = state
         t = self.t_s = state.time_s
-        if self._reference is not None:
-            self.reference_rad = self._reference(t)[0]
         if not self.finished:
-            self._advance(t)
+            live = self._live_now  # most ticks: the step under way goes on
+            if live is None or self.safe or self._decide(live, t):
+                self._advance(t)
         if self.safe:
             cmd = RigCommand()
         elif self.override is not None:
@@ -175,11 +186,13 @@ class SequenceRunner:
                 self._begin(live, t)
             if not self._decide(live, t):
                 return
+            self._live_now = None
 
     def _begin(self, live: _LiveStep, t: float) -> None:
         step = live.step
         res = self.results[self.current]
         self.started = True
+        self._live_now = live
         self.step_t0_s = t
         self.step_index = self.current
         res.started_s = t
@@ -193,23 +206,22 @@ class SequenceRunner:
 
     def _decide(self, live: _LiveStep, t: float) -> bool:
         """Evaluate the current step; True when it ended (the next may start this tick)."""
-        step, res = live.step, self.results[self.current]
-        if live.slew:
-            err = abs(live.target_rad - self.state.hub_angle_rad)
-            if not err <= self.settle_band_rad:
-                live.out_of_band_s = t
-        for cond in live.verify:
-            if cond.update(self) == FALSE:
+        step = live.step
+        if live.slew and not abs(live.target_rad - self.state.hub_angle_rad) \
+                <= self.settle_band_rad:
+            live.out_of_band_s = t
+        for update, cond in live.verify_updates:
+            if update(self) == FALSE:
                 return self._end(live, t, FAIL, "verify failed", cond)
-        for j, (w, cond) in enumerate(live.when):
-            if cond.update(self) == TRUE and (w.every or not live.fired[j]):
+        for j, w, update in live.when_updates:
+            if update(self) == TRUE and (w.every or not live.fired[j]):
                 live.fired[j] = True
                 self._log(t, f"step {step.name}: when {w.condition}: {w.actions.describe()}",
                           "INFO")
-                self._do(w.actions, t, res)
+                self._do(w.actions, t, self.results[self.current])
         elapsed = t - self.step_t0_s
-        if live.wait is not None:
-            if live.wait.update(self) == TRUE:
+        if live.wait_update is not None:
+            if live.wait_update(self) == TRUE:
                 return self._end(live, t, PASS, "wait_until held", live.wait)
             if elapsed >= step.timeout_s - 1e-9:  # type: ignore[operator]
                 outcome = ERROR if step.on_timeout == "error" else TIMEOUT
@@ -250,6 +262,7 @@ class SequenceRunner:
         self._log(t, f"step {step.name}: {outcome}: {reason}"
                      + (f" ({res.condition}: {res.value})" if res.condition else ""), level)
         self.started = False
+        self._live_now = None
         self.current += 1
         if outcome != PASS and not step.final and step.on_fail == "abort" \
                 or outcome == ERROR:
@@ -275,6 +288,7 @@ class SequenceRunner:
             res.outcome, res.ended_s = FAIL, t
             res.reason = f"not decided {self.spec.after_fault_s:g} s after the monitor's fault"
             self.started = False
+            self._live_now = None
             self._log(t, f"step {res.name}: FAIL: {res.reason}", "ERROR")
             self.current += 1
         if not in_final:
@@ -304,8 +318,6 @@ class SequenceRunner:
             if self._retarget is None:  # refused before the run (build_sequence)
                 raise RuntimeError("the run's controller cannot retarget")
             self._retarget(target, t)
-            if self._reference is not None:
-                self.reference_rad = self._reference(t)[0]
         if a.command is not None:
             self.override = a.command
         if a.release:
