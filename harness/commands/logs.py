@@ -5,7 +5,8 @@ One line per run directory under ``--logs`` (default ``./logs``) at any depth (t
 suite, a calibration or a study included, with the folder each belongs to in the ``in``
 column), oldest first (directory names start with the UTC time): the rig (its name;
 ``--json`` adds its hash and each device's binding), the bus and the clock, simulated time,
-how it stopped (completed, fault, interrupted, error), the first fault, the final angle
+how it stopped (completed, fault, interrupted, error), a sequence's steps (how many passed,
+the first that did not), the first fault, the final angle
 error and residual tip acceleration where the run has them, the real-time factor, and the
 verdict of its ``verdict.json`` (PASS, MARGINAL,
 INCONCLUSIVE, FAIL, ERROR, NO CRITERIA; ``-`` if the run
@@ -114,6 +115,7 @@ def collect(logs: Path) -> list[dict[str, Any]]:
             "final_angle_error_deg": s.get("final_angle_error_deg"),
             "residual_tip_accel_m_s2": s.get("residual_tip_accel_m_s2"),
             "real_time_factor": s.get("real_time_factor"),
+            "steps": _steps(s),
         })
         if problems:  # a hand-edited summary: listed with what is wrong, the others too
             row["status"] = f"{row['status']} ({'; '.join(problems)})"
@@ -163,6 +165,27 @@ def is_failure(row: dict[str, Any]) -> bool:
     return row.get("status") != "completed"
 
 
+def _steps(s: dict[str, Any]) -> list[dict[str, Any]] | None:
+    """A sequence's steps (name, outcome, when it ended), None for a run without one."""
+    seq = s.get("sequence")
+    if not isinstance(seq, dict) or not isinstance(seq.get("steps"), list):
+        return None
+    return [{"name": st.get("name"), "outcome": st.get("outcome"),
+             "ended_s": st.get("ended_s")} for st in seq["steps"] if isinstance(st, dict)]
+
+
+def steps_text(steps: list[dict[str, Any]] | None) -> str:
+    """``3/3 PASS``, or the first step that did not pass: ``1/3 PASS; slew out TIMEOUT``."""
+    if not steps:
+        return "-"
+    passed = sum(st.get("outcome") == "PASS" for st in steps)
+    text = f"{passed}/{len(steps)} PASS"
+    bad = [st for st in steps if st.get("outcome") not in ("PASS", "SKIPPED")]
+    if bad:
+        text += f"; {bad[0].get('name')} {bad[0].get('outcome')}"
+    return text
+
+
 def _fault_text(f: Any) -> str:
     if isinstance(f, dict):
         return (f"{f.get('device', '?')}: {f.get('kind', '?')}: {f.get('message', '')} "
@@ -202,10 +225,11 @@ def cmd_logs(args: argparse.Namespace) -> int:
     g = max(len("in"), *(len(r.get("group") or "-") for r in rows))
     rw = max(len("rig"), *(len(str(r.get("rig") or "-")) for r in rows))
     bw = max(len("bus"), *(len(str(r.get("bus") or "-")) for r in rows))
+    sw = max(len("steps"), *(len(steps_text(r.get("steps"))) for r in rows))
     print(f"{'run directory':<{w}} {'in':<{g}} {'verdict':<12} {'rig':<{rw}} {'bus':<{bw}} "
           f"{'clock':<9} {'sim s':>7} "
-          f"{'status':<12} {'final err deg':>13} {'resid m/s^2':>11} {'x real':>7}  "
-          "first fault / error")
+          f"{'status':<12} {'steps':<{sw}} {'final err deg':>13} {'resid m/s^2':>11} "
+          f"{'x real':>7}  first fault / error")
     for r in rows:
         name = Path(r["dir"]).name
         group = r.get("group") or "-"
@@ -217,7 +241,8 @@ def cmd_logs(args: argparse.Namespace) -> int:
         print(f"{name:<{w}} {group:<{g}} {verdict:<12} {str(r['rig'] or '-'):<{rw}} "
               f"{str(r['bus'] or '-'):<{bw}} {str(r['clock'] or '-'):<9} "
               f"{_num(r['simulated_s'], '7.2f')} "
-              f"{status:<12} {_num(r['final_angle_error_deg'], '13.2e')} "
+              f"{status:<12} {steps_text(r.get('steps')):<{sw}} "
+              f"{_num(r['final_angle_error_deg'], '13.2e')} "
               f"{_num(r['residual_tip_accel_m_s2'], '11.4f')} "
               f"{_num(r['real_time_factor'], '7.1f')}  "
               f"{r['first_fault'] or r['error'] or ''}")
