@@ -17,6 +17,7 @@ from harness.controllers.excitation import (
     build_chirp,
     build_multisine,
     default_band_hz,
+    prbs_period,
     schroeder_multisine,
 )
 from harness.controllers.registry import controller_type
@@ -355,3 +356,39 @@ def test_bode_blueprint_opens_on_every_plot():
     assert len(names) == 2 * 3 + 2 + 1
     assert any("tip mode 1: 2.000 Hz" in str(n) for n in names)
     assert axis_ends_mhz(0.2, 8.9) == (0, 9000)
+
+
+def test_prbs_multisine_is_binary_periodic_and_finds_the_modes():
+    rig = load_rig("sgsrt")
+    dt = 0.002
+    section = validate({"type": "multisine", "signal": "prbs", "period_s": 40,
+                        "amplitude_fraction": 0.9}, controller_type("multisine").schema,
+                       "test")
+    ctrl = build_multisine(section, rig, dt)
+    rep = ctrl.design_report()
+    table = ctrl.table
+    n = len(table)
+    assert rep["signal"] == "prbs" and n == rep["period_samples"] >= 40 / dt
+    assert n == rep["prbs_bits"] * round(1 / (rep["prbs_clock_hz"] * dt))
+    # two levels, zero mean, crest factor 1 (a Schroeder multisine's is 1.5-1.9)
+    assert len(np.unique(np.round(table, 12))) == 2 and abs(np.mean(table)) < 1e-12
+    assert rep["crest_factor"] == pytest.approx(1.0, abs=1e-2)
+    # every line of the band excited, none below half the strongest's power (sinc^2)
+    power = np.abs(np.fft.rfft(table)) ** 2
+    band = power[rep["f0_hz"] * n * dt <= np.arange(len(power))]
+    in_band = power[int(round(rep["f0_hz"] * n * dt)):int(round(rep["f1_hz"] * n * dt)) + 1]
+    assert in_band.min() > 0.5 * band.max()
+    # on the known two-mode system, averaged over periods as a multisine
+    dt2 = 0.01
+    shape, order, ticks = prbs_period(20.0, dt2, 6.0)
+    periods, settle = 8, 2
+    u = np.tile(shape, periods + settle)
+    y_clean = simulate(u, dt2, 0.0)
+    y = simulate(u, dt2, 0.05 * np.std(y_clean))
+    est = periodic_frf(u[settle * len(shape):], y[settle * len(shape):], len(shape), dt2)
+    keep = (est.freq_hz > 0.3) & (est.freq_hz < 6.0)
+    fit = fit_modes(est.freq_hz[keep], est.h1[keep], est.sigma_rel[keep],
+                    peak_guesses(est.freq_hz[keep], est.h1[keep], 2))
+    for m, w in zip(fit.modes, OMEGA, strict=True):
+        assert abs(m.omega_rad_s - w) < 4 * m.sigma_omega_rad_s, m
+        assert m.sigma_omega_rad_s < 2e-3 * w
