@@ -182,6 +182,19 @@ def _unsafe(c: Criterion, tmp: Path) -> Facts:
     return Facts(_summary(), left_safe=lambda: left_safe_problems(blf))
 
 
+def _frf_mode(omega_ratio: float, damping_ratio: float) -> Callable[[Criterion, Path], Facts]:
+    """``harness frf``'s document with the criterion's mode at these ratios to the model."""
+    def facts(c: Criterion, tmp: Path) -> Facts:
+        mode = {"model_mode": c.params["mode"], "omega_rad_s": 3.0 * omega_ratio,
+                "model_omega_rad_s": 3.0, "sigma_omega_rad_s": 0.001,
+                "damping_ratio": 0.05 * damping_ratio, "model_damping_ratio": 0.05,
+                "sigma_damping": 0.0005, "determined": True}
+        doc = {"input": c.params["input"] or "wheel",
+               "outputs": {c.target: {"freq_hz": [0.25, 8.8], "modes": [mode]}}}
+        return Facts(_summary(), frf=lambda inp, outs: doc)
+    return facts
+
+
 DEGRADATIONS: dict[str, Degradation] = {
     "final_error": Degradation(
         "the loop's gain halved: the hub ends 0.8 deg short of the target",
@@ -240,6 +253,13 @@ DEGRADATIONS: dict[str, Degradation] = {
     "frequencies": Degradation(
         "a tip mass added to the beam: every identified frequency 3 % below the rig file's",
         document=lambda c: {"modes": [{"omega_error_percent": -3.0}] * 3}),
+    "tip_mode1_frequency": Degradation(
+        "a beam 5 % stiffer: mode 1 at 1.0245 of the model's (tests/test_frf.py measured "
+        "1.02448)", _frf_mode(1.0245, 1.0)),
+    "tip_mode2_frequency": Degradation(
+        "a beam 5 % stiffer: mode 2 at 1.0245 of the model's", _frf_mode(1.0245, 1.0)),
+    "tip_mode1_damping": Degradation(
+        "a loose joint: mode 1's damping 25 % above the model's", _frf_mode(1.0, 1.25)),
     "damping": Degradation(
         "a loose joint: every identified damping ratio 25 % above the rig file's",
         document=lambda c: {"modes": [{"damping_error_percent": 25.0}] * 3}),

@@ -1,5 +1,6 @@
 """Frequency responses: the excitation controllers, H1/H2 and the modal fit on a known
-system, and `harness frf` on the virtual rig (nominal and a 2.5 % stiffer beam)."""
+system, and `harness frf` on the virtual rig (nominal and a 5 % stiffer beam), judged by its
+`frf:` criteria."""
 
 from __future__ import annotations
 
@@ -16,10 +17,13 @@ from harness.controllers.excitation import (
     build_chirp,
     build_multisine,
     default_band_hz,
+    prbs_period,
     schroeder_multisine,
 )
 from harness.controllers.registry import controller_type
 from harness.core.runs import RUNS_DIR
+from harness.history.db import HistoryDB
+from harness.history.series import criterion_series
 from harness.identification.frf import (
     fit_modes,
     peak_guesses,
@@ -159,20 +163,32 @@ def short_frf_wheel(tmp_path, periods: int = 2):
     """frf-wheel with two measured periods (121 s simulated)."""
     raw = yaml.safe_load((RUNS_DIR / "frf-wheel.yaml").read_text())
     raw["controller"]["periods"] = periods
+    if periods < 4:
+        # two periods leave the tip's mode 2 fitted 0.6 % off the model with a reported sigma
+        # of 0.05 % (the coherence estimated from two averages is biased up: docs/frf.md);
+        # the run file's limit holds for its four
+        raw["expect"]["tip_mode2_frequency"] = None
     raw["duration_s"] = 0.5 + 40 * (1 + periods) + 0.5
     path = tmp_path / "frf-wheel-short.yaml"
     path.write_text(yaml.safe_dump(raw))
     return path
 
 
-def run_and_frf(run_file, out, *extra, frf_args=(), name="frf-wheel"):
+def run_and_frf(run_file, out, *extra, frf_args=(), name="frf-wheel", run_rc=0):
     res = harness_in_process("run", str(run_file), "--out", str(out), "--quiet", *extra)
-    assert res.returncode == 0, res.stderr
+    assert res.returncode == run_rc, res.stderr
     (run_dir,) = out.glob(f"*-{name}")
     res = harness_in_process("frf", str(run_dir), "--json", *frf_args)
     assert res.returncode == 0, res.stderr
-    assert {"frf.json", "frf.csv", "frf.png"} <= {p.name for p in run_dir.iterdir()}
+    assert {"frf.json", "frf.csv", "frf.png", "frf.rrd"} <= {p.name for p in run_dir.iterdir()}
     return json.loads(res.stdout)
+
+
+def frf_verdicts(out) -> dict:
+    """The run's ``frf:`` criteria's results (verdict.json), by name."""
+    (run_dir,) = out.glob("*-frf-*")
+    verdict = json.loads((run_dir / "verdict.json").read_text())
+    return {c["name"]: c for c in verdict["criteria"] if c["kind"] == "frf"}
 
 
 def test_frf_wheel_on_the_virtual_rig_gives_the_first_mode(tmp_path, free_decay_run):
@@ -183,6 +199,21 @@ def test_frf_wheel_on_the_virtual_rig_gives_the_first_mode(tmp_path, free_decay_
     m1 = doc["outputs"]["tip_accel"]["modes"][0]
     assert abs(m1["omega_rad_s"] - m1["decay_omega_rad_s"]) < 4 * math.hypot(
         m1["sigma_omega_rad_s"], m1["decay_sigma_omega_rad_s"])
+    # the run's own frf: criteria (frf-wheel.yaml) passed, each value the measured-to-model
+    # ratio that frf.json holds
+    judged = frf_verdicts(tmp_path / "nominal")
+    assert set(judged) == {"tip_mode1_frequency", "tip_mode1_damping"}
+    assert all(c["verdict"] == "PASS" for c in judged.values()), judged
+    tip = {m["model_mode"]: m for m in doc["outputs"]["tip_accel"]["modes"]}
+    assert judged["tip_mode1_frequency"]["value"] == pytest.approx(
+        tip[1]["omega_rad_s"] / tip[1]["model_omega_rad_s"], rel=1e-9)
+    assert judged["tip_mode1_damping"]["value"] == pytest.approx(
+        tip[1]["damping_ratio"] / tip[1]["model_damping_ratio"], rel=1e-9)
+    assert judged["tip_mode1_frequency"]["limit"] == {"min_ratio": 0.9975, "max_ratio": 1.0025}
+    # each judged ratio is a series in the history, as any numeric criterion
+    with HistoryDB(str(tmp_path / "nominal" / "history.sqlite")) as db:
+        series = criterion_series(db, "frf-wheel", "tip_mode1_frequency")
+    assert [r["value"] for r in series.rows] == [judged["tip_mode1_frequency"]["value"]]
     for out in ("hub_rate", "tip_accel"):
         m1 = doc["outputs"][out]["modes"][0]
         assert m1["model_mode"] == 1
@@ -195,13 +226,20 @@ def test_frf_wheel_on_the_virtual_rig_gives_the_first_mode(tmp_path, free_decay_
 
 def test_a_stiffer_beam_moves_the_measured_mode(tmp_path):
     rig_file = tmp_path / "stiff.yaml"
+    # a beam 5 % stiffer: its modes' frequencies x sqrt(1.05)
+    factor = math.sqrt(1.05)
     rig_file.write_text(yaml.safe_dump({
         "extends": "sgsrt", "name": "sgsrt-stiff",
-        "as_built": {"beam": {"frequency_factors": [1.025, 1.025, 1.025]}}}))
+        "as_built": {"beam": {"frequency_factors": [factor, factor, factor]}}}))
     stiff_model = load_rig(str(rig_file)).as_built_rig().plant.hub_free_modes()[0]
     nominal_model = load_rig("sgsrt").plant.hub_free_modes()[0]
     doc = run_and_frf(short_frf_wheel(tmp_path), tmp_path / "stiff",
-                      "--devices-rig", str(rig_file))
+                      "--devices-rig", str(rig_file), run_rc=1)
+    # the run's frf: criteria fail, naming the input, the output and the mode
+    judged = frf_verdicts(tmp_path / "stiff")
+    assert judged["tip_mode1_frequency"]["verdict"] == "FAIL", judged
+    assert "wheel -> tip_accel mode 1: frequency / model" in \
+        judged["tip_mode1_frequency"]["message"]
     m1 = doc["outputs"]["tip_accel"]["modes"][0]
     # against the stiff rig's own model: within 0.5 %; against the run's (nominal) model
     # the measured mode moved by the model's own shift
@@ -218,6 +256,9 @@ def test_frf_of_a_chirp_run_by_welch_segments(tmp_path):
                          "f0_hz": 0.2, "f1_hz": 8.0, "sweep_s": 30, "sweeps": 3,
                          "law": "log", "start_s": 0.5}
     raw["duration_s"] = 91
+    # the multisine's limits on the modes, not a quick sweep's (its leakage biases them)
+    for name in ("tip_mode1_frequency", "tip_mode2_frequency", "tip_mode1_damping"):
+        raw["expect"][name] = None
     path = tmp_path / "frf-chirp.yaml"
     path.write_text(yaml.safe_dump(raw))
     doc = run_and_frf(path, tmp_path / "chirp", frf_args=("--output", "tip_accel"),
@@ -235,3 +276,119 @@ def test_frf_refuses_an_input_that_was_not_excited(tmp_path, free_decay_run):
     assert "/piezo/cmd_ch1_v is constant" in res.stderr
     res = harness_in_process("frf", str(tmp_path))
     assert res.returncode == 2 and "not a run directory" in res.stderr
+
+
+def test_frf_criterion_parses_judges_and_names_the_mode():
+    from harness.testing.criteria import parse_criteria
+    from harness.testing.evaluate import Facts, evaluate
+    from rig_models.schema import ConfigError
+
+    raw = {"m2": {"frf": "mode_2", "input": "wheel", "output": "tip_accel",
+                  "max_ratio_error": 0.01, "why": "w"},
+           "m2_damping": {"frf": "mode_2", "output": "tip_accel", "quantity": "damping",
+                          "max_ratio_error": 0.05},
+           "m3": {"frf": "mode_3", "output": "tip_accel", "max_ratio_error": 0.01}}
+    crits = parse_criteria(raw, "run file t.yaml", channels=())
+    mode2 = {"model_mode": 2, "omega_rad_s": 13.2, "model_omega_rad_s": 13.0,
+             "sigma_omega_rad_s": 0.013, "damping_ratio": 0.051, "model_damping_ratio": 0.05,
+             "sigma_damping": 0.001, "determined": True}
+    doc = {"input": "wheel",
+           "outputs": {"tip_accel": {"freq_hz": [0.25, 4.0], "modes": [mode2]}}}
+    calls = []
+
+    def frf(inp, outs):
+        calls.append(inp)
+        return doc
+
+    res = {r.name: r for r in evaluate(crits, Facts({}, frf=frf))}
+    assert res["m2"].verdict == "FAIL" and res["m2"].value == pytest.approx(13.2 / 13.0)
+    assert res["m2"].margin == pytest.approx(0.01 - (13.2 / 13.0 - 1))
+    assert "wheel -> tip_accel mode 2: frequency / model = 1.01538 +- 0.00100" in \
+        res["m2"].message
+    assert res["m2"].limit == {"min_ratio": 0.99, "max_ratio": 1.01}
+    assert res["m2_damping"].verdict == "PASS" and res["m2_damping"].value == pytest.approx(1.02)
+    assert res["m3"].verdict == "ERROR" and "mode 3: not fitted" in res["m3"].message
+    mode2["determined"] = False
+    mode2["omega_rad_s"] = 13.0
+    (r,) = evaluate(crits[:1], Facts({}, frf=frf))
+    assert r.verdict == "FAIL" and "not determined" in r.message
+    # bad input: one line naming the field
+    for bad, field in (({"frf": "mode1", "output": "tip_accel", "max_ratio_error": 0.1},
+                        "expect.x.frf"),
+                       ({"frf": "mode_1", "output": "tip", "max_ratio_error": 0.1},
+                        "expect.x.output"),
+                       ({"frf": "mode_1", "output": "tip_accel"}, "expect.x.max_ratio_error"),
+                       ({"frf": "mode_1", "output": "tip_accel", "max_ratio_error": 0.1,
+                         "max_ratio": 1.1}, "expect.x.max_ratio")):
+        with pytest.raises(ConfigError, match=field.replace(".", r"\.")) as exc:
+            parse_criteria({"x": bad}, "run file t.yaml", channels=())
+        assert "\n" not in str(exc.value)
+
+
+def test_the_report_embeds_the_bode_plot(tmp_path):
+    from harness.testing.report import frf_figure
+
+    assert frf_figure(tmp_path) is None
+    (tmp_path / "frf.png").write_bytes(b"\x89PNG-bytes")
+    fig = frf_figure(tmp_path)
+    assert fig is not None and "data:image/png;base64,iVBORy1ieXRlcw==" in fig
+    assert "<figcaption>frequency response" in fig
+
+
+def test_bode_blueprint_opens_on_every_plot():
+    from harness.review.bode import axis_ends_mhz, bode_blueprint, bode_curves
+    from harness.review.layouts import blueprint_views
+
+    f = np.arange(10, 353) * 0.025
+    h = 1 / (1 - (f / 2.0) ** 2 + 0.1j * f / 2.0)
+    entry = {"freq_hz": f.tolist(), "h1_mag": np.abs(h).tolist(),
+             "h1_phase_rad": np.angle(h).tolist(), "sigma_mag_rel": [0.01] * len(f),
+             "model_mag": np.abs(h).tolist(), "model_phase_rad": np.angle(h).tolist(),
+             "coherence": [0.99] * len(f), "unit": "m/s^2 per N m",
+             "modes": [{"freq_hz": 2.0, "model_mode": 1}]}
+    doc = {"input": "wheel", "outputs": {"hub_rate": entry, "tip_accel": entry}}
+    curves = bode_curves(entry)
+    assert curves["magnitude_db"]["measured"][0] == pytest.approx(20 * math.log10(abs(h[0])))
+    assert np.allclose(curves["magnitude_db"]["plus_1_sigma"] - curves["magnitude_db"][
+        "measured"], 20 * math.log10(1.01))
+    names = [v.name for v in blueprint_views(bode_blueprint(doc))]
+    # magnitude, phase, coherence per output, a zoom per mode, the modes' table
+    assert len(names) == 2 * 3 + 2 + 1
+    assert any("tip mode 1: 2.000 Hz" in str(n) for n in names)
+    assert axis_ends_mhz(0.2, 8.9) == (0, 9000)
+
+
+def test_prbs_multisine_is_binary_periodic_and_finds_the_modes():
+    rig = load_rig("sgsrt")
+    dt = 0.002
+    section = validate({"type": "multisine", "signal": "prbs", "period_s": 40,
+                        "amplitude_fraction": 0.9}, controller_type("multisine").schema,
+                       "test")
+    ctrl = build_multisine(section, rig, dt)
+    rep = ctrl.design_report()
+    table = ctrl.table
+    n = len(table)
+    assert rep["signal"] == "prbs" and n == rep["period_samples"] >= 40 / dt
+    assert n == rep["prbs_bits"] * round(1 / (rep["prbs_clock_hz"] * dt))
+    # two levels, zero mean, crest factor 1 (a Schroeder multisine's is 1.5-1.9)
+    assert len(np.unique(np.round(table, 12))) == 2 and abs(np.mean(table)) < 1e-12
+    assert rep["crest_factor"] == pytest.approx(1.0, abs=1e-2)
+    # every line of the band excited, none below half the strongest's power (sinc^2)
+    power = np.abs(np.fft.rfft(table)) ** 2
+    band = power[rep["f0_hz"] * n * dt <= np.arange(len(power))]
+    in_band = power[int(round(rep["f0_hz"] * n * dt)):int(round(rep["f1_hz"] * n * dt)) + 1]
+    assert in_band.min() > 0.5 * band.max()
+    # on the known two-mode system, averaged over periods as a multisine
+    dt2 = 0.01
+    shape, order, ticks = prbs_period(20.0, dt2, 6.0)
+    periods, settle = 8, 2
+    u = np.tile(shape, periods + settle)
+    y_clean = simulate(u, dt2, 0.0)
+    y = simulate(u, dt2, 0.05 * np.std(y_clean))
+    est = periodic_frf(u[settle * len(shape):], y[settle * len(shape):], len(shape), dt2)
+    keep = (est.freq_hz > 0.3) & (est.freq_hz < 6.0)
+    fit = fit_modes(est.freq_hz[keep], est.h1[keep], est.sigma_rel[keep],
+                    peak_guesses(est.freq_hz[keep], est.h1[keep], 2))
+    for m, w in zip(fit.modes, OMEGA, strict=True):
+        assert abs(m.omega_rad_s - w) < 4 * m.sigma_omega_rad_s, m
+        assert m.sigma_omega_rad_s < 2e-3 * w

@@ -18,8 +18,10 @@ model's hub-free modes in the band; 1-sigma from the Jacobian. Each is compared 
 model's mode, with the measured-to-model magnitude ratio at it, and with ``harness
 identify``'s result of a free-decay run (``--decay``).
 
-Writes frf.json, frf.csv and frf.png (Bode magnitude, phase and coherence: measured with
-its 1-sigma band, the model) in the run directory; prints the modes' table.
+Writes frf.json, frf.csv, frf.png (Bode magnitude, phase and coherence: measured with
+its 1-sigma band, the model) and frf.rrd (the same in the Rerun viewer, over a frequency
+timeline in mHz, with its layout: ``harness.review.bode``) in the run directory; prints the
+modes' table.
 """
 
 from __future__ import annotations
@@ -63,7 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a free-decay run: its 'harness identify' modes in the table")
     p.add_argument("--segment-s", type=float,
                    help="Welch segment length (s) for a non-periodic excitation")
-    p.add_argument("--no-plot", action="store_true", help="do not write frf.png")
+    p.add_argument("--no-plot", action="store_true", help="do not write frf.png nor frf.rrd")
     p.add_argument("--json", action="store_true", help="frf.json's content on stdout")
     p.set_defaults(func=cmd_frf)
 
@@ -207,7 +209,11 @@ def analyse(run_dir: Path, input_name: str | None = None, outputs: list[str] | N
     write_text_atomic(fresh_output_path(run_dir / "frf.csv"), _csv(doc))
     doc["files"] = {"json": str(run_dir / "frf.json"), "csv": str(run_dir / "frf.csv")}
     if plot:
+        from harness.review.bode import write_frf_rrd
+
         doc["files"]["png"] = str(_plot(doc, fresh_output_path(run_dir / "frf.png")))
+        doc["files"]["rrd"] = str(write_frf_rrd(fresh_output_path(run_dir / "frf.rrd"),
+                                                run_dir, doc))
     return doc
 
 

@@ -10,6 +10,9 @@ so that the limit plan accepts it and the drivers never clamp it:
   1.5-1.7), repeated for ``settle_periods`` (the transient dies out; not analysed) then
   ``periods`` measured periods. Zero mean: the wheel stays near rest. The band defaults to
   0.5 x the rig model's first hub-free mode to 1.5 x its last (``rig.plant.hub_free_modes()``).
+  With ``signal: prbs``, one period is a maximum-length pseudo-random binary sequence
+  instead (crest factor 1; every line of its grid up to its clock excited, falling as
+  sinc^2), analysed the same way.
 - ``chirp``: a sine sweep from ``f0_hz`` to ``f1_hz`` (``law: linear`` or ``log``) over
   ``sweep_s``, repeated ``sweeps`` times (analysed by Welch segments of one sweep).
 
@@ -78,6 +81,26 @@ def schroeder_multisine(n_samples: int, dt_s: float, f0_hz: float, f1_hz: float
     spectrum[lines] = np.exp(1j * phases)
     x = np.fft.irfft(spectrum, n_samples)
     return x / np.max(np.abs(x)), lines
+
+
+PRBS_BAND_SHARE = 0.4
+"""A PRBS's clock is f1 / this: its lines' power falls as sinc^2(f / clock), to 0.57 (-2.4 dB)
+at f1 and to nothing at the clock."""
+
+
+def prbs_period(period_s: float, dt_s: float, f1_hz: float) -> tuple[np.ndarray, int, int]:
+    """One period of a maximum-length pseudo-random binary sequence (``scipy.signal.
+    max_len_seq``), each bit held ``ticks_per_bit`` ticks so that its clock is about
+    ``f1_hz / PRBS_BAND_SHARE``, of the order whose period is nearest ``period_s`` from
+    above; zero mean, scaled to a peak of 1. Returns (table, order, ticks_per_bit)."""
+    from scipy.signal import max_len_seq
+
+    ticks = max(1, int(round(PRBS_BAND_SHARE / (f1_hz * dt_s))))
+    bits = period_s / (ticks * dt_s)
+    order = min(max(3, math.ceil(math.log2(bits + 1) - 1e-9)), 20)
+    seq = 2.0 * max_len_seq(order)[0] - 1.0
+    table = np.repeat(seq - seq.mean(), ticks)
+    return table / np.max(np.abs(table)), order, ticks
 
 
 def _command(channel: str, value: float) -> RigCommand:
@@ -288,20 +311,37 @@ def _band(c: dict[str, Any], rig: RigConfig, dt_s: float) -> tuple[float, float,
 @controller_factory({
     **COMMON_SCHEMA,
     "period_s": Field("number", "s", default=40.0, exclusive_minimum=0.0),
+    # schroeder: the band's lines only, equal amplitude; prbs: a periodic binary sequence
+    # (crest factor 1) clocked at f1_hz / PRBS_BAND_SHARE, its period the nearest
+    # 2^n - 1 bits at or above period_s
+    "signal": Field("str", default="schroeder", choices=("schroeder", "prbs")),
     "periods": Field("int", default=4, minimum=2),
     "settle_periods": Field("int", default=1, minimum=0),
 })
 def build_multisine(c: dict[str, Any], rig: RigConfig, dt_s: float) -> Multisine:
     limit, unit, key = input_limit(rig, c["input"])
     f0, f1, source = _band(c, rig, dt_s)
-    n = int(round(c["period_s"] / dt_s))
-    shape, lines = schroeder_multisine(n, dt_s, f0, f1)
+    prbs: dict[str, Any] = {}
+    if c["signal"] == "prbs":
+        shape, order, ticks = prbs_period(c["period_s"], dt_s, f1)
+        n = len(shape)
+        k0 = max(1, math.ceil(f0 * n * dt_s - 1e-9))
+        lines = np.arange(k0, math.floor(f1 * n * dt_s + 1e-9) + 1)
+        if not len(lines):
+            raise ValueError(f"band {f0:g}-{f1:g} Hz holds no line of the PRBS's grid "
+                             f"1/period = {1 / (n * dt_s):g} Hz")
+        prbs = {"prbs_order": order, "prbs_bits": 2**order - 1,
+                "prbs_clock_hz": 1.0 / (ticks * dt_s)}
+    else:
+        n = int(round(c["period_s"] / dt_s))
+        shape, lines = schroeder_multisine(n, dt_s, f0, f1)
     peak = c["amplitude_fraction"] * limit
     period_s = n * dt_s
     rms = float(np.sqrt(np.mean(shape**2)))
     measure_start = c["start_s"] + c["settle_periods"] * period_s
     report = {
-        "excitation": "multisine", "input": c["input"], "unit": unit,
+        "excitation": "multisine", "signal": c["signal"], **prbs,
+        "input": c["input"], "unit": unit,
         "peak": peak, "rms": peak * rms, "crest_factor": 1.0 / rms,
         "limit": limit, "limit_key": key,
         "f0_hz": float(lines[0] / period_s), "f1_hz": float(lines[-1] / period_s),

@@ -27,7 +27,8 @@ from harness.testing.measures import (
 )
 from rig_models.schema import ConfigError
 
-FORMS = ("fault", "left_safe", "settles", "baseline", "modal_residual", "measure", "channel")
+FORMS = ("fault", "left_safe", "settles", "baseline", "modal_residual", "frf", "measure",
+         "channel")
 """The key that names a criterion's form, checked in this order (``baseline`` criteria also
 have a ``channel``)."""
 
@@ -66,7 +67,7 @@ class Criterion:
 
     name: str
     kind: str  # "scalar" | "channel" | "settles" | "baseline" | "modal_residual" | "fault"
-    # | "left_safe"
+    # | "left_safe" | "frf"
     key_path: str  # e.g. "expect.final_error" (for messages)
     target: str  # summary path, channel entity, or fault device
     unit: str
@@ -314,6 +315,11 @@ def _parse_form(name: str, raw: Any, source: str, key_path: str,
     if form == "measure":
         return _measure(name, raw, source, key_path, used, why, budget_raw, known_measures,
                         open_paths)
+
+    if form == "frf":
+        from harness.testing.frf_criterion import parse_frf
+
+        return parse_frf(name, raw, source, key_path, why)
 
     if form == "channel":
         target = _channel(source, f"{key_path}.channel", raw["channel"], channels)

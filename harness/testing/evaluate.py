@@ -106,6 +106,8 @@ class Facts:
     """-> what was not left safe (empty: safe); raises MissingData without a CAN log."""
     blocks: ChannelBlocks | None = None
     """The channels block by block (bounded memory); without it, each ``channel`` whole."""
+    frf: Callable[[str | None, tuple[str, ...]], Mapping[str, Any]] | None = None
+    """(input, outputs) -> ``harness frf``'s document of the run (``frf:`` criteria)."""
 
 
 def _finite(v: int | float) -> bool:
@@ -158,6 +160,8 @@ def limit_dict(c: Criterion) -> dict[str, Any]:
         return d
     if c.kind == "fault":
         return {"within_ticks": c.limit["max"]} if "max" in c.limit else {}
+    if c.kind == "frf":
+        return {f"{k}_ratio": v for k, v in c.limit.items()}
     return {"max_count": 0}
 
 
@@ -729,7 +733,18 @@ def _scalar(c: Criterion, facts: Facts) -> tuple[CriterionResult, str | None]:
     return r, None
 
 
+def evaluate_frf(c: Criterion, facts: Facts) -> CriterionResult:
+    """An ``frf:`` criterion (harness.testing.frf_criterion)."""
+    from harness.testing.frf_criterion import judge_frf
+
+    if facts.frf is None:
+        raise MissingData("no run directory to measure the frequency response of")
+    result: CriterionResult = judge_frf(c, facts.frf)
+    return result
+
+
 EVALUATORS: dict[str, Callable[[Criterion, Facts], CriterionResult]] = {
+    "frf": evaluate_frf,
     "baseline": evaluate_baseline,
     "fault": evaluate_fault,
     "left_safe": evaluate_left_safe,

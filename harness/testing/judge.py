@@ -39,6 +39,7 @@ from harness.testing.evaluate import (
     stopped_early,
     worst_verdict,
 )
+from harness.testing.frf_criterion import frf_source
 from harness.testing.measures import unit_text
 from harness.testing.steps import first_injection_s, step_results, without_sequence_faults
 from rig_models.rig_file import binding_text, rig_identity
@@ -497,7 +498,8 @@ def judge_run(run_dir: Path | str, expect: Any = None) -> Verdict:
     wanted = {c.target for c in criteria if c.kind == "baseline"}
     source = ChannelSource(run_dir / "run.rrd")
     facts = Facts(summary, source, BaselineCache(wanted),
-                  lambda: left_safe_problems(run_dir / "can.blf", _rig_data(cfg)), source.blocks)
+                  lambda: left_safe_problems(run_dir / "can.blf", _rig_data(cfg)), source.blocks,
+                  frf_source(run_dir, criteria))
     note = ""
     # criteria a dry run or a fault test leaves out: listed NOT JUDGED with why, never
     # dropped without a word

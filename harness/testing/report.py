@@ -223,6 +223,20 @@ def run_plots(run_dir: Path, criteria_results: list[dict[str, Any]]) -> list[dic
     return plots
 
 
+def frf_figure(run_dir: Path) -> str | None:
+    """The run's Bode plot (frf.png, written by ``harness frf`` or by an ``frf:``
+    criterion) as an embedded figure with its caption, else None."""
+    png = run_dir / "frf.png"
+    if not png.is_file():
+        return None
+    data = base64.b64encode(png.read_bytes()).decode("ascii")
+    caption = ("frequency response (harness frf): |H| with its 1-sigma band, the rig "
+               "model dashed, the modal fit; phase; coherence with 0.9 marked. frf.rrd "
+               "holds the same for the Rerun viewer")
+    return (f"<figure><img alt='{html.escape(caption)}' src='data:image/png;base64,{data}'>"
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+
+
 def scalar_bounds(limit: Any) -> tuple[float | None, float | None]:
     """A scalar criterion's pass band (lo, hi) from its limit as written (``max_abs_deg``,
     ``max_n_m``, ``min_s``, ``equals_count``); (None, None) without a numeric one."""
@@ -352,8 +366,8 @@ def _run_end_s(run_dir: Path) -> float:
         return 0.0
 
 
-RUN_FILES = ("run.rrd", "identify.rrd", "verdict.rrd", "can.blf", "verdict.json",
-             "summary.json", "config.yaml", "layout.json")
+RUN_FILES = ("run.rrd", "identify.rrd", "frf.rrd", "verdict.rrd", "can.blf", "verdict.json",
+             "summary.json", "config.yaml", "layout.json", "frf.json", "frf.png")
 
 
 def run_files(out_dir: Path, run_dir: str) -> list[str]:
@@ -668,6 +682,8 @@ def _html(doc: dict[str, Any], out_dir: Path) -> str:
             for p in plots:
                 parts.append(f"<figure><img alt='{html.escape(p['title'])}' "
                              f"src='data:image/png;base64,{p['png']}'></figure>")
+            if (bode := frf_figure(out_dir / r["run_dir"])) is not None:
+                parts.append(bode)
         parts.append("</section>")
     parts.append("</body></html>")
     return "\n".join(parts)
