@@ -2,7 +2,7 @@
 
 The two records are ``frf-wheel`` (a wheel-torque multisine on the virtual rig): 600 s
 (period 40 s, 1 settling and 14 measured periods) and 60 s (period 20 s, 1 settling and 2
-measured). Each analysis runs in a fresh process (``harness.commands.frf.analyse`` with its
+measured). Each analysis runs in a fresh process (``harness.core.frf.analyse`` with its
 plots, as ``harness frf RUN``), the two records interleaved ``--repeats`` times (the shared
 machine's speed drifts: only ratios measured together compare). Per process: the wall time
 of the analysis, its peak resident memory (``resource`` ru_maxrss, Rerun's and numpy's
@@ -30,7 +30,7 @@ RECORDS = {"600 s": (40.0, 14), "60 s": (20.0, 2)}  # period_s, measured periods
 CHILD = r"""
 import json, resource, sys, time, tracemalloc
 from pathlib import Path
-from harness.commands.frf import analyse
+from harness.core.frf import analyse
 import harness.review.bode, matplotlib.pyplot  # noqa: F401 - imports outside the measure
 base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 tracemalloc.start()

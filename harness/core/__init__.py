@@ -3,7 +3,8 @@
 ``runs`` parses a run file (the built-in ones stay in ``harness/runs/*.yaml``), ``session``
 runs one end to end, ``loop`` is the tick, ``clock`` its lockstep and real-time clocks,
 ``monitor`` the fault monitor, ``probe`` the pre-flight check of the rig's bus, ``replay``
-a CAN log back through the drivers and the run's own controller and monitor, ``streaming``
+a CAN log back through the drivers and the run's own controller and monitor, ``frf`` the
+frequency responses of a recorded run and the modes fitted to them, ``streaming``
 the bounded-memory statistics, ``periodic`` the steady-state amplitude in a run's summary,
 ``interrupts`` Ctrl-C / SIGTERM handling, ``paths`` the guard that keeps every written
 file inside the output folder, ``identify`` the identification of a recorded run (its

@@ -529,7 +529,10 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
         if sequence is not None:  # what the sequence's actions reach: the bus, the recording
             sequence.insert_fault = getattr(interface, "insert_fault", None)
             sequence.clear_faults = getattr(interface, "clear_faults", None)
-            sequence.log_event = recorder.log_event
+            # a step's start and its when: actions in the events; a step that did not
+            # pass marked on every plot too, where it was decided
+            sequence.log_event = lambda t, entity, text, level: recorder.log_event(
+                t, entity, text, level, mark=level != "INFO")
         # timing on the wire: from here on every frame's time stamp (the set-up's are not)
         wire = WireTiming(dt_s, interface.drivers,
                           "none" if pump is not None else interface.start_wire_timing(),

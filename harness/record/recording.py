@@ -361,11 +361,12 @@ class Recorder:
     def log_static_text(self, entity: str, text: str) -> None:
         self._stream().log(entity, rr.TextDocument(text, media_type="text/markdown"), static=True)
 
-    def log_event(self, time_s: float, entity: str, text: str, level: str = "WARN") -> None:
-        """A TextLog under ``/events/...`` and a marker on every plot at ``time_s``, on the
-        plot's signal at the last recorded row (the annotator's)."""
+    def log_event(self, time_s: float, entity: str, text: str, level: str = "WARN",
+                  mark: bool = True) -> None:
+        """A TextLog under ``/events/...`` and (``mark``) a marker on every plot at
+        ``time_s``, on the plot's signal at the last recorded row (the annotator's)."""
         self.annotator.log_event(self._stream(), time_s, entity, text, level,
-                                 self.latest_values(), None, None)
+                                 self.latest_values() if mark else {}, None, None)
 
     def queue_event(self, time_s: float, entity: str, text: str, level: str = "WARN",
                     series: str | None = None, name: str | None = None) -> None:

@@ -21,22 +21,29 @@ FAIL_COLOR = (210, 40, 40)
 
 
 def step_timeline(steps: Sequence[Mapping[str, Any]]) -> tuple[np.ndarray, np.ndarray]:
-    """(times, step numbers): each step's number from its start, 0 from its end."""
-    ts: list[float] = []
-    vs: list[float] = []
+    """(times, step numbers) drawn as steps: each step's number from its start, 0 from its
+    end unless the next starts then; at each change the old value and the new one at the
+    same time, so the line's edges are vertical."""
+    changes: list[tuple[float, int, float]] = []
     for i, s in enumerate(steps):
         t0, t1 = s.get("started_s"), s.get("ended_s")
         if t0 is None:
             continue
-        ts.append(float(t0))
-        vs.append(float(i + 1))
+        changes.append((float(t0), 1, float(i + 1)))
         if t1 is not None:
-            ts.append(float(t1))
-            vs.append(float(i + 1))
-            ts.append(float(t1) + 1e-6)
-            vs.append(0.0)
-    order = np.argsort(np.asarray(ts), kind="stable")
-    return np.asarray(ts)[order], np.asarray(vs)[order]
+            changes.append((float(t1), 0, 0.0))  # before a start at the same time
+    changes.sort(key=lambda c: (c[0], c[1]))
+    ts: list[float] = []
+    vs: list[float] = []
+    cur = 0.0
+    for k, (t, _, v) in enumerate(changes):
+        if k + 1 < len(changes) and changes[k + 1][0] == t:
+            continue  # the last change at this time wins
+        if v != cur:
+            ts += [t, t]
+            vs += [cur, v]
+            cur = v
+    return np.asarray(ts), np.asarray(vs)
 
 
 def write_steps(rec: rr.RecordingStream, sequence: Mapping[str, Any]) -> None:

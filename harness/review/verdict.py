@@ -49,6 +49,14 @@ def root_cause(verdict: Mapping[str, Any], summary: Mapping[str, Any] | None) ->
     stopped = summary.get("stopped_by")
     faults = summary.get("faults") or []
     if stopped == "fault" and faults and isinstance(faults[0], Mapping):
+        seq = summary.get("sequence") if isinstance(summary.get("sequence"), Mapping) else {}
+        injected = [f for f in seq.get("injected") or [] if isinstance(f, Mapping)]
+        t = faults[0].get("time_s")
+        if injected and isinstance(t, int | float) and any(
+                isinstance(f.get("at_s"), int | float) and f["at_s"] <= t for f in injected):
+            f = injected[0]
+            return (f"{_fault_text(faults[0])}, after the sequence injected {f.get('kind')} "
+                    f"at {seconds(f.get('at_s'))} (step {f.get('step')}), stopped the run")
         what = "expected fault" if expected else "unexpected fault"
         return f"{what} {_fault_text(faults[0])} stopped the run"
     unexpected = [c for c in criteria if c.get("kind") == "fault"

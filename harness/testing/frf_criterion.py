@@ -14,7 +14,7 @@ The value is the measured-to-model ratio of the mode's undamped frequency (or da
 ratio), judged within 1 -+ ``max_ratio_error``; the message names the mode and gives the
 ratio's 1-sigma (the fit's). The limits in verdict.json are ``min_ratio`` and ``max_ratio``
 (so the history plots them beside the value). A mode the fit did not determine (its sigma
-too large, ``harness.commands.frf.DETERMINED``) fails; one outside the measured band is an
+too large, ``harness.core.frf.DETERMINED``) fails; one outside the measured band is an
 ERROR (nothing to judge).
 
 The analysis is ``harness frf``'s, once per input for every output its criteria name; it
@@ -92,7 +92,7 @@ def frf_source(run_dir: Path, criteria: Iterable[Criterion]) -> FrfSource:
 
     def get(inp: str | None, outputs: tuple[str, ...]) -> Mapping[str, Any]:
         if inp not in done:
-            from harness.commands.frf import analyse
+            from harness.core.frf import analyse
 
             done[inp] = analyse(run_dir, inp, wanted.get(inp) or list(outputs))
         return done[inp]
