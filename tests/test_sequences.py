@@ -36,7 +36,7 @@ def _base(**over) -> dict:
     return raw
 
 
-@pytest.mark.parametrize("rig", ["sgsrt", "sgsrt-canopen", "sgsrt-dbc2"])
+@pytest.mark.parametrize("rig", ["sgsrt", "sgsrt-canopen", "sgsrt-dbc2", "sgsrt-as-built"])
 def test_engineers_test_passes_on_every_binding(tmp_path, rig):
     result, v = _run(tmp_path, {"rig": rig, "variables": {"angle_deg": 4.0}})
     steps = _steps(v)
@@ -233,3 +233,53 @@ def test_engineers_test_passes_in_real_time(tmp_path, rig):
     if v.verdict == "INCONCLUSIVE":
         assert all(c.name.startswith("bench_") for c in v.criteria
                    if c.verdict not in ("PASS", "NOT JUDGED")), v.reason
+
+
+def test_a_fault_nobody_injected_is_an_error_and_the_sequence_stops_moving(tmp_path):
+    # the hub sensor falls silent at 2 s, before any step injects anything: the monitor's
+    # fault is the run's ERROR; the sequence is held safe, its slew suppressed
+    raw = _base(duration_s=10.0, faults=[{"kind": "silent_sensor", "at_s": 2.0,
+                                          "device": "hub_sensor"}],
+                sequence={"after_fault_s": 0.5, "steps": [
+                    {"name": "wait", "wait_until": "run.time_s > 3 s", "timeout_s": 5},
+                    {"name": "slew", "slew": {"angle_deg": 5.0}, "for_s": 1.0}],
+                    "finally": [{"name": "last", "command": {"wheel_torque_n_m": 0.01},
+                                 "for_s": 0.2}]})
+    result = execute_run(run_from_dict(raw), out_dir=tmp_path, show_progress=False)
+    v = judge_run(result.run_dir)
+    assert v.verdict == "ERROR" and v.exit_code == 3, v.reason
+    seq = result.summary["sequence"]
+    outcomes = {s["name"]: (s["outcome"], s["reason"]) for s in seq["steps"]}
+    assert outcomes["wait"][0] == "FAIL" and "after the monitor's fault" in outcomes["wait"][1]
+    assert outcomes["slew"] == ("SKIPPED", "not reached: the monitor's fault")
+    last = seq["steps"][2]
+    assert last["outcome"] == "PASS"
+    assert any("suppressed" in a for a in last["actions"]), last
+    from harness.testing.judge import read_channels
+
+    t, torque = read_channels(result.run_dir / "run.rrd", {"/wheel/torque_cmd_n_m"})[
+        "/wheel/torque_cmd_n_m"]
+    detected = seq["events"]["detected"]
+    assert np.all(torque[t > detected] == 0.0)  # held safe from the tick after detection
+    assert result.stats.ticks * 0.002 < detected + 2 * 0.5 + 0.3  # then the run ended
+
+
+def test_on_timeout_error_is_an_error_of_the_run(tmp_path):
+    raw = _base(duration_s=3.0, sequence={"steps": [
+        {"name": "must move", "wait_until": "abs(hub.angle_deg) > 5", "timeout_s": 0.5,
+         "on_timeout": "error"}]})
+    result = execute_run(run_from_dict(raw), out_dir=tmp_path, show_progress=False)
+    v = judge_run(result.run_dir)
+    assert v.verdict == "ERROR"
+    (step,) = [c for c in v.criteria if c.kind == "step"]
+    assert step.value == "ERROR" and "did not hold within 0.5 s" in step.message
+
+
+def test_the_step_timeline_is_drawn_as_steps():
+    from harness.review.sequence import step_timeline
+
+    t, v = step_timeline([{"started_s": 0.0, "ended_s": 18.0},
+                          {"started_s": 18.0, "ended_s": 22.7},
+                          {"started_s": None}])
+    assert list(t) == [0.0, 0.0, 18.0, 18.0, 22.7, 22.7]
+    assert list(v) == [0.0, 1.0, 1.0, 2.0, 2.0, 0.0]
