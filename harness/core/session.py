@@ -774,7 +774,9 @@ def _log_bus(recorder: Recorder, blf: Path, dt_s: float, realtime: bool,
             bus = write_bus_binding(recorder.bounded_stream, blf, dt_s, realtime, dividers,
                                     binding)
         else:
-            bus = write_bus(recorder.bounded_stream, blf, dt_s, realtime, dividers)
+            fi = getattr(binding, "fault_insertion", None)
+            bus = write_bus(recorder.bounded_stream, blf, dt_s, realtime, dividers,
+                            fault_insertion_id=fi[0] if fi else None)
         for t_s, text in bus.warnings:
             log_event(recorder.rec, t_s, "/events/can_log", text, "WARN")
         if bus.late_or_missing > len(bus.warnings):

@@ -167,8 +167,10 @@ def _sync_origin(blf: Path, sync_id: int, tick_mask: int, dt_s: float) -> float 
 
 def write_bus(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime: bool,
               dividers: Mapping[str, int], protocol: Protocol | None = None,
-              block_rows: int = 10_000) -> BusStats:
-    """Decode ``blf`` into ``rec`` (see the module docstring); returns counts."""
+              block_rows: int = 10_000, fault_insertion_id: int | None = None) -> BusStats:
+    """Decode ``blf`` into ``rec`` (see the module docstring); returns counts.
+    ``fault_insertion_id``: the rig's fault-insertion frame (the harness's, counted as
+    decoded, not unknown)."""
     protocol = protocol or load_protocol()
     by_id = protocol.by_id
     sync = protocol["SYNC"]
@@ -243,7 +245,12 @@ def write_bus(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime: bool,
         fid_all = block.arbitration_id
         at = np.minimum(np.searchsorted(known, fid_all), len(known) - 1)
         is_known = (known[at] == fid_all) & ~err
-        stats.unknown += int((~err & ~is_known).sum())
+        not_known = ~err & ~is_known
+        if fault_insertion_id is not None:
+            fi = not_known & (fid_all == fault_insertion_id)
+            stats.decoded += int(fi.sum())
+            not_known &= ~fi
+        stats.unknown += int(not_known.sum())
         ok = is_known & (block.length == frame_length[at])
         stats.malformed += int((is_known & ~ok).sum())
         n_ok = int(ok.sum())

@@ -134,6 +134,9 @@ def write_bus_binding(rec: rr.RecordingStream, blf: Path, dt_s: float, realtime:
             stats.error_frames += 1
             continue
         key = (cid, ext)
+        if key == binding.fault_insertion:  # the harness's fault-insertion unit: not a device
+            stats.decoded += 1
+            continue
         if key == sync.key:
             close_tick()
             raw = sync.decode(data)
