@@ -417,8 +417,8 @@ def test_builtin_suites_load_and_list():
     suite = load_suite("acceptance")
     items = [n for c in suite.cases for n in c.item_names]
     assert items == ["probe", "slew-rw", "free-decay", "identify[free-decay]",
-                     "fault-hub-silent", "fault-accel-malformed"]
-    assert [c.virtual_only for c in suite.cases] == [False, False, False, True, True]
+                     "fault-hub-silent", "fault-accel-malformed", "sequence-valve-fault"]
+    assert [c.virtual_only for c in suite.cases] == [False, False, False, True, True, True]
 
 
 @pytest.mark.slow

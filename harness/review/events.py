@@ -28,6 +28,7 @@ MARKER_STYLE: dict[str, tuple[str, tuple[int, int, int], float]] = {
     "interrupt": ("diamond", (255, 140, 0), 12.0),
     "warning": ("up", (240, 190, 0), 10.0),
     "verdict": ("asterisk", (200, 0, 200), 14.0),
+    "step": ("square", (200, 60, 20), 11.0),  # a sequence's step that did not pass
 }
 MAX_LABEL = 48
 
@@ -36,6 +37,8 @@ def event_kind(entity: str, level: str) -> str:
     source = entity.rstrip("/").rsplit("/", 1)[-1]
     if source == "verdict":
         return "verdict"
+    if source == "sequence":
+        return "step" if level in ("ERROR", "CRITICAL") else "warning"
     if source in ("monitor", "can_log"):
         return "warning"
     if source == "harness":
