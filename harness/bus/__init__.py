@@ -194,8 +194,19 @@ class _ConnectRetryFilter(logging.Filter):
         return not record.getMessage().startswith(self.PREFIX)
 
 
+class _FailedReceiveFilter(logging.Filter):
+    """python-can's socketcand client logs a failed read (the server gone: connection reset)
+    with a traceback before it raises it as ``can.CanError``; the harness reports the error
+    it raises, in one line, so the log record is dropped."""
+
+    PREFIX = "Failed to receive"
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.getMessage().startswith(self.PREFIX)
+
+
 def _quiet_socketcand_client() -> None:
-    for kind in (_BenignSplitFilter, _ConnectRetryFilter):
+    for kind in (_BenignSplitFilter, _ConnectRetryFilter, _FailedReceiveFilter):
         if not any(isinstance(f, kind) for f in _SOCKETCAND_LOG.filters):
             _SOCKETCAND_LOG.addFilter(kind())
 

@@ -211,12 +211,22 @@ class RigInterface:
         self._snapshot_seen: list[dict[str, float] | None] = [None] * 6
 
     # ------------------------------------------------------------------ sending
-    def _send_key(self, key: tuple[int, bool], data: bytes) -> can.Message | None:
+    def _send_key(self, key: tuple[int, bool], data: bytes,
+                  best_effort: bool = False) -> can.Message | None:
+        """Send one frame; a frame the bus refuses is counted (``send_errors``). With
+        ``best_effort`` (the safe state, the disarming heartbeat) a transport that fails
+        outright (``OSError``: the other end of a socket gone) is counted too, so that every
+        frame of the safe state is tried and none raises."""
         msg = can.Message(arbitration_id=key[0], data=data, is_extended_id=key[1],
                           timestamp=time.time(), is_rx=False)
         try:
             self.bus.send(msg)
         except can.CanError:
+            self.counters.send_errors += 1
+            return None
+        except OSError:
+            if not best_effort:
+                raise
             self.counters.send_errors += 1
             return None
         self.counters.sent += 1
@@ -362,11 +372,12 @@ class RigInterface:
         armed = armed and not self.dry_run
         hb = self.binding.heartbeat
         if hb is not None:
-            self._send_key(hb.key, hb.encode(self._hb_counter, armed))
+            self._send_key(hb.key, hb.encode(self._hb_counter, armed), best_effort=not armed)
 
-    def _send_command(self, device: str, values: dict[str, float], counter: int) -> None:
+    def _send_command(self, device: str, values: dict[str, float], counter: int,
+                      best_effort: bool = False) -> None:
         for cmap in self._commands[device]:
-            self._send_key(cmap.key, cmap.encode(values, counter))
+            self._send_key(cmap.key, cmap.encode(values, counter), best_effort)
 
     def command(self, cmd: RigCommand) -> RigCommand:
         """Send the command frames of the run's actuators; return what was really sent
@@ -406,13 +417,13 @@ class RigInterface:
                 "disturbance_rotor": self.rotor.command_values(0.0, False)}
         for device, values in safe.items():
             if device in self.drivers:
-                self._send_command(device, values, c)
+                self._send_command(device, values, c, best_effort=True)
         if self.co is not None:
             # CANopen: drives disabled and outputs 0 by the PDOs above, then every node to
             # pre-operational (no PDO accepted any more)
             from drivers.binding.canopen_master import NMT_PREOP, nmt_frame
 
-            self._send_key((0, False), nmt_frame(NMT_PREOP, 0).data)
+            self._send_key((0, False), nmt_frame(NMT_PREOP, 0).data, best_effort=True)
 
     # ------------------------------------------------------------------ receiving
     def expected_frames(self, tick: int) -> int:

@@ -30,6 +30,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO
 
+import can
 import yaml
 
 from rig_models.faults import FaultSpec
@@ -45,6 +46,17 @@ rig.log."""
 
 class RigProcessError(RuntimeError):
     pass
+
+
+class RigProcessExited(can.CanOperationError):
+    """The rig process ended during the run: the bus to it failed because its other end is
+    gone. The message names the process and how it ended (``RigProcess.exited``)."""
+
+
+EXIT_WAIT_S = 1.0
+"""After the bus to the rig process failed, how long ``RigProcess.exited`` may wait for
+the process to be seen ended (its socket closes while it exits, a moment before it can be
+reaped)."""
 
 
 def fault_argument(f: FaultSpec) -> str:
@@ -177,6 +189,25 @@ class RigProcess:
         and of its own measures (a refused one is added to ``measures``). Idempotent."""
         self._stop()
 
+    def exited(self, wait_s: float = 0.0) -> str | None:
+        """How the process ended, when it has (waited for at most ``wait_s``): "the virtual
+        rig process (pid N) exited (killed by SIGKILL, exit code -9)"; None while it runs."""
+        if self.proc is None:
+            return None
+        try:
+            code = self.proc.wait(timeout=wait_s) if wait_s > 0 else self.proc.poll()
+        except subprocess.TimeoutExpired:
+            return None
+        if code is None:
+            return None
+        how = f"exit code {code}"
+        if code < 0:
+            try:
+                how = f"killed by {signal.Signals(-code).name}, {how}"
+            except ValueError:
+                how = f"killed by signal {-code}, {how}"
+        return f"the virtual rig process (pid {self.proc.pid}) exited ({how})"
+
     def _read_timing(self) -> None:
         with contextlib.suppress(OSError):
             for line in self.log_path.read_text().splitlines():
@@ -192,6 +223,9 @@ class RigProcess:
             return
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
+            # a stopped process (SIGSTOP) takes its SIGTERM only once it runs again
+            with contextlib.suppress(ProcessLookupError):
+                self.proc.send_signal(signal.SIGCONT)
             try:
                 self.proc.wait(timeout=10)
             except subprocess.TimeoutExpired:

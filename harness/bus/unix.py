@@ -52,6 +52,9 @@ def unpack(raw: bytes, channel: Any) -> can.Message:
 
 class _SeqpacketBus(can.BusABC):
     _sock: socket.socket | None
+    _send_flags = 0
+    """``socket.MSG_DONTWAIT`` for an end that must never block on a peer that stops
+    reading (the harness's: its tick is bounded)."""
 
     def _recv_sock(self, timeout: float | None) -> can.Message | None:
         sock = self._sock
@@ -94,13 +97,21 @@ class _SeqpacketBus(can.BusABC):
         if sock is None:
             return
         try:
-            sock.send(pack(msg))
+            sock.send(pack(msg), self._send_flags)
+        except BlockingIOError:  # the peer's queue is full: it is not reading
+            raise can.CanOperationError(f"{self.channel_info}: the other end is not reading "
+                                        "(its queue is full): frame not sent") from None
         except (BrokenPipeError, ConnectionResetError):
             self._peer_closed()
 
 
 class UnixCanBus(_SeqpacketBus):
-    """The harness's end: connects to a ``UnixCanServerBus`` of the same name."""
+    """The harness's end: connects to a ``UnixCanServerBus`` of the same name. A send never
+    blocks: with the other end's queue full (a rig process stopped or stalled) the frame is
+    refused at once (``can.CanOperationError``), as a CAN controller's full transmit queue
+    refuses one, and the tick goes on."""
+
+    _send_flags = socket.MSG_DONTWAIT
 
     def __init__(self, channel: str, **kwargs: Any) -> None:
         self.channel_info = f"unix:{channel}"

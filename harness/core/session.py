@@ -27,7 +27,7 @@ from drivers.dbc import load_protocol
 from harness.bus import BusSpec, open_bus, parse_bus
 from harness.bus.load import binding_bus_load, compute_bus_load
 from harness.bus.rig_interface import RigInterface
-from harness.bus.rig_process import RigProcess, RigProcessError
+from harness.bus.rig_process import EXIT_WAIT_S, RigProcess, RigProcessError, RigProcessExited
 from harness.core.clock import (
     KernelSyncClock,
     LockstepClock,
@@ -36,7 +36,14 @@ from harness.core.clock import (
     choose_cpus,
 )
 from harness.core.limits import BeyondLimit, check_run
-from harness.core.loop import CHANNELS, HELD_FRACTION, RESERVE_FRACTION, LoopStats, run_loop
+from harness.core.loop import (
+    CHANNELS,
+    HELD_FRACTION,
+    RESERVE_FRACTION,
+    ControllerError,
+    LoopStats,
+    run_loop,
+)
 from harness.core.monitor import FaultMonitor, MonitorWarning
 from harness.core.paths import safe_child, safe_name
 from harness.core.periodic import steady_state_amplitude
@@ -245,6 +252,7 @@ def execute_run(
                          f"in-process virtual rig only (bus {spec}, {rig_mode})")
     with contextlib.ExitStack() as stack:
         rig_measures: dict[str, list[str]] = {}
+        rig_exited: Callable[[float], str | None] | None = None
         if rig_mode.startswith("process"):
             rt = run.data["realtime"]
             rig_cpu = (rt["rig_cpu"] if rt["rig_cpu"] >= 0 else choose_cpus(rt["cpu"])[1]) \
@@ -261,12 +269,13 @@ def execute_run(
             except RigProcessError as exc:
                 raise _rig_did_not_start(run, proc, run_dir, exc) from exc
             rig_measures = proc.measures
+            rig_exited = proc.exited
             spec = parse_bus(where)
             faults = []
         try:
             result = _execute(run, spec, clock_name, controller, load, run_dir, live_view_url,
                               show_progress, dry_run, faults, should_stop, device_rig,
-                              truth_tail_s)
+                              truth_tail_s, rig_exited)
         except RunRefused:
             # nothing was sent and the folder holds only config.yaml: left behind, it would
             # read as a run killed on the way ('harness logs --failed')
@@ -453,7 +462,11 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
              load: Any, run_dir: Path, live_view_url: str | None, show_progress: bool,
              dry_run: bool, faults: list[FaultSpec] | None,
              should_stop: Callable[[], str | None] | None,
-             device_rig: Any = None, truth_tail_s: float = 0.0) -> RunResult:
+             device_rig: Any = None, truth_tail_s: float = 0.0,
+             rig_exited: Callable[[float], str | None] | None = None) -> RunResult:
+    """``rig_exited``: how the run's rig process ended, when it has (``RigProcess.exited``):
+    a bus failure of the loop while it is gone is the rig process's end, named so in the
+    summary and raised as ``RigProcessExited``."""
     dt_s = run.dt_s
     protocol = load_protocol()
     kernel_sync = run.data["sync_source"] == "kernel"
@@ -548,6 +561,18 @@ def _execute(run: RunConfig, spec: BusSpec, clock_name: str, controller: object,
                 step_budget_s=run.step_budget_s, wire=wire,
                 controller_name=controller_type(run.controller["type"]).describe(),
                 sequence=sequence)
+        except (ControllerError, OutputError):
+            raise
+        except Exception as exc:  # the bus failed: was it the rig process's end?
+            ended = rig_exited(EXIT_WAIT_S) if rig_exited is not None else None
+            if ended is None:
+                raise
+            # the bus's own words without the traceback python-can's socketcand client puts
+            # into its error's text
+            said = str(exc).split("Traceback (most recent call last)")[0]
+            said = (said.strip().splitlines() or [""])[0].strip()
+            stats.error = f"{ended}: {type(exc).__name__}: {said} (tick {stats.ticks})"
+            raise RigProcessExited(stats.error) from exc
         finally:
             if show_progress:
                 print("", file=sys.stderr)
@@ -875,6 +900,9 @@ def summarise(run: RunConfig, rec: Recorder, stats: LoopStats, bus_load_percent:
             "missing_in_ticks_held_by_both": stats.missing_frames_on_time,
             "missing_rig_answered_after_window": 0,
             "error_frames": interface.counters.error_frames,
+            # frames the bus refused to send (a full queue, a peer gone; the safe state at
+            # the end of a run whose rig process exited among them)
+            "not_sent": interface.counters.send_errors,
             # frames the host's kernel dropped because the harness's socket queue was full
             # (a loop behind on a busy host); null where the bus cannot say (not SocketCAN)
             "dropped_by_kernel": (interface.bus.kernel_drops

@@ -658,9 +658,15 @@ def evaluate_left_safe(c: Criterion, facts: Facts) -> CriterionResult:
         raise MissingData("no CAN log to check the last commands in")
     unsafe = facts.left_safe()
     n = len(unsafe)
+    frames = facts.measures.get("frames")
+    refused = frames.get("not_sent") if isinstance(frames, Mapping) else None
+    why = (f" (the bus refused {refused} frames the harness sent, the safe state at the "
+           "end among them when the bus had failed)"
+           if isinstance(refused, int) and not isinstance(refused, bool) and refused > 0
+           else "")
     return _result(c, n, float(-n), FAIL if n else PASS, None,
                    "rig left safe (last command of each device safe, heartbeat disarmed)"
-                   if not n else "rig not left safe: " + "; ".join(unsafe))
+                   if not n else "rig not left safe: " + "; ".join(unsafe) + why)
 
 
 def scalar_worst_time(c: Criterion, measures: Mapping[str, Any]

@@ -65,6 +65,7 @@ SUMMARY_MEASURES: dict[str, str] = {
     "frames.missing_in_ticks_held_by_both": "count",
     "frames.missing_rig_answered_after_window": "count",
     "frames.error_frames": "count",
+    "frames.not_sent": "count",
     "frames.dropped_by_kernel": "count",
     "wall_time_s": "s",
     "simulated_time_s": "s",
