@@ -167,11 +167,18 @@ def _run_all(args: argparse.Namespace, stop: StopRequest, summaries: list) -> in
             s = result.summary
             s["run_dir"] = str(result.run_dir)
             summaries.append(s)
+            settled = "never within the settle band" if s.get("settle_time_s") is None \
+                else f"within the settle band from t = {_g(s['settle_time_s'])} s to the end"
+            seq = s.get("sequence") if isinstance(s.get("sequence"), dict) else None
+            steps = ""
+            if seq is not None:  # a sequence's targets are its steps': their own measures
+                settled = ""
+                steps = "sequence: " + "; ".join(
+                    f"{st.get('name')} {st.get('outcome')}" for st in seq.get("steps") or [])
             print(f"harness: {s['run']} {s['stopped_by']}: final angle error "
-                  f"{_g(s['final_angle_error_deg'])} deg, within the settle band from t = "
                   # settle_time_s is a run time, not the settles criterion's delay after the
                   # profile's end: said so, the two no longer read as one number
-                  f"{_g(s['settle_time_s'])} s to the end, "
+                  f"{_g(s['final_angle_error_deg'])} deg, {settled}{steps}, "
                   f"residual tip accel {_g(s['residual_tip_accel_m_s2'])} m/s^2"
                   + (f", steady tip accel amplitude {s['steady_tip_accel_amplitude_m_s2']:.4f}"
                      " m/s^2" if "steady_tip_accel_amplitude_m_s2" in s else "")
