@@ -283,3 +283,22 @@ def test_the_step_timeline_is_drawn_as_steps():
                           {"started_s": None}])
     assert list(t) == [0.0, 0.0, 18.0, 18.0, 22.7, 22.7]
     assert list(v) == [0.0, 1.0, 1.0, 2.0, 2.0, 0.0]
+
+
+def test_the_steps_reach_junit_and_the_html_report(tmp_path):
+    import xml.etree.ElementTree as ET
+
+    from in_process import harness_in_process
+
+    junit = tmp_path / "j.xml"
+    done = harness_in_process("test", "acceptance", "-k", "sequence", "--junit", str(junit),
+                              "--out", str(tmp_path / "out"))
+    assert done.returncode == 0, done.stderr[-2000:]
+    (case,) = [c for c in ET.parse(junit).iter("testcase")
+               if c.get("name") == "sequence-valve-fault"]
+    props = {p.get("name"): p.get("value") for p in case.iter("property")}
+    assert props["step 1: slew out"].startswith("PASS: t = 0.000-")
+    assert props["finally 3: end safe"].startswith("PASS")
+    (report,) = (tmp_path / "out").glob("*/report.html")
+    html = report.read_text()
+    assert "Sequence, step by step" in html and "slew back, valve stuck at speed" in html
