@@ -49,6 +49,10 @@ SCALING_OBJECTS: dict[str, tuple[int, ...]] = {
     "cia401": (0x642E, 0x642F),
 }
 SDO_TIMEOUT_S = 0.5
+PUMPED_SDO_TIMEOUT_S = 2.0
+"""An in-process virtual rig answers an SDO from a thread of the harness's own process
+(``setup(pump=...)``): on a loaded host that thread may wait for the CPU longer than a
+device ever would, so its answers get this long; a device on a bus keeps ``SDO_TIMEOUT_S``."""
 
 
 class SetupError(RuntimeError):
@@ -130,7 +134,7 @@ class CanopenMaster:
             remotes: dict[int, Any] = {}
             for nid, spec in self.co.nodes.items():
                 rn = canopen.RemoteNode(nid, spec.od)
-                rn.sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT_S
+                rn.sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT_S if pump is None else PUMPED_SDO_TIMEOUT_S
                 net.add_node(rn)
                 remotes[nid] = rn
                 ev = booted[nid] = threading.Event()
