@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import rerun as rr
 import yaml
+from in_process import harness_in_process
 from scipy import signal
 
 from harness.controllers.excitation import schroeder_multisine
@@ -195,3 +196,24 @@ def test_blocks_refuse_channels_of_different_lengths(tmp_path):
     t = np.concatenate([b[0] for b in blocks])
     assert len(t) == 6000 and np.all(np.diff(t) > 0)
     assert math.isclose(t[-1], 5999 * DT)
+
+
+def test_frf_tells_its_progress_on_stderr_when_it_takes_long(tmp_path, monkeypatch):
+    """An analysis past the command's threshold says what it does; one below it says
+    nothing but its table."""
+    import harness.commands.frf as command
+    import harness.core.frf as core
+
+    run = _record(tmp_path / "r", 40.0, "multisine")
+    monkeypatch.setattr(core, "PROGRESS_EVERY_S", 0.0)
+    monkeypatch.setattr(command, "PROGRESS_AFTER_S", 0.0)
+    res = harness_in_process("frf", str(run), "--no-plot")
+    assert res.returncode == 0, res.stderr
+    lines = [ln for ln in res.stderr.splitlines() if ln.endswith(" ...")]
+    reads = [ln for ln in lines if ln.startswith("harness frf: read ")]
+    assert len(reads) >= 5 and reads[-1] == "harness frf: read 40 of 40 s of the record ..."
+    assert "harness frf: fitting the modes of wheel -> tip_accel ..." in lines
+    monkeypatch.setattr(command, "PROGRESS_AFTER_S", 1e9)
+    res = harness_in_process("frf", str(run), "--no-plot")
+    assert res.returncode == 0 and not [ln for ln in res.stderr.splitlines()
+                                        if ln.endswith(" ...")], res.stderr
