@@ -8,10 +8,11 @@ torque on the hub), or the piezo amplifier's command ``/piezo/cmd_ch1_v`` / ``cm
 by default the hub rate and the tip acceleration for the wheel, the tip acceleration and the
 same channel's sensor patch for a piezo.
 
-After a ``multisine`` run (its design in summary.json) the settling periods are dropped and
-every whole measured period is one average at the excited lines; after any other run
-(``chirp``, a recording of your own) Welch segments of ``--segment-s`` (default: one sweep
-of a chirp, else 20 s). H1, H2, the coherence and each point's 1-sigma of |H|
+After a periodic ``multisine`` run (its design in summary.json) the settling periods are
+dropped and every whole measured period is one average at the excited lines; after any
+other run (a ``signal: random`` multisine, a ``chirp``, a recording of your own) Welch
+segments of ``--segment-s`` (default: one period of a random multisine, one sweep of a
+chirp, else 20 s). H1, H2, the coherence and each point's 1-sigma of |H|
 (Bendat & Piersol: sqrt(1 - coh) / (sqrt(2 n_avg) sqrt(coh))). Modes: a sum of second-order
 modes fitted to H1 by weighted least squares, started from the FRF's peaks near the rig
 model's hub-free modes in the band; 1-sigma from the Jacobian. Each is compared with the
