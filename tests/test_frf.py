@@ -14,6 +14,8 @@ from in_process import harness_in_process
 from scipy import signal
 
 from harness.controllers.excitation import (
+    RANDOM_CREST_FACTOR,
+    band_limited_noise,
     build_chirp,
     build_multisine,
     default_band_hz,
@@ -392,3 +394,62 @@ def test_prbs_multisine_is_binary_periodic_and_finds_the_modes():
     for m, w in zip(fit.modes, OMEGA, strict=True):
         assert abs(m.omega_rad_s - w) < 4 * m.sigma_omega_rad_s, m
         assert m.sigma_omega_rad_s < 2e-3 * w
+
+
+def test_random_multisine_is_seeded_band_limited_noise_within_the_limit():
+    rig = load_rig("sgsrt")
+    dt = 0.002
+
+    def build(**kw):
+        section = validate({"type": "multisine", "signal": "random", "period_s": 10,
+                            "periods": 3, "settle_periods": 1, "amplitude_fraction": 0.9,
+                            "f0_hz": 0.5, "f1_hz": 6.0, **kw},
+                           controller_type("multisine").schema, "test")
+        return build_multisine(section, rig, dt)
+
+    ctrl = build()
+    rep, table = ctrl.design_report(), ctrl.table
+    # never repeated: one table over the settling and the measured periods
+    assert len(table) == 4 * 5000 and rep["analysis"] == "welch" and rep["segment_s"] == 10
+    assert "quicklook" not in rep
+    # the peak the limit plan checks; clipped at the crest factor, Gaussian within it
+    t_max = rig.section("reaction_wheel")["max_torque_n_m"]
+    assert np.max(np.abs(table)) == pytest.approx(0.9 * t_max)
+    assert rep["crest_factor"] == pytest.approx(np.max(np.abs(table)) / np.std(table),
+                                                rel=1e-6)
+    assert 2.5 < rep["crest_factor"] <= RANDOM_CREST_FACTOR * 1.01
+    assert abs(np.mean(table)) < 1e-12
+    # band-limited: what clipping spills outside the band is a small part of the power
+    power = np.abs(np.fft.rfft(table)) ** 2
+    f = np.fft.rfftfreq(len(table), dt)
+    inside = (f >= 0.5) & (f <= 6.0)
+    assert power[~inside].sum() < 0.01 * power.sum()
+    # the same seed, the same noise; another seed, another
+    assert np.array_equal(build().table, table)
+    assert not np.allclose(build(seed=2).table, table)
+    # played once, then nothing
+    assert ctrl.value(0.5 + 40.0 - dt) != 0.0 and ctrl.value(0.5 + 40.0) == 0.0
+    with pytest.raises(ValueError, match="holds no line"):
+        band_limited_noise(100, dt, 1000.0, 2000.0, 1)
+
+
+def test_frf_of_a_random_run_by_welch_segments(tmp_path):
+    raw = yaml.safe_load((RUNS_DIR / "frf-wheel.yaml").read_text())
+    raw["name"] = "frf-random"
+    raw["controller"].update(signal="random", period_s=30, settle_periods=1, periods=3)
+    raw["duration_s"] = 0.5 + 30 * 4 + 0.5
+    # the multisine's limits on the modes, not a short random run's (leakage biases them)
+    for name in ("tip_mode1_frequency", "tip_mode2_frequency", "tip_mode1_damping"):
+        raw["expect"][name] = None
+    path = tmp_path / "frf-random.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    doc = run_and_frf(path, tmp_path / "random", frf_args=("--output", "tip_accel"),
+                      name="frf-random")
+    e = doc["outputs"]["tip_accel"]
+    # the three measured periods in 30 s Hann segments, half overlapping
+    assert e["method"] == "welch" and e["n_avg"] == 5
+    modes = {m["model_mode"]: m for m in e["modes"]}
+    assert {1, 2} <= set(modes)
+    for i in (1, 2):
+        assert abs(modes[i]["omega_error_percent"]) < 1.0, modes[i]
+    assert modes[2]["coherence_at_mode"] > 0.9

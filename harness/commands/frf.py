@@ -8,15 +8,20 @@ torque on the hub), or the piezo amplifier's command ``/piezo/cmd_ch1_v`` / ``cm
 by default the hub rate and the tip acceleration for the wheel, the tip acceleration and the
 same channel's sensor patch for a piezo.
 
-After a ``multisine`` run (its design in summary.json) the settling periods are dropped and
-every whole measured period is one average at the excited lines; after any other run
-(``chirp``, a recording of your own) Welch segments of ``--segment-s`` (default: one sweep
-of a chirp, else 20 s). H1, H2, the coherence and each point's 1-sigma of |H|
+After a periodic ``multisine`` run (its design in summary.json) the settling periods are
+dropped and every whole measured period is one average at the excited lines; after any
+other run (a ``signal: random`` multisine, a ``chirp``, a recording of your own) Welch
+segments of ``--segment-s`` (default: one period of a random multisine, one sweep of a
+chirp, else 20 s). H1, H2, the coherence and each point's 1-sigma of |H|
 (Bendat & Piersol: sqrt(1 - coh) / (sqrt(2 n_avg) sqrt(coh))). Modes: a sum of second-order
 modes fitted to H1 by weighted least squares, started from the FRF's peaks near the rig
 model's hub-free modes in the band; 1-sigma from the Jacobian. Each is compared with the
 model's mode, with the measured-to-model magnitude ratio at it, and with ``harness
 identify``'s result of a free-decay run (``--decay``).
+
+The recording is read block by block into the sums over periods or segments (memory does
+not grow with the record's length); an analysis that takes more than a second tells its
+progress on stderr.
 
 Writes frf.json, frf.csv, frf.png (Bode magnitude, phase and coherence: measured with
 its 1-sigma band, the model) and frf.rrd (the same in the Rerun viewer, over a frequency
@@ -29,6 +34,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 
 from harness.commands import examples
@@ -55,10 +61,27 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_frf)
 
 
+PROGRESS_AFTER_S = 1.0
+"""Progress goes to stderr only once the analysis has taken this long (a short record's
+analysis says nothing until its table)."""
+
+
+class Progress:
+    """Prints the analysis's steps to stderr, from ``PROGRESS_AFTER_S`` after the start."""
+
+    def __init__(self, after_s: float | None = None) -> None:
+        self.start = time.monotonic()
+        self.after_s = PROGRESS_AFTER_S if after_s is None else after_s
+
+    def __call__(self, message: str) -> None:
+        if time.monotonic() - self.start >= self.after_s:
+            print(f"harness frf: {message} ...", file=sys.stderr, flush=True)
+
+
 def cmd_frf(args: argparse.Namespace) -> int:
     try:
         doc = analyse(args.source, args.input, args.output, args.decay, args.segment_s,
-                      plot=not args.no_plot)
+                      plot=not args.no_plot, progress=Progress())
     except (ValueError, OSError, KeyError) as exc:
         print(f"harness frf: {exc}", file=sys.stderr)
         return 2

@@ -12,7 +12,10 @@ so that the limit plan accepts it and the drivers never clamp it:
   0.5 x the rig model's first hub-free mode to 1.5 x its last (``rig.plant.hub_free_modes()``).
   With ``signal: prbs``, one period is a maximum-length pseudo-random binary sequence
   instead (crest factor 1; every line of its grid up to its clock excited, falling as
-  sinc^2), analysed the same way.
+  sinc^2), analysed the same way. With ``signal: random``, band-limited Gaussian noise
+  (seeded: ``seed``) over the whole ``settle_periods + periods`` periods, never repeated, its
+  peaks clipped at ``RANDOM_CREST_FACTOR`` times its rms; analysed by Welch segments of one
+  period (``segment_s`` in its design).
 - ``chirp``: a sine sweep from ``f0_hz`` to ``f1_hz`` (``law: linear`` or ``log``) over
   ``sweep_s``, repeated ``sweeps`` times (analysed by Welch segments of one sweep).
 
@@ -101,6 +104,31 @@ def prbs_period(period_s: float, dt_s: float, f1_hz: float) -> tuple[np.ndarray,
     seq = 2.0 * max_len_seq(order)[0] - 1.0
     table = np.repeat(seq - seq.mean(), ticks)
     return table / np.max(np.abs(table)), order, ticks
+
+
+RANDOM_CREST_FACTOR = 3.0
+"""Band-limited random noise is clipped at this many times its rms (a Gaussian exceeds 3
+sigma 0.27 % of the time): the peak that ``amplitude_fraction`` sets then leaves the rms a
+third of it, where unclipped noise's peak would grow with the record's length."""
+
+
+def band_limited_noise(n_samples: int, dt_s: float, f0_hz: float, f1_hz: float, seed: int,
+                       crest_factor: float = RANDOM_CREST_FACTOR) -> np.ndarray:
+    """``n_samples`` of Gaussian noise (``numpy.random.default_rng(seed)``) with every DFT
+    line outside ``[f0_hz, f1_hz]`` removed, clipped at ``crest_factor`` times its rms, zero
+    mean, scaled to a peak of 1."""
+    if n_samples < 2:
+        raise ValueError(f"random: {n_samples} samples, at least 2 are needed")
+    spectrum = np.fft.rfft(np.random.default_rng(seed).standard_normal(n_samples))
+    f = np.fft.rfftfreq(n_samples, dt_s)
+    spectrum[(f < f0_hz) | (f > f1_hz) | (f == 0)] = 0.0
+    if not np.any(spectrum):
+        raise ValueError(f"band {f0_hz:g}-{f1_hz:g} Hz holds no line of the record's grid "
+                         f"{1 / (n_samples * dt_s):g} Hz")
+    x = np.fft.irfft(spectrum, n_samples)
+    x = np.clip(x / np.std(x), -crest_factor, crest_factor)
+    x -= np.mean(x)
+    return x / np.max(np.abs(x))
 
 
 def _command(channel: str, value: float) -> RigCommand:
@@ -209,17 +237,23 @@ class QuickLook:
 
 
 class Multisine:
-    """A periodic table played from ``start_s``: ``settle_periods + periods`` periods."""
+    """A table played from ``start_s``: ``settle_periods + periods`` periods of
+    ``period_samples`` (default: the table's length, repeated; a random signal's table is
+    all the periods)."""
 
     def __init__(self, channel: str, table: np.ndarray, dt_s: float, start_s: float,
                  settle_periods: int, periods: int, report: dict[str, Any],
-                 quicklook: QuickLook | None = None) -> None:
+                 quicklook: QuickLook | None = None,
+                 period_samples: int | None = None) -> None:
         self.channel = channel
         self.table = table
         self.dt_s = dt_s
         self.start_s = start_s
-        self.settle_ticks = len(table) * settle_periods
-        self.n_ticks = len(table) * (settle_periods + periods)
+        n = len(table) if period_samples is None else int(period_samples)
+        self.settle_ticks = n * settle_periods
+        self.n_ticks = n * (settle_periods + periods)
+        if self.n_ticks > len(table) and len(table) % n:
+            raise ValueError(f"a table of {len(table)} samples is not whole periods of {n}")
         self.report = report
         self.quicklook = quicklook
 
@@ -313,16 +347,30 @@ def _band(c: dict[str, Any], rig: RigConfig, dt_s: float) -> tuple[float, float,
     "period_s": Field("number", "s", default=40.0, exclusive_minimum=0.0),
     # schroeder: the band's lines only, equal amplitude; prbs: a periodic binary sequence
     # (crest factor 1) clocked at f1_hz / PRBS_BAND_SHARE, its period the nearest
-    # 2^n - 1 bits at or above period_s
-    "signal": Field("str", default="schroeder", choices=("schroeder", "prbs")),
+    # 2^n - 1 bits at or above period_s; random: band-limited Gaussian noise, never
+    # repeated, its period the Welch segment
+    "signal": Field("str", default="schroeder", choices=("schroeder", "prbs", "random")),
     "periods": Field("int", default=4, minimum=2),
     "settle_periods": Field("int", default=1, minimum=0),
+    # random: the noise generator's seed (the same seed, the same excitation)
+    "seed": Field("int", default=1, minimum=0),
 })
 def build_multisine(c: dict[str, Any], rig: RigConfig, dt_s: float) -> Multisine:
     limit, unit, key = input_limit(rig, c["input"])
     f0, f1, source = _band(c, rig, dt_s)
-    prbs: dict[str, Any] = {}
-    if c["signal"] == "prbs":
+    extra: dict[str, Any] = {}
+    total = c["settle_periods"] + c["periods"]
+    if c["signal"] == "random":
+        n = int(round(c["period_s"] / dt_s))
+        shape = band_limited_noise(n * total, dt_s, f0, f1, c["seed"])
+        lines = np.arange(max(1, math.ceil(f0 * n * dt_s - 1e-9)),
+                          math.floor(f1 * n * dt_s + 1e-9) + 1)
+        if not len(lines):
+            raise ValueError(f"band {f0:g}-{f1:g} Hz holds no line of the grid "
+                             f"1/period = {1 / (n * dt_s):g} Hz")
+        extra = {"seed": c["seed"], "clip_crest_factor": RANDOM_CREST_FACTOR,
+                "segment_s": n * dt_s, "analysis": "welch"}
+    elif c["signal"] == "prbs":
         shape, order, ticks = prbs_period(c["period_s"], dt_s, f1)
         n = len(shape)
         k0 = max(1, math.ceil(f0 * n * dt_s - 1e-9))
@@ -330,7 +378,7 @@ def build_multisine(c: dict[str, Any], rig: RigConfig, dt_s: float) -> Multisine
         if not len(lines):
             raise ValueError(f"band {f0:g}-{f1:g} Hz holds no line of the PRBS's grid "
                              f"1/period = {1 / (n * dt_s):g} Hz")
-        prbs = {"prbs_order": order, "prbs_bits": 2**order - 1,
+        extra = {"prbs_order": order, "prbs_bits": 2**order - 1,
                 "prbs_clock_hz": 1.0 / (ticks * dt_s)}
     else:
         n = int(round(c["period_s"] / dt_s))
@@ -340,7 +388,7 @@ def build_multisine(c: dict[str, Any], rig: RigConfig, dt_s: float) -> Multisine
     rms = float(np.sqrt(np.mean(shape**2)))
     measure_start = c["start_s"] + c["settle_periods"] * period_s
     report = {
-        "excitation": "multisine", "signal": c["signal"], **prbs,
+        "excitation": "multisine", "signal": c["signal"], **extra,
         "input": c["input"], "unit": unit,
         "peak": peak, "rms": peak * rms, "crest_factor": 1.0 / rms,
         "limit": limit, "limit_key": key,
@@ -351,9 +399,11 @@ def build_multisine(c: dict[str, Any], rig: RigConfig, dt_s: float) -> Multisine
         "periods": c["periods"], "start_s": c["start_s"],
         "measure_start_s": measure_start, "end_s": measure_start + c["periods"] * period_s,
     }
-    quicklook = QuickLook(rig, c["input"], n, dt_s, lines)
+    # the quick look's period-by-period DFT needs a periodic signal
+    quicklook = None if c["signal"] == "random" else QuickLook(rig, c["input"], n, dt_s,
+                                                                lines)
     return Multisine(c["input"], peak * shape, dt_s, c["start_s"], c["settle_periods"],
-                     c["periods"], report, quicklook)
+                     c["periods"], report, quicklook, period_samples=n)
 
 
 @controller_factory({

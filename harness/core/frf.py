@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 import math
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +22,10 @@ DEFAULT_OUTPUTS = {"wheel": ["hub_rate", "tip_accel"],
                    "piezo1": ["tip_accel", "piezo_sensor1"],
                    "piezo2": ["tip_accel", "piezo_sensor2"]}
 DEFAULT_SEGMENT_S = 20.0
+HEAD_ROWS = 1000
+"""The sample interval is the median step of the record's first this many rows."""
+PROGRESS_EVERY_S = 1.0
+"""The reading's progress is told at most this often (wall time)."""
 DETERMINED = (0.05, 0.5)
 """A fitted mode counts as determined when its frequency's 1-sigma is below 5 % and its
 damping's below 50 % of the value (as ``harness identify``)."""
@@ -62,21 +68,17 @@ def model_vectors(rig: Any, input_name: str, output_name: str
 
 def analyse(run_dir: Path, input_name: str | None = None, outputs: list[str] | None = None,
             decay: Path | None = None, segment_s: float | None = None,
-            plot: bool = True) -> dict[str, Any]:
-    """frf.json's document (and the files) for one run."""
+            plot: bool = True, progress: Callable[[str], None] | None = None
+            ) -> dict[str, Any]:
+    """frf.json's document (and the files) for one run. ``progress`` is told what is being
+    done (the reading at most once a second of wall time)."""
     import numpy as np
 
-    from harness.identification.frf import (
-        fit_modes,
-        periodic_frf,
-        refine_guess,
-        state_space_frf,
-        welch_frf,
-    )
+    from harness.identification.frf import fit_modes, refine_guess, state_space_frf
     from harness.record.output import fresh_output_path, write_text_atomic
-    from harness.record.reader import read_scalar_channels
     from rig_models.rig_file import rig_from_dict
 
+    say = progress or (lambda _msg: None)
     cfg, summary = _load(run_dir)
     design = summary.get("controller_design") or {}
     if not isinstance(design, dict) or "excitation" not in design:
@@ -85,38 +87,22 @@ def analyse(run_dir: Path, input_name: str | None = None, outputs: list[str] | N
     outputs = outputs or DEFAULT_OUTPUTS[input_name]
     rig = rig_from_dict(cfg["rig"], source="config.yaml rig")
     in_ch, in_unit = INPUTS[input_name]
-    chans = read_scalar_channels(run_dir / "run.rrd",
-                                 [in_ch] + [OUTPUTS[o][0] for o in outputs])
-    t, u = chans.pop(in_ch)
-    dt = float(np.median(np.diff(t[:1000])))
+    dt, estimates = _estimate(run_dir, design, input_name, outputs, segment_s, say)
     wn, zeta = rig.plant.hub_free_modal_damping()
     doc: dict[str, Any] = {
         "run": str(run_dir), "input": input_name, "input_channel": in_ch,
         "input_unit": in_unit, "excitation": design or None, "dt_s": dt,
         "model_hub_free": {"omega_rad_s": wn.tolist(), "damping_ratio": zeta.tolist()},
         "outputs": {}}
-    decay_modes = _decay_modes(decay) if decay is not None else None
-    if decay_modes is not None:
+    decay_modes = None
+    if decay is not None:
+        say(f"identifying the free decay {decay}")
+        decay_modes = _decay_modes(decay)
         doc["decay"] = {"run": str(decay), "modes": decay_modes}
     for out in outputs:
-        ch, scale, unit = OUTPUTS[out]
-        ty, y = chans[ch]
-        if len(ty) != len(t):
-            raise ValueError(f"{ch} has {len(ty)} rows, {in_ch} {len(t)}")
-        y = y * scale
-        if not np.ptp(u) > 0:
-            raise ValueError(f"{in_ch} is constant: the input {input_name} was not excited "
-                             "in this run (--input names the excited channel)")
-        if design.get("excitation") == "multisine":
-            i0 = int(np.searchsorted(t, design["measure_start_s"] - dt / 2))
-            i1 = int(np.searchsorted(t, design["end_s"] - dt / 2))
-            est = periodic_frf(u[i0:i1], y[i0:i1], int(design["period_samples"]), dt)
-        else:
-            seg = segment_s or design.get("sweep_s") or DEFAULT_SEGMENT_S
-            i0 = int(np.searchsorted(t, design.get("measure_start_s", t[0]) - dt / 2))
-            i1 = int(np.searchsorted(t, design.get("end_s", t[-1] + dt) - dt / 2))
-            est = welch_frf(u[i0:i1], y[i0:i1], dt, int(round(seg / dt)),
-                            design.get("f0_hz", 0.0), design.get("f1_hz", math.inf))
+        ch, _, unit = OUTPUTS[out]
+        est = estimates[out]
+        say(f"fitting the modes of {input_name} -> {out}")
         a, b, c, d = model_vectors(rig, input_name, out)
         h_model = state_space_frf(a, b, c, d, est.freq_hz)
         f_lo, f_hi = est.freq_hz.min(), est.freq_hz.max()
@@ -166,10 +152,85 @@ def analyse(run_dir: Path, input_name: str | None = None, outputs: list[str] | N
     if plot:
         from harness.review.bode import write_frf_rrd
 
+        say("writing frf.png and frf.rrd")
+
         doc["files"]["png"] = str(_plot(doc, fresh_output_path(run_dir / "frf.png")))
         doc["files"]["rrd"] = str(write_frf_rrd(fresh_output_path(run_dir / "frf.rrd"),
                                                 run_dir, doc))
     return doc
+
+
+def is_periodic(design: dict[str, Any]) -> bool:
+    """Whether a run's excitation (its summary.json design) repeats whole periods."""
+    return design.get("excitation") == "multisine" and design.get("signal") != "random"
+
+
+def _estimate(run_dir: Path, design: dict[str, Any], input_name: str, outputs: list[str],
+              segment_s: float | None, say: Callable[[str], None]
+              ) -> tuple[float, dict[str, Any]]:
+    """(the sample interval, each output's ``FrfEstimate``), the recording read block by
+    block into the running sums (``PeriodicSpectra`` for a periodic excitation, else
+    ``WelchSpectra``): memory does not grow with the record's length."""
+    import numpy as np
+
+    from harness.identification.frf import PeriodicSpectra, WelchSpectra
+    from harness.record.reader import aligned_scalar_blocks
+
+    in_ch = INPUTS[input_name][0]
+    channels = [OUTPUTS[o][0] for o in outputs]
+    scales = np.array([OUTPUTS[o][1] for o in outputs])[:, None]
+    blocks = aligned_scalar_blocks(run_dir / "run.rrd", [in_ch, *channels])
+    head: list[tuple[np.ndarray, dict[str, np.ndarray]]] = []
+    held = 0
+    for block in blocks:  # the first rows, for the sample interval
+        head.append(block)
+        held += len(block[0])
+        if held >= HEAD_ROWS:
+            break
+    if not head:
+        raise ValueError(f"{run_dir / 'run.rrd'}: no samples of {in_ch}")
+    t_head = np.concatenate([b[0] for b in head])
+    dt = float(np.median(np.diff(t_head[:HEAD_ROWS])))
+    periodic = is_periodic(design)
+    lo = design.get("measure_start_s", -math.inf) - dt / 2
+    hi = design.get("end_s", math.inf) - dt / 2
+    acc: PeriodicSpectra | WelchSpectra
+    if periodic:
+        acc = PeriodicSpectra(int(design["period_samples"]), len(outputs))
+    else:
+        seg = segment_s or design.get("segment_s") or design.get("sweep_s") \
+            or DEFAULT_SEGMENT_S
+        acc = WelchSpectra(int(round(seg / dt)), len(outputs), dt)
+    u_min, u_max = math.inf, -math.inf
+    end = design.get("end_s")
+    clock = time.monotonic()
+
+    def feed(t: np.ndarray, cols: dict[str, np.ndarray]) -> None:
+        nonlocal u_min, u_max, clock
+        u = cols[in_ch]
+        if len(u):
+            u_min, u_max = min(u_min, float(np.min(u))), max(u_max, float(np.max(u)))
+        i0, i1 = int(np.searchsorted(t, lo)), int(np.searchsorted(t, hi))
+        if i1 > i0:
+            acc.add(u[i0:i1], np.vstack([cols[c][i0:i1] for c in channels]) * scales)
+        if time.monotonic() - clock >= PROGRESS_EVERY_S and len(t):
+            clock = time.monotonic()
+            of = f" of {end:.0f}" if end else ""
+            say(f"read {t[-1]:.0f}{of} s of the record")
+
+    for t, cols in head:
+        feed(t, cols)
+    del head
+    for t, cols in blocks:
+        feed(t, cols)
+    if not u_max > u_min:
+        raise ValueError(f"{in_ch} is constant: the input {input_name} was not excited "
+                         "in this run (--input names the excited channel)")
+    if isinstance(acc, PeriodicSpectra):
+        ests = acc.estimates(dt)
+    else:
+        ests = acc.estimates(design.get("f0_hz", 0.0), design.get("f1_hz", math.inf))
+    return dt, dict(zip(outputs, ests, strict=True))
 
 
 def _decay_modes(decay: Path) -> list[dict[str, Any]]:

@@ -5,6 +5,10 @@
   |Gxy|^2 / (Gxx Gyy), the average over the periods.
 - ``welch_frf``: a non-periodic excitation (chirp, random) by Welch segments (Hann window,
   half overlap; ``scipy.signal.csd`` / ``welch``).
+- ``PeriodicSpectra`` and ``WelchSpectra``: the same two estimates fed block by block (a
+  long record read as it comes, one input and several outputs at once): the sums over
+  periods or segments are all they keep, with at most one period or segment of samples, so
+  their memory does not grow with the record's length.
 - Each point's 1-sigma of |H| relative to |H| (Bendat & Piersol, eq. 9.90):
   ``sqrt(1 - coh) / (sqrt(2 n_avg) sqrt(coh))``; the same in radians for the phase.
 - ``fit_modes``: a sum of second-order modes ``(A_k + B_k s) / (s^2 + 2 zeta_k w_k s + w_k^2)``
@@ -25,6 +29,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy import fft as sp_fft
 from scipy import optimize, signal
 
 SIGMA_FLOOR = 1e-6
@@ -94,6 +99,12 @@ def periodic_frf(u: np.ndarray, y: np.ndarray, period_samples: int, dt_s: float,
         gxx += np.abs(uf) ** 2
         gyy += np.abs(yf) ** 2
         gxy += np.conj(uf) * yf
+    return _periodic_estimate(gxx, gyy, gxy, n, periods, dt_s, lines, min_line_power)
+
+
+def _periodic_estimate(gxx: np.ndarray, gyy: np.ndarray, gxy: np.ndarray, n: int,
+                       periods: int, dt_s: float, lines: np.ndarray | None,
+                       min_line_power: float) -> FrfEstimate:
     if lines is None:
         power = gxx.copy()
         power[0] = 0.0
@@ -103,6 +114,67 @@ def periodic_frf(u: np.ndarray, y: np.ndarray, period_samples: int, dt_s: float,
     lines = np.asarray(lines, dtype=int)
     h1, h2, coh = _spectra(gxx[lines], gyy[lines], gxy[lines])
     return FrfEstimate(lines / (n * dt_s), h1, h2, coh, periods, "periodic")
+
+
+def _as_rows(u: np.ndarray, ys: np.ndarray | list[np.ndarray]) -> np.ndarray:
+    """One block: the input's samples in row 0, each output's in the rows after."""
+    rows = np.vstack([np.asarray(u, dtype=float)[None, :], np.asarray(ys, dtype=float)
+                      .reshape(-1, len(u))])
+    return rows
+
+
+class PeriodicSpectra:
+    """``periodic_frf`` fed block by block, for one input and ``n_outputs`` outputs: each
+    block's samples fill the current period (blocks may split a period anywhere); at each
+    period's end its DFT is added to the sums |X|^2, |Y|^2 and X* Y at every line. Holds
+    one period of samples and the sums (a few times the period's length in floats)."""
+
+    def __init__(self, period_samples: int, n_outputs: int) -> None:
+        self.n = int(period_samples)
+        if self.n < 2:
+            raise ValueError(f"period_samples: expected at least 2, got {period_samples}")
+        self.n_outputs = int(n_outputs)
+        bins = self.n // 2 + 1
+        self.buffer = np.empty((1 + self.n_outputs, self.n))
+        self.fill = 0
+        self.gxx = np.zeros(bins)
+        self.gyy = np.zeros((self.n_outputs, bins))
+        self.gxy = np.zeros((self.n_outputs, bins), dtype=complex)
+        self.periods = 0
+
+    def add(self, u: np.ndarray, ys: np.ndarray | list[np.ndarray]) -> None:
+        """The next samples of the input ``u`` and of each output (``ys``: one row an
+        output, as long as ``u``)."""
+        rows = _as_rows(u, ys)
+        pos, m = 0, rows.shape[1]
+        while pos < m:
+            take = min(self.n - self.fill, m - pos)
+            self.buffer[:, self.fill:self.fill + take] = rows[:, pos:pos + take]
+            self.fill += take
+            pos += take
+            if self.fill == self.n:
+                self._close_period()
+
+    def _close_period(self) -> None:
+        uf = np.fft.rfft(self.buffer[0])
+        self.gxx += np.abs(uf) ** 2
+        for r in range(self.n_outputs):
+            yf = np.fft.rfft(self.buffer[1 + r])
+            self.gyy[r] += np.abs(yf) ** 2
+            self.gxy[r] += np.conj(uf) * yf
+        self.periods += 1
+        self.fill = 0
+
+    def estimates(self, dt_s: float, lines: np.ndarray | None = None,
+                  min_line_power: float = 1e-3) -> list[FrfEstimate]:
+        """Each output's estimate over the whole periods added so far (a last, partial
+        period is left out, as ``periodic_frf`` does)."""
+        if self.periods < 2:
+            raise ValueError(f"{self.periods} whole period(s) of {self.n} samples in the "
+                             "record: at least 2 are needed for a coherence")
+        return [_periodic_estimate(self.gxx, self.gyy[r], self.gxy[r], self.n, self.periods,
+                                   dt_s, lines, min_line_power)
+                for r in range(self.n_outputs)]
 
 
 def welch_frf(u: np.ndarray, y: np.ndarray, dt_s: float, segment_samples: int,
@@ -121,6 +193,73 @@ def welch_frf(u: np.ndarray, y: np.ndarray, dt_s: float, segment_samples: int,
     h1, h2, coh = _spectra(gxx[keep], gyy[keep], gxy[keep])
     n_avg = (m - n) // (n - n // 2) + 1
     return FrfEstimate(f[keep], h1, h2, coh, n_avg, "welch")
+
+
+class WelchSpectra:
+    """``welch_frf`` fed block by block, for one input and ``n_outputs`` outputs: Hann
+    segments of ``segment_samples`` with half overlap, each segment's mean removed (as
+    ``scipy.signal.csd``'s ``detrend="constant"``), their cross and auto spectra summed as
+    the segments complete; the samples a segment still needs (fewer than one segment's)
+    are carried to the next block. The same density scaling as scipy's, so the sums are
+    scipy's averages times the number of segments."""
+
+    def __init__(self, segment_samples: int, n_outputs: int, dt_s: float) -> None:
+        self.n = int(segment_samples)
+        if self.n < 2:
+            raise ValueError(f"segment_samples: expected at least 2, got {segment_samples}")
+        self.step = self.n - self.n // 2
+        self.n_outputs = int(n_outputs)
+        self.dt_s = float(dt_s)
+        self.window = signal.get_window("hann", self.n)
+        self.scale = 1.0 / ((1.0 / self.dt_s) * (self.window * self.window).sum())
+        bins = self.n // 2 + 1
+        self.carry = np.empty((1 + self.n_outputs, 0))
+        self.gxx = np.zeros(bins)
+        self.gyy = np.zeros((self.n_outputs, bins))
+        self.gxy = np.zeros((self.n_outputs, bins), dtype=complex)
+        self.segments = 0
+        self.samples = 0
+
+    def add(self, u: np.ndarray, ys: np.ndarray | list[np.ndarray]) -> None:
+        """The next samples of the input ``u`` and of each output (``ys``: one row an
+        output, as long as ``u``)."""
+        rows = _as_rows(u, ys)
+        self.samples += rows.shape[1]
+        data = np.concatenate([self.carry, rows], axis=1) if self.carry.shape[1] else rows
+        pos = 0
+        while pos + self.n <= data.shape[1]:
+            seg = data[:, pos:pos + self.n]
+            seg = seg - seg.mean(axis=1, keepdims=True)
+            spec = sp_fft.rfft(seg * self.window, axis=1)
+            uf = spec[0]
+            self.gxx += (np.conj(uf) * uf).real
+            for r in range(self.n_outputs):
+                yf = spec[1 + r]
+                self.gyy[r] += (np.conj(yf) * yf).real
+                self.gxy[r] += np.conj(uf) * yf
+            self.segments += 1
+            pos += self.step
+        self.carry = data[:, pos:].copy()
+
+    def estimates(self, f0_hz: float = 0.0, f1_hz: float = math.inf) -> list[FrfEstimate]:
+        """Each output's estimate within [f0_hz, f1_hz] over the segments so far."""
+        if self.samples < 2 * self.n:
+            raise ValueError(f"{self.samples} samples: at least two segments of {self.n} "
+                             "are needed")
+        f = sp_fft.rfftfreq(self.n, self.dt_s)
+        keep = (f >= f0_hz) & (f <= f1_hz) & (f > 0)
+        # scipy's density scaling and one-sided doubling, averaged over the segments
+        factor = np.full(len(f), 2.0 * self.scale / self.segments)
+        factor[0] = self.scale / self.segments
+        if self.n % 2 == 0:
+            factor[-1] = self.scale / self.segments
+        gxx = (self.gxx * factor)[keep]
+        out = []
+        for r in range(self.n_outputs):
+            h1, h2, coh = _spectra(gxx, (self.gyy[r] * factor)[keep],
+                                   (self.gxy[r] * factor)[keep])
+            out.append(FrfEstimate(f[keep], h1, h2, coh, self.segments, "welch"))
+        return out
 
 
 def state_space_frf(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: float | np.ndarray,

@@ -216,3 +216,63 @@ class RecordedColumns:
         if len(t) != self.rows:
             raise ValueError(f"{self.path}: {channel} has {len(t)} rows, time has {self.rows}")
         return v
+
+
+def aligned_scalar_blocks(rrd: Path, entities: list[str]
+                          ) -> Iterator[tuple[np.ndarray, dict[str, np.ndarray]]]:
+    """(time s, {entity: values}) blocks of scalar channels sampled at the same times (the
+    loop's channels), in time order, read chunk by chunk: a block goes out as soon as every
+    channel has brought its samples up to its end, so what is held is the chunks by which
+    one channel runs ahead of another in the file (a block or two for the recorder's
+    files), never the whole record. ValueError when a channel is missing, a channel's
+    samples are not in time order, or the channels' times differ."""
+    wanted = list(dict.fromkeys(entities))
+    pending: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {e: [] for e in wanted}
+    rows = {e: 0 for e in wanted}
+    last = {e: -np.inf for e in wanted}
+
+    def take(upto: float) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
+        out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        for e in wanted:
+            t = np.concatenate([p[0] for p in pending[e]]) if pending[e] else np.empty(0)
+            v = np.concatenate([p[1] for p in pending[e]]) if pending[e] else np.empty(0)
+            k = int(np.searchsorted(t, upto, side="right"))
+            out[e] = (t[:k], v[:k])
+            pending[e] = [(t[k:], v[k:])] if k < len(t) else []
+        t0 = out[wanted[0]][0]
+        for e in wanted[1:]:
+            if not np.array_equal(out[e][0], t0):
+                raise ValueError(f"{rrd}: {e} and {wanted[0]} are not sampled at the same "
+                                 "times")
+        if not len(t0):
+            return None
+        return t0, {e: tv[1] for e, tv in out.items()}
+
+    for chunk in iter_chunks(rrd, content=wanted):
+        e = chunk.entity_path
+        if e not in pending or chunk.is_static or "time" not in chunk.timeline_names:
+            continue
+        batch = chunk.to_record_batch()
+        if "Scalars:scalars" not in batch.schema.names:
+            continue
+        t = batch.column("time").cast("int64").to_numpy(zero_copy_only=False) * 1e-9
+        if not len(t):
+            continue
+        if np.any(np.diff(t) < 0) or t[0] < last[e]:
+            raise ValueError(f"{rrd}: {e}: samples not in time order (an edited or merged "
+                             "recording)")
+        last[e] = float(t[-1])
+        rows[e] += len(t)
+        pending[e].append((t, scalar_values(batch.column("Scalars:scalars"))))
+        upto = min(last.values())
+        if upto > -np.inf:
+            got = take(upto)
+            if got is not None:
+                yield got
+    if missing := [e for e in wanted if not rows[e]]:
+        raise ValueError(f"{rrd}: no scalar channel {missing} on the 'time' timeline")
+    if any(pending[e] for e in wanted):
+        first = wanted[0]
+        other = next(e for e in wanted if rows[e] != rows[first]) \
+            if any(rows[e] != rows[first] for e in wanted) else wanted[-1]
+        raise ValueError(f"{other} has {rows[other]} rows, {first} {rows[first]}")
