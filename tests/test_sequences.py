@@ -302,3 +302,29 @@ def test_the_steps_reach_junit_and_the_html_report(tmp_path):
     (report,) = (tmp_path / "out").glob("*/report.html")
     html = report.read_text()
     assert "Sequence, step by step" in html and "slew back, valve stuck at speed" in html
+
+
+def test_a_when_that_fires_all_run_long_keeps_its_result_bounded():
+    # the runner alone, stepped on synthetic states: a when: that injects every tick
+    from harness.core.runs import build_controller
+    from harness.sequences import runner
+    from harness.state import RigState
+
+    raw = _base(duration_s=10.0, sequence={"steps": [
+        {"name": "toggle", "for_s": 3.0,
+         "when": [{"if": "step.time_s > 0 s", "every": True,
+                   "do": {"inject": {"kind": "unknown_ids"}, "mark": "again"}}]}]})
+    seq = build_controller(run_from_dict(raw))
+    sent = []
+    seq.insert_fault = sent.append
+    for k in range(2000):
+        seq.step(RigState(tick=k, time_s=k * 0.002))
+    out = seq.summary()
+    assert len(sent) == out["injections"] == runner.MAX_INJECTIONS
+    # one a tick from the second (t > 0) to the step's end at 3 s (1500 ticks)
+    assert out["injections_suppressed"] == 1500 - runner.MAX_INJECTIONS
+    (step,) = out["steps"]
+    assert step["outcome"] == "PASS"
+    assert len(step["actions"]) == runner.MAX_ACTIONS_KEPT + 1
+    assert step["actions"][-1].startswith("... and ")
+    assert len(out["injected"]) == runner.MAX_ACTIONS_KEPT

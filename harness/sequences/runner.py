@@ -32,6 +32,15 @@ from rig_models.faults import FaultSpec
 
 PASS, FAIL, TIMEOUT, SKIPPED, ERROR = "PASS", "FAIL", "TIMEOUT", "SKIPPED", "ERROR"
 
+MAX_ACTIONS_KEPT = 20
+"""A step's actions listed in its result (a ``when: ... every: true`` may fire all run
+long): the first this many, then a count, so a result's size does not grow with the run."""
+
+MAX_INJECTIONS = 100
+"""Faults a run's sequence may inject: every fault stays in the rig's list (its telemetry
+checks each, every tick), so a ``when:`` that injects every time it holds is cut off here,
+each later injection suppressed and counted."""
+
 
 @dataclass
 class StepResult:
@@ -48,6 +57,7 @@ class StepResult:
     value: str = ""  # its value at the decision
     measures: dict[str, float] = field(default_factory=dict)
     actions: list[str] = field(default_factory=list)
+    actions_not_listed: int = 0  # past MAX_ACTIONS_KEPT
     verified: list[str] = field(default_factory=list)  # a passed step's verifies, as held
 
     def to_dict(self) -> dict[str, Any]:
@@ -55,7 +65,9 @@ class StepResult:
                 "outcome": self.outcome, "started_s": self.started_s,
                 "ended_s": self.ended_s, "reason": self.reason,
                 "condition": self.condition, "value": self.value,
-                "measures": self.measures, "actions": self.actions,
+                "measures": self.measures,
+                "actions": self.actions + ([f"... and {self.actions_not_listed} more"]
+                                           if self.actions_not_listed else []),
                 "verified": self.verified}
 
 
@@ -126,7 +138,9 @@ class SequenceRunner:
         self.aborted = False
         self.finished = False
         self.safe_until_s = math.inf
-        self.injected: list[dict[str, Any]] = []
+        self.injected: list[dict[str, Any]] = []  # the first MAX_ACTIONS_KEPT
+        self.injections = 0
+        self.injections_suppressed = 0
         self.ended_by = ""
 
     def __deepcopy__(self, memo: dict[int, Any]) -> SequenceRunner:
@@ -304,15 +318,27 @@ class SequenceRunner:
         self.ended_by = how
         self._log(t, f"sequence ended: {how}", "INFO")
 
+    @staticmethod
+    def _note(res: StepResult, text: str) -> None:
+        if len(res.actions) < MAX_ACTIONS_KEPT:
+            res.actions.append(text)
+        else:
+            res.actions_not_listed += 1
+
     def _do(self, a: Actions, t: float, res: StepResult) -> None:
         if a.mark:
             self.events[a.mark] = t
         if self.safe and a.moves:
-            res.actions.append(f"{a.describe()} at {t:.3f} s: suppressed, the rig is held "
-                               "safe after a fault")
+            self._note(res, f"{a.describe()} at {t:.3f} s: suppressed, the rig is held safe "
+                            "after a fault")
             return
+        if a.inject is not None and self.injections >= MAX_INJECTIONS:
+            self._note(res, f"{a.describe()} at {t:.3f} s: suppressed, {MAX_INJECTIONS} "
+                            "faults injected already")
+            self.injections_suppressed += 1
+            a = replace(a, inject=None)
         if a.describe():
-            res.actions.append(f"{a.describe()} at {t:.3f} s")
+            self._note(res, f"{a.describe()} at {t:.3f} s")
         if a.slew_rad is not None or a.hold:
             target = self.state.hub_angle_rad if a.hold else a.slew_rad
             if self._retarget is None:  # refused before the run (build_sequence)
@@ -329,7 +355,9 @@ class SequenceRunner:
             if self.insert_fault is not None:
                 self.insert_fault(fault)
             self.events["fault"] = t
-            self.injected.append({**vars(fault), "step": res.name})
+            self.injections += 1
+            if len(self.injected) < MAX_ACTIONS_KEPT:
+                self.injected.append({**vars(fault), "step": res.name})
 
     def _log(self, t: float, text: str, level: str) -> None:
         if self.log_event is not None:
@@ -356,6 +384,8 @@ class SequenceRunner:
                 "ended_by": self.ended_by or ("completed" if self.finished
                                               else "the run's duration_s"),
                 "finished": self.finished, "injected": self.injected,
+                "injections": self.injections,
+                "injections_suppressed": self.injections_suppressed,
                 "events": dict(self.events)}
 
     def close(self, t_s: float) -> None:
