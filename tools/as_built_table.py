@@ -43,7 +43,12 @@ def _run(case: str, out: Path, devices_rig: str | None) -> list[dict]:
         s = json.loads(summary_path.read_text()) if summary_path.exists() else {}
         failed = [c["name"] for c in v.get("criteria", [])
                   if c.get("verdict") in ("FAIL", "MARGINAL")]
-        faults = [f"{f['device']}: {f['kind']}" for f in s.get("faults", [])]
+        # a fault after the run's sequence injected one is the sequence's to judge (its
+        # steps say whether the rig was made safe in time), not the monitor's finding
+        seq = s.get("sequence") or {}
+        t_inj = min((f["at_s"] for f in seq.get("injected") or []), default=None)
+        faults = [f"{f['device']}: {f['kind']}" for f in s.get("faults", [])
+                  if t_inj is None or f.get("time_s", 0.0) < t_inj]
         rows.append({"run": s.get("run", run_dir.name), "verdict": v.get("verdict", "?"),
                      "failed": failed, "faults": faults})
     return rows
