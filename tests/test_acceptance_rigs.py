@@ -30,7 +30,7 @@ def test_acceptance_passes_on_the_labs_devices(tmp_path, rig):
     assert verdicts == {
         "probe": "PASS", "slew-rw": "PASS", "free-decay": "PASS",
         "identify[free-decay]": "PASS", "fault-hub-silent": "PASS",
-        "fault-accel-malformed": "PASS"}, verdicts
+        "fault-accel-malformed": "PASS", "sequence-valve-fault": "PASS"}, verdicts
     # every run really went over that rig's frames
     for cfg in tmp_path.glob("*/*/config.yaml"):
         assert f"name: {rig}" in cfg.read_text()

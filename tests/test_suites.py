@@ -430,7 +430,7 @@ def test_acceptance_suite_passes_on_the_virtual_rig(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     names = [c.get("name") for c in ET.parse(tmp_path / "out.xml").iter("testcase")]
     assert names == ["probe", "slew-rw", "free-decay", "identify[free-decay]",
-                     "fault-hub-silent", "fault-accel-malformed"]
+                     "fault-hub-silent", "fault-accel-malformed", "sequence-valve-fault"]
     folder = suite_dir_of(tmp_path, "acceptance")
     results = json.loads((folder / "results.json").read_text())
     ident = next(t for t in results["tests"] if t["item"] == "identify[free-decay]")

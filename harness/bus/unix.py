@@ -52,9 +52,7 @@ def unpack(raw: bytes, channel: Any) -> can.Message:
 
 class _SeqpacketBus(can.BusABC):
     _sock: socket.socket | None
-    _send_flags = 0
-    """``socket.MSG_DONTWAIT`` for an end that must never block on a peer that stops
-    reading (the harness's: its tick is bounded)."""
+    _stuck = False  # the last send timed out (the harness's end: SEND_TIMEOUT_S)
 
     def _recv_sock(self, timeout: float | None) -> can.Message | None:
         sock = self._sock
@@ -97,27 +95,40 @@ class _SeqpacketBus(can.BusABC):
         if sock is None:
             return
         try:
-            sock.send(pack(msg), self._send_flags)
+            # once a send has timed out the other end is not reading: the next frames are
+            # refused at once, until one goes through again (SEND_TIMEOUT_S)
+            sock.send(pack(msg), socket.MSG_DONTWAIT if self._stuck else 0)
+            self._stuck = False
         except BlockingIOError:  # the peer's queue is full: it is not reading
+            self._stuck = True
             raise can.CanOperationError(f"{self.channel_info}: the other end is not reading "
                                         "(its queue is full): frame not sent") from None
         except (BrokenPipeError, ConnectionResetError):
             self._peer_closed()
 
 
-class UnixCanBus(_SeqpacketBus):
-    """The harness's end: connects to a ``UnixCanServerBus`` of the same name. A send never
-    blocks: with the other end's queue full (a rig process stopped or stalled) the frame is
-    refused at once (``can.CanOperationError``), as a CAN controller's full transmit queue
-    refuses one, and the tick goes on."""
+SEND_TIMEOUT_S = 0.5
+"""The longest the harness's end waits to send one frame while the other end's queue is
+full (a rig process the host stalled, or stopped): a short stall is waited out, as the host
+would hold a frame on a real bus's full transmit queue, and the rig's late answers are then
+the host's; past it the frame is refused (``can.CanOperationError``), the frames after it
+at once while the queue stays full, and the ticks go on at their rate, so a rig that has
+stopped holds the loop once for this long (the monitor's bench-stall rule ends the run)."""
 
-    _send_flags = socket.MSG_DONTWAIT
+
+class UnixCanBus(_SeqpacketBus):
+    """The harness's end: connects to a ``UnixCanServerBus`` of the same name. A send waits
+    at most ``SEND_TIMEOUT_S`` for room in the other end's queue, then refuses the frame,
+    and the frames after it at once until the other end reads again."""
 
     def __init__(self, channel: str, **kwargs: Any) -> None:
         self.channel_info = f"unix:{channel}"
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         try:
             sock.connect(_address(channel))
+            whole = int(SEND_TIMEOUT_S)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, struct.pack(
+                "ll", whole, int(round((SEND_TIMEOUT_S - whole) * 1e6))))
         except OSError:
             sock.close()
             raise
