@@ -55,11 +55,15 @@ from harness.calibration.plan import (
 )
 from harness.calibration.residual import fit_modal_residual, true_residual
 from harness.controllers.shaped_wheel_slew import Mode
-from harness.core.identify import analysis_windows, load_record, write_spectrum_rrd
+from harness.core.identify import (
+    analysis_windows,
+    identify_samples,
+    load_windows,
+    write_spectrum_rrd,
+)
 from harness.core.paths import safe_child, safe_name
 from harness.core.runs import RunConfig, build_controller, run_from_dict, virtual_bus
 from harness.core.session import RunResult, execute_run, refuse_beyond_limits
-from harness.identification.windows import identify_windows
 from rig_models.rig_file import RigConfig, load_rig
 from rig_models.schema import ConfigError
 
@@ -185,11 +189,10 @@ def _run(run: RunConfig, runs_dir: Path, bus: str | None, clock: str) -> RunResu
 def identify_run(run_dir: Path) -> Any:
     """The modes of an excitation run, as ``harness identify RUN_DIR`` finds them (and its
     identify.rrd beside run.rrd)."""
-    t, a, cfg, _ = load_record(run_dir)
-    windows = analysis_windows(cfg)
-    if windows is None:
+    rec = load_windows(run_dir)  # the windows' samples only
+    if analysis_windows(rec.cfg) is None:
         raise CalibrationError(f"{run_dir}: no free-decay windows in its config")
-    ident = identify_windows(t, a, windows)
+    ident = identify_samples(rec)
     write_spectrum_rrd(run_dir, ident)
     return ident
 

@@ -22,6 +22,12 @@ after the mode-1 and mode-2 bursts gives modes 1 and 2. ``--start-s`` (one windo
 there) or ``--window START:END`` (repeatable, each its own experiment) override the run's
 windows; a CSV or an .rrd without config.yaml is one window over the whole record.
 
+Only the windows' samples are read and held, and a window is analysed over at most 600 s
+from its start (or 20 time constants 1/(zeta omega) of the rig's slowest model mode, if
+longer): a free decay is over by then, and the rest of a long run's record (noise or rest)
+would only take memory. A window so cut is named on stderr, with ``cut_at_s`` in its JSON
+entry and a note.
+
 The FFT view of a short window does not resolve a fast-decaying mode (for mode 3 its
 Rayleigh resolution, 3.3 rad/s, is about the peak's half-power width): its FFT peak and
 half-power damping are then averaged over the repetitions and marked rough in a note; the
@@ -75,18 +81,22 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def cmd_identify(args: argparse.Namespace) -> int:
     # numpy, scipy and Rerun only when a command identifies (start-up of `harness --help`)
-    from harness.core.identify import chosen_windows, identify_record, load_record
+    from harness.core.identify import identify_record, load_windows
     from rig_models.paper003 import PAPER_TABLE1
 
     try:
         if args.n_modes is not None and args.n_modes < 1:
             raise ValueError(f"--n-modes must be >= 1, got {args.n_modes}")
-        t, a, cfg, run_dir = load_record(args.source)
-        windows = chosen_windows(t, cfg, args.start_s, args.window)
-        print(f"harness identify: {len(t)} samples, {t[-1] - t[0]:.1f} s, free decay"
-              f"{'s' if len(windows) > 1 else ''} "
-              f"{', '.join(w.label() for w in windows)} ...", file=sys.stderr)
-        out = identify_record(t, a, cfg, run_dir, windows, args.n_modes, args.f_max_hz)
+        rec = load_windows(args.source, args.start_s, args.window)
+        run_dir, windows = rec.run_dir, rec.windows
+        span = rec.last_read_s - rec.first_s
+        read = (f"{rec.n_read} samples, {span:.1f} s" if rec.read_to_end
+                else f"{rec.n_read} samples read ({span:.1f} s, to the windows' end)")
+        labels = [w.label() + ("" if cut is None else f" cut at {cut:.2f} s")
+                  for w, cut in zip(windows, rec.cut_at_s, strict=True)]
+        print(f"harness identify: {read}, free decay{'s' if len(windows) > 1 else ''} "
+              f"{', '.join(labels)} ...", file=sys.stderr)
+        out = identify_record(rec, run_dir, args.n_modes, args.f_max_hz)
     except (ValueError, OSError) as exc:
         print(f"harness identify: {exc}", file=sys.stderr)
         return 2

@@ -234,10 +234,9 @@ def _estimate(run_dir: Path, design: dict[str, Any], input_name: str, outputs: l
 
 
 def _decay_modes(decay: Path) -> list[dict[str, Any]]:
-    from harness.core.identify import chosen_windows, identify_record, load_record
+    from harness.core.identify import identify_record, load_windows
 
-    t, a, cfg, _ = load_record(decay)
-    out = identify_record(t, a, cfg, None, chosen_windows(t, cfg))
+    out = identify_record(load_windows(decay))  # the windows' samples only
     return [{k: m.get(k) for k in ("omega_rad_s", "sigma_omega_rad_s", "damping_ratio",
                                     "sigma_damping", "model_mode")} for m in out["modes"]]
 

@@ -355,13 +355,13 @@ def _identified(run_dir: Path, cfg: dict[str, Any], model: list[dict[str, Any]]
     ident = None if found is None else {"modes": found}
     if ident is None:
         # the identification (scipy, Rerun's reader) only when the run has no identify.json
-        from harness.core.identify import analysis_windows, identify_record, load_record
+        from harness.core.identify import analysis_windows, identify_record, load_windows
 
         if analysis_windows(cfg) is None:
             return []
         try:
-            t, a, cfg2, _ = load_record(run_dir)
-            ident = identify_record(t, a, cfg2, None, analysis_windows(cfg2) or [])
+            rec = load_windows(run_dir)  # the windows' samples only
+            ident = identify_record(rec)
         except Exception:  # noqa: BLE001 - no modes to show beside the residual
             return []
     out = []

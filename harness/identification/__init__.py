@@ -41,6 +41,7 @@ from harness.identification.windows import (
     AnalysisWindow,
     MultiWindowResult,
     WindowedMode,
+    identify_window_segments,
     identify_windows,
 )
 
@@ -67,6 +68,7 @@ __all__ = [
     "find_spectral_peaks",
     "fit_free_decay",
     "identify",
+    "identify_window_segments",
     "identify_windows",
     "matrix_pencil",
     "read_accel_csv",

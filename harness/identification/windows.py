@@ -376,14 +376,34 @@ def identify_windows(
     docstring). ``n_modes``: report the ``n_modes`` lowest modes (each window still fits
     every significant mode it holds; with a single window it is passed on to ``identify``,
     whose result is then reported unchanged). Other keyword arguments go to ``identify``."""
-    if not windows:
-        raise ValueError("windows must hold at least one AnalysisWindow")
     t = np.asarray(t, dtype=float)
     a = np.asarray(accel, dtype=float)
+    return identify_window_segments([(t, a)] * len(windows), windows, n_modes=n_modes,
+                                    f_max_hz=f_max_hz, **kwargs)
+
+
+def identify_window_segments(
+    segments: Sequence[tuple[np.ndarray, np.ndarray]],
+    windows: Sequence[AnalysisWindow],
+    *,
+    n_modes: int | None = None,
+    f_max_hz: float | None = None,
+    **kwargs: Any,
+) -> MultiWindowResult:
+    """``identify_windows`` with each window's own samples: ``segments[k]`` is (t, accel) of
+    a stretch of the record that holds window k's samples (those in [start_s, end_s), or
+    from start_s on when end_s is None: a segment may end before the record does, and the
+    window then ends with it). A record need not be held whole to be identified: only the
+    samples of its windows."""
+    if not windows:
+        raise ValueError("windows must hold at least one AnalysisWindow")
+    if len(segments) != len(windows):
+        raise ValueError(f"{len(segments)} segments for {len(windows)} windows")
     several = len(windows) > 1
 
     def run(k: int, known: Sequence[tuple[float, float]] = ()) -> IdentificationResult:
         w = windows[k]
+        t, a = segments[k]
         try:
             return identify(t, a, start_s=w.start_s, end_s=w.end_s, f_max_hz=f_max_hz,
                             n_modes=None if several else n_modes, known_modes=known, **kwargs)

@@ -44,10 +44,9 @@ import numpy as np
 from harness.calibration.residual import fit_modal_residual, true_residual
 from harness.controllers.shaped_wheel_slew import Mode, parse_modes
 from harness.controllers.thruster_two_level import damped_residual_percent
-from harness.core.identify import analysis_windows, load_record
+from harness.core.identify import analysis_windows, identify_samples, load_windows
 from harness.core.runs import RunConfig, build_controller, load_run
 from harness.core.session import execute_run
-from harness.identification.windows import identify_windows
 
 MARGIN_S = 0.1  # after the manoeuvre's end, before the residual window
 
@@ -203,11 +202,10 @@ def identify_modes(out_dir: Path, n_modes: int | None = None,
     if free_decay is None:
         free_decay = execute_run(load_run("free-decay"), out_dir=out_dir, show_progress=False)
     # the recording and config.yaml of the run directory, read as `harness identify` reads them
-    t, a, cfg, _ = load_record(Path(free_decay.run_dir))
-    windows = analysis_windows(cfg)
-    if windows is None:
+    rec = load_windows(Path(free_decay.run_dir))  # the windows' samples only
+    if analysis_windows(rec.cfg) is None:
         raise ValueError(f"{free_decay.run_dir}: not a free-decay run (no free-decay windows)")
-    ident = identify_windows(t, a, windows, n_modes=n_modes)
+    ident = identify_samples(rec, n_modes=n_modes)
     modes = tuple(Mode(m.omega_rad_s, m.damping_ratio) for m in ident.modes)
     info = {"run_dir": str(free_decay.run_dir), "modes": [
         {"omega_rad_s": m.omega_rad_s, "sigma_omega_rad_s": m.sigma_omega_rad_s,

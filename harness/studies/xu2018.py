@@ -29,10 +29,9 @@ from typing import Any
 
 import numpy as np
 
-from harness.core.identify import analysis_windows, load_record, model_modes
+from harness.core.identify import analysis_windows, identify_samples, load_windows, model_modes
 from harness.core.runs import RunConfig, load_run
 from harness.core.session import execute_run
-from harness.identification.windows import identify_windows
 from harness.studies.sweep import SweepSpec, run_sweep
 from harness.studies.sweep_report import analyse
 from rig_models.model_report import model_report
@@ -124,11 +123,11 @@ def identify_part(out_dir: Path, progress=None) -> tuple[dict[str, Any], dict[st
     if progress:
         progress("xu2018: running free-decay")
     result = execute_run(run, out_dir=out_dir, show_progress=False)
-    t, a, cfg, _ = load_record(result.run_dir)
-    windows = analysis_windows(cfg)
-    if windows is None:
+    rec = load_windows(result.run_dir)  # the windows' samples only
+    cfg = rec.cfg
+    if analysis_windows(cfg) is None:
         raise RuntimeError(f"{result.run_dir}: no free-decay windows in its config")
-    ident = identify_windows(t, a, windows)
+    ident = identify_samples(rec)
     truth = model_modes(cfg)
     assert truth is not None
     modes = []
