@@ -144,11 +144,11 @@ QUICKLOOK_OUTPUTS = {"wheel": ("hub_rate", "tip_accel"),
 defaults)."""
 
 
-def model_response(rig: RigConfig, channel: str, output: str, freq_hz: np.ndarray
-                   ) -> np.ndarray:
-    """The rig model's frequency response from an input channel to an output (SI): the
-    plant ``C (sI - A)^-1 B + D``, a piezo input through its patch's modal forces per volt,
-    a sensor patch output through its volts per modal coordinate."""
+def model_vectors(rig: RigConfig, channel: str, output: str
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """(A, b, c, d) of the rig model from an input channel to an output (SI): a piezo input
+    through its patch's modal forces per volt, a sensor patch output through its volts per
+    modal coordinate."""
     p = rig.plant
     if channel == "wheel":
         b, d_in = p.b[:, 0], p.d[:, 0]
@@ -156,14 +156,21 @@ def model_response(rig: RigConfig, channel: str, output: str, freq_hz: np.ndarra
         g = rig.piezo_gains[int(channel[-1]) - 1]
         b, d_in = p.b[:, 1:] @ g.actuator, p.d[:, 1:] @ g.actuator
     if output == "hub_rate":
-        c, d = p.c[1], float(d_in[1])
-    elif output == "tip_accel":
-        c, d = p.c[2], float(d_in[2])
-    else:
-        c, d = np.zeros(p.n_states), 0.0
-        c[1:1 + p.n_modes] = rig.piezo_gains[int(output[-1]) - 1].sensor
-    eye = np.eye(p.n_states)
-    return np.array([c @ np.linalg.solve(2j * math.pi * f * eye - p.a, b) + d
+        return p.a, b, p.c[1], float(d_in[1])
+    if output == "tip_accel":
+        return p.a, b, p.c[2], float(d_in[2])
+    c = np.zeros(p.n_states)
+    c[1:1 + p.n_modes] = rig.piezo_gains[int(output[-1]) - 1].sensor
+    return p.a, b, c, 0.0
+
+
+def model_response(rig: RigConfig, channel: str, output: str, freq_hz: np.ndarray
+                   ) -> np.ndarray:
+    """The rig model's frequency response from an input channel to an output (SI): the
+    plant ``C (sI - A)^-1 B + D`` (``model_vectors``)."""
+    a, b, c, d = model_vectors(rig, channel, output)
+    eye = np.eye(len(a))
+    return np.array([c @ np.linalg.solve(2j * math.pi * f * eye - a, b) + d
                      for f in np.asarray(freq_hz, dtype=float)])
 
 

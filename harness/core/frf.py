@@ -12,6 +12,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from harness.controllers.excitation import model_vectors
+
 INPUTS = {"wheel": ("/wheel/torque_n_m", "N m"), "piezo1": ("/piezo/cmd_ch1_v", "V"),
           "piezo2": ("/piezo/cmd_ch2_v", "V")}
 OUTPUTS = {"hub_rate": ("/attitude/rate_deg_s", math.pi / 180, "rad/s"),
@@ -42,28 +44,6 @@ def _load(run_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     cfg = load_yaml(cfg_path, "config.yaml")
     summary = json.loads(summary_path.read_text()) if summary_path.exists() else {}
     return cfg, summary
-
-
-def model_vectors(rig: Any, input_name: str, output_name: str
-                  ) -> tuple[Any, Any, Any, float]:
-    """(A, b, c, d) of the rig model from one input to one output, in SI."""
-    import numpy as np
-
-    p = rig.plant
-    n = p.n_modes
-    if input_name == "wheel":
-        b, d_in = p.b[:, 0], p.d[:, 0]
-    else:
-        g = rig.piezo_gains[int(input_name[-1]) - 1]
-        b, d_in = p.b[:, 1:] @ g.actuator, p.d[:, 1:] @ g.actuator
-    if output_name == "hub_rate":
-        return p.a, b, p.c[1], float(d_in[1])
-    if output_name == "tip_accel":
-        return p.a, b, p.c[2], float(d_in[2])
-    g = rig.piezo_gains[int(output_name[-1]) - 1]
-    c = np.zeros(p.n_states)
-    c[1:1 + n] = g.sensor
-    return p.a, b, c, 0.0
 
 
 def analyse(run_dir: Path, input_name: str | None = None, outputs: list[str] | None = None,
