@@ -328,3 +328,34 @@ def test_a_when_that_fires_all_run_long_keeps_its_result_bounded():
     assert len(step["actions"]) == runner.MAX_ACTIONS_KEPT + 1
     assert step["actions"][-1].startswith("... and ")
     assert len(out["injected"]) == runner.MAX_ACTIONS_KEPT
+
+
+def test_a_step_runs_its_own_controller_on_the_steps_time(tmp_path):
+    # a hold, then a wheel pulse that is a step's own controller: its start_s counts from
+    # the step's start, and the run's controller takes over again after the step
+    raw = _base(duration_s=6.0, controller={"type": "hold"}, sequence={"steps": [
+        {"name": "rest", "for_s": 1.0},
+        {"name": "pulse", "for_s": 2.0,
+         "controller": {"type": "wheel_pulse", "torque_n_m": 0.02, "start_s": 0.5,
+                        "width_s": 1.0}},
+        {"name": "rest again", "for_s": 1.0}]})
+    result = execute_run(run_from_dict(raw), out_dir=tmp_path, show_progress=False)
+    from harness.testing.judge import read_channels
+
+    t, torque = read_channels(result.run_dir / "run.rrd", {"/wheel/torque_cmd_n_m"})[
+        "/wheel/torque_cmd_n_m"]
+    on = torque != 0.0
+    assert np.all(torque[on] == pytest.approx(0.02))
+    assert t[on][0] == pytest.approx(1.5) and t[on][-1] == pytest.approx(2.498)
+    assert [s["outcome"] for s in result.summary["sequence"]["steps"]] == ["PASS"] * 3
+
+
+@pytest.mark.parametrize("controller, key", [
+    ({"type": "no_such"}, "controller.type"),
+    ({"type": "wheel_pulse", "width_s": -1.0}, "controller.width_s"),
+    ({"type": "wheel_pulse", "torque": 1.0}, "controller.torque"),
+])
+def test_a_steps_own_controller_is_checked_before_the_run(controller, key):
+    raw = _base(sequence={"steps": [{"name": "p", "for_s": 1.0, "controller": controller}]})
+    with pytest.raises(ConfigError, match=rf"sequence\.steps\[0\] \(p\)\.{key}"):
+        run_from_dict(raw)

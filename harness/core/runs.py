@@ -291,9 +291,13 @@ def sequence_spec(data: dict[str, Any], rig: RigConfig, source: str) -> Any:
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None
 
-    return parse_sequence(data["sequence"], data["variables"], source,
+    spec = parse_sequence(data["sequence"], data["variables"], source,
                           tuple(data["actuators"]), quantities_for(rig_devices(rig)),
                           can_inject)
+    for step in spec.all_steps:  # a step's own controller: its type and keys, now
+        if step.controller is not None:
+            step_controller_section(step.controller, f"{step.where}.controller")
+    return spec
 
 
 def build_controller(run: RunConfig) -> Any:
@@ -317,22 +321,44 @@ def build_controller(run: RunConfig) -> Any:
                         "cannot retarget (it has no retarget(angle_rad, t_s)); pd_wheel can")
     import math
 
+    own = {}
+    for step in spec.all_steps:
+        if step.controller is not None:
+            where = f"{step.where}.controller"
+            section = step_controller_section(step.controller, where)
+            own[step.index] = build_section(section, run, where.split(": ", 1)[-1])
     return SequenceRunner(spec, controller, quantities_for(rig_devices(run.rig)),
-                          math.radians(run.data["settle_band_deg"]), run.dt_s)
+                          math.radians(run.data["settle_band_deg"]), run.dt_s, own)
+
+
+def step_controller_section(raw: dict[str, Any], where: str) -> dict[str, Any]:
+    """A sequence step's ``controller:`` section checked against its type's schema."""
+    names = controller_names()
+    if raw.get("type") not in names:
+        raise ConfigError(f"{where}.type: expected one of {names}, got {raw.get('type')!r}")
+    source, _, path = where.partition(": ")
+    return validate(raw, controller_type(raw["type"]).schema, source, path)
 
 
 def _build_controller(run: RunConfig) -> Any:
-    ctype = controller_type(run.controller["type"])
+    return build_section(run.controller, run, "controller")
+
+
+def build_section(section: dict[str, Any], run: RunConfig, where: str) -> Any:
+    """A controller from a validated ``controller:`` section (the run's, or a sequence
+    step's), named ``where`` in the errors: its factory's failures are one-line
+    ``ConfigError``s before anything is sent."""
+    ctype = controller_type(section["type"])
     try:
-        controller = ctype.build(run.controller, run.rig, run.dt_s)
+        controller = ctype.build(section, run.rig, run.dt_s)
     except ValueError as exc:
-        raise ConfigError(f"{run.source}: controller: {exc}") from exc
+        raise ConfigError(f"{run.source}: {where}: {exc}") from exc
     except (OverflowError, ZeroDivisionError, FloatingPointError) as exc:
         # a finite but absurd value (bandwidth_rad_s: 1e308) overflows the design's math
-        keys = ", ".join(f"{k}: {v!r}" for k, v in run.controller.items()
+        keys = ", ".join(f"{k}: {v!r}" for k, v in section.items()
                          if isinstance(v, int | float) and not isinstance(v, bool)
                          and abs(v) > 1e6)
-        raise ConfigError(f"{run.source}: controller: its numbers are out of range ({exc}"
+        raise ConfigError(f"{run.source}: {where}: its numbers are out of range ({exc}"
                           f"{'; ' + keys if keys else ''})") from exc
     except KeyboardInterrupt:
         raise  # Ctrl-C before the run began (harness.core.interrupts): nothing sent
@@ -340,10 +366,10 @@ def _build_controller(run: RunConfig) -> Any:
         if ctype.builtin and isinstance(exc, Exception):
             raise
         # a plugin's own failure: named, one line, before anything is sent
-        raise ConfigError(f"{run.source}: controller: {ctype.describe()} failed to build: "
+        raise ConfigError(f"{run.source}: {where}: {ctype.describe()} failed to build: "
                           f"{type(exc).__name__}: {exc}") from exc
     if not callable(getattr(controller, "step", None)):
-        raise ConfigError(f"{run.source}: controller: {ctype.describe()} returned "
+        raise ConfigError(f"{run.source}: {where}: {ctype.describe()} returned "
                           f"{type(controller).__name__}, which has no step(state) method")
     return controller
 

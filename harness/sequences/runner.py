@@ -31,6 +31,7 @@ from harness.state import RigCommand, RigState
 from rig_models.faults import FaultSpec
 
 PASS, FAIL, TIMEOUT, SKIPPED, ERROR = "PASS", "FAIL", "TIMEOUT", "SKIPPED", "ERROR"
+_NO_REFERENCE = (math.nan, math.nan, math.nan)
 
 MAX_ACTIONS_KEPT = 20
 """A step's actions listed in its result (a ``when: ... every: true`` may fire all run
@@ -104,9 +105,13 @@ class SequenceRunner:
     """The controller the loop calls for a run with a ``sequence:`` (see the module)."""
 
     def __init__(self, spec: SequenceSpec, controller: Any, quantities: dict[str, Any],
-                 settle_band_rad: float, dt_s: float) -> None:
+                 settle_band_rad: float, dt_s: float,
+                 step_controllers: dict[int, Any] | None = None) -> None:
         self.spec = spec
         self.controller = controller
+        # a step's own controller (by the step's index), run while the step runs, on the
+        # step's time (its t = 0 the step's start)
+        self.step_controllers = dict(step_controllers or {})
         self.quantities = quantities
         self.settle_band_rad = settle_band_rad
         self.dt_s = dt_s
@@ -134,6 +139,8 @@ class SequenceRunner:
         self.current = 0
         self.started = False
         self._live_now: _LiveStep | None = None  # the step under way
+        self._active: Any = None  # the step's own controller, while it runs
+        self._active_t0 = 0.0
         self.override: RigCommand | None = None
         self.aborted = False
         self.finished = False
@@ -146,7 +153,8 @@ class SequenceRunner:
     def __deepcopy__(self, memo: dict[int, Any]) -> SequenceRunner:
         """A fresh runner (the limit plan's): conditions compiled again, never shared."""
         return SequenceRunner(self.spec, copy.deepcopy(self.controller, memo),
-                              self.quantities, self.settle_band_rad, self.dt_s)
+                              self.quantities, self.settle_band_rad, self.dt_s,
+                              copy.deepcopy(self.step_controllers, memo))
 
     # what the session reads off the controller (reference, design_report, ...) is the
     # run's own controller's
@@ -159,8 +167,16 @@ class SequenceRunner:
     def reference_rad(self) -> float:
         """The controller's reference angle now (NaN without one): read only when a
         condition asks for it."""
-        ref = self._reference
-        return ref(self.t_s)[0] if ref is not None else math.nan
+        return self.reference(self.t_s)[0]
+
+    def reference(self, t_s: float) -> tuple[float, float, float]:
+        """The reference of the controller in charge at ``t_s`` (a step's own, on the
+        step's time, else the run's); NaN without one. The loop records it."""
+        active = self._active
+        if active is not None:
+            ref = getattr(active, "reference", None)
+            return ref(t_s - self._active_t0) if ref is not None else _NO_REFERENCE
+        return self._reference(t_s) if self._reference is not None else _NO_REFERENCE
 
     def event_time(self, name: str) -> float | None:
         return self.events.get(name)
@@ -172,7 +188,13 @@ class SequenceRunner:
 
     # ------------------------------------------------------------------ the tick
     def step(self, state: RigState) -> RigCommand:
-        cmd = self._inner_step(state)
+        active = self._active
+        if active is None:
+            cmd = self._inner_step(state)
+        else:  # the step's own controller, on the step's time
+            shifted = state.copy()
+            shifted.time_s = state.time_s - self._active_t0
+            cmd = active.step(shifted)
         self.state = state
         t = self.t_s = state.time_s
         if not self.finished:
@@ -211,6 +233,12 @@ class SequenceRunner:
         self.step_index = self.current
         res.started_s = t
         live.reset(t)
+        own = self.step_controllers.get(step.index)
+        if own is not None:
+            reset = getattr(own, "reset", None)
+            if callable(reset):
+                reset()
+            self._active, self._active_t0 = own, t
         self._log(t, f"step {step.name}: started", "INFO")
         live.slew = step.actions.slew_rad is not None or step.actions.hold
         live.target_rad = (self.state.hub_angle_rad if step.actions.hold
@@ -277,6 +305,7 @@ class SequenceRunner:
                      + (f" ({res.condition}: {res.value})" if res.condition else ""), level)
         self.started = False
         self._live_now = None
+        self._active = None  # the run's controller again
         self.current += 1
         if outcome != PASS and not step.final and step.on_fail == "abort" \
                 or outcome == ERROR:
@@ -303,6 +332,7 @@ class SequenceRunner:
             res.reason = f"not decided {self.spec.after_fault_s:g} s after the monitor's fault"
             self.started = False
             self._live_now = None
+            self._active = None
             self._log(t, f"step {res.name}: FAIL: {res.reason}", "ERROR")
             self.current += 1
         if not in_final:

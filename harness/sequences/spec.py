@@ -22,7 +22,7 @@ from harness.state import RigCommand
 from rig_models.faults import FaultSpec, make_fault
 from rig_models.schema import ConfigError, short_repr
 
-STEP_KEYS = ("name", "slew", "hold", "command", "inject", "clear_faults", "mark",
+STEP_KEYS = ("name", "controller", "slew", "hold", "command", "inject", "clear_faults", "mark",
              "wait_until", "timeout_s", "on_timeout", "verify", "when", "for_s", "until",
              "on_fail")
 ACTION_KEYS = ("slew", "hold", "command", "inject", "clear_faults", "mark")
@@ -99,6 +99,9 @@ class Step:
     until: str | None = None
     on_fail: str = "abort"  # "abort" | "continue"
     final: bool = False  # a step of ``finally:``
+    # the step's own controller section (``{type: ..., ...}``), run while the step runs on
+    # the step's time (checked and built by the caller: the registry is not this package's)
+    controller: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True)
@@ -285,6 +288,14 @@ def _step(raw: Any, index: int, where: str, actuators: tuple[str, ...], final: b
         raise _err(f"{where}.name", f"expected the step's name, got {short_repr(name)}")
     where = f"{where} ({name})"
     actions = _actions(raw, where, actuators)
+    controller = raw.get("controller")
+    if controller is not None:
+        if not isinstance(controller, dict) or not isinstance(controller.get("type"), str):
+            raise _err(f"{where}.controller", "expected a controller section {type: NAME, "
+                                              f"...}}, got {short_repr(controller)}")
+        if actions.slew_rad is not None or actions.hold:
+            raise _err(f"{where}.controller", "a step runs its own controller or slews / "
+                                              "holds the run's, not both")
     wait = _condition_text(raw["wait_until"], f"{where}.wait_until") \
         if "wait_until" in raw else None
     until = _condition_text(raw["until"], f"{where}.until") if "until" in raw else None
@@ -337,7 +348,7 @@ def _step(raw: Any, index: int, where: str, actuators: tuple[str, ...], final: b
         whens.append(When(_condition_text(w["if"], f"{wwhere}.if"),
                           _actions(do, f"{wwhere}.do", actuators), every, wwhere))
     return Step(name.strip(), index, where, actions, wait, timeout, on_timeout, verify,
-                tuple(whens), for_s, until, on_fail, final)
+                tuple(whens), for_s, until, on_fail, final, controller)
 
 
 def _conditions(step: Step) -> list[tuple[str, str]]:
