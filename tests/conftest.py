@@ -43,6 +43,22 @@ def pytest_collection_finish(session: pytest.Session) -> None:
 
 
 USED_FIXTURES = pytest.StashKey[frozenset]()
+
+# Session fixtures that cost minutes (the four paper suites, 160 s on a quiet 2-core
+# machine) are built once per process. Under pytest-xdist's `--dist loadgroup` every test
+# that uses one goes to the same worker, so the suites run once, not once per worker
+# (``free_decay_run`` borrows the suites' free decay, so its tests go there too).
+SHARED_FIXTURE_GROUPS = {"paper_suites": "paper_suites", "free_decay_run": "paper_suites",
+                         "sgsrt_wheel_calibration": "calibration"}
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist reads the groups
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        for name in getattr(item, "fixturenames", ()):
+            if name in SHARED_FIXTURE_GROUPS:
+                item.add_marker(pytest.mark.xdist_group(SHARED_FIXTURE_GROUPS[name]))
+                break
 # a run directory's own files, as execute_run leaves them (not what judging or identifying
 # it adds: verdict.*, identify.*)
 RUN_FILES = ("run.rrd", "can.blf", "config.yaml", "summary.json", "layout.json")

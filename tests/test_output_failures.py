@@ -86,9 +86,14 @@ def test_cut_before_any_message_is_a_clear_error(short_run, tmp_path):
         _rows(cut_path)
 
 
-def test_cut_reader_leaves_no_temporary_copy(short_run, tmp_path):
+def test_cut_reader_leaves_no_temporary_copy(short_run, tmp_path, monkeypatch):
     import tempfile
 
+    # a temporary folder of this test's own: another test in another worker may be reading a
+    # cut recording at the same moment
+    own_tmp = tmp_path / "tmp"
+    own_tmp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(own_tmp))
     before = set(Path(tempfile.gettempdir()).glob("sgsrt-cut-*"))
     cut_path = tmp_path / "cut.rrd"
     cut_path.write_bytes((short_run / "run.rrd").read_bytes()[:-7])

@@ -618,12 +618,12 @@ def test_acceptance_suite_on_the_canopen_rig_over_vcan0_in_lockstep(rig, tmp_pat
     """The lab's daily check (`harness test acceptance`) against the CANopen rig over the
     kernel's bus: the virtual rig as its own process on vcan0 in lockstep (its nodes' timers
     on the rig's time; an emulated CPU cannot hold 500 Hz in real time), the harness as the
-    CANopen master setting each node up again for every run. The verdicts must be those of
-    the suite in process (tests/test_acceptance_rigs.py): the probe and the slew PASS. The
-    free decay and its identification are not run here: 70 s of the rig's time, 35 000 ticks
-    at about 10 ms each under emulation, six minutes of CI for a run whose frames over a bus
-    in lockstep are the in-process run's frame for frame (tests/test_lockstep_bus.py); the
-    vcan path they would add is the slew's."""
+    CANopen master setting the nodes up for the suite's run. The verdict must be the suite's
+    in process (tests/test_acceptance_rigs.py): the probe PASSes. The suite's runs are not run
+    here: the 50 s slew alone is 25 000 ticks at about 15 ms each under emulation, six minutes
+    of CI for a run whose frames over a bus in lockstep are the in-process run's frame for
+    frame (tests/test_lockstep_bus.py); the CANopen rig's run over vcan0 is
+    test_canopen_rig_over_vcan0_sets_up_runs_and_is_left_safe's, in real time."""
     rig.stop()  # the other tests' rig: one rig on vcan0
     rig = RigProcess(500.0, tmp_path, rig="sgsrt-canopen", lockstep=True)
     rig.start()
@@ -631,7 +631,7 @@ def test_acceptance_suite_on_the_canopen_rig_over_vcan0_in_lockstep(rig, tmp_pat
         out = subprocess.run(
             [sys.executable, "-m", "harness", "test", "acceptance", "--rig", "sgsrt-canopen",
              "--bus", f"socketcan:{CHANNEL}", "--clock", "lockstep", "--quiet",
-             "-k", "probe or slew",
+             "-k", "probe",
              "--out", str(tmp_path / "logs")],
             capture_output=True, text=True, timeout=RUN_TIMEOUT_S)
     finally:
@@ -642,7 +642,7 @@ def test_acceptance_suite_on_the_canopen_rig_over_vcan0_in_lockstep(rig, tmp_pat
     verdicts = {t["nodeid"].split("::")[-1]: t["verdict"] for t in results["tests"]}
     print(f"acceptance over {CHANNEL} in lockstep: {verdicts}, wall {results['wall_time_s']} s")
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:] + log[-2000:]
-    assert verdicts == {"probe": "PASS", "slew-rw": "PASS"}, verdicts
+    assert verdicts == {"probe": "PASS"}, verdicts
 
 
 def test_frames_the_kernel_drops_for_a_full_queue_are_counted():
