@@ -189,9 +189,16 @@ def test_every_other_frame_missing_is_a_fault_on_the_wall_clock_too(tmp_path):
     """A CANopen PDO has no frame counter: on the wall clock the frames are counted against
     the SYNCs that asked for them (lockstep counts them per tick)."""
     run = load_run("slew-rw", {"duration_s": 3.0, "rig": "sgsrt-canopen"})
-    result = execute_run(run, out_dir=tmp_path, clock="realtime", show_progress=False,
-                         faults=[parse_fault("drop_frames@1:reaction_wheel")])
-    fault = result.summary["faults"][0]
+    for attempt in range(3):
+        result = execute_run(run, out_dir=tmp_path / str(attempt), clock="realtime",
+                             show_progress=False,
+                             faults=[parse_fault("drop_frames@1:reaction_wheel")])
+        fault = result.summary["faults"][0]
+        # a node that heard no heartbeat from the harness within its consumer time (EMCY
+        # 0x8130) before the dropped frames: the host held the loop back (a loaded CI
+        # machine), the binding never got to count; run again
+        if not (fault["kind"] == "EMCY" and "heartbeat" in fault["message"]):
+            break
     assert (fault["device"], fault["kind"]) == ("reaction_wheel", "frames lost"), fault
     # the bound docs/faults.md states: 2 (grace + lost_frames + 1) d ticks, here 62
     assert fault["tick"] - 500 <= 62, fault

@@ -23,7 +23,7 @@ SETUP_RUN = (
 )
 SETUP_TEST = (
     "python3 -m venv .venv && .venv/bin/pip install -e '.[test]' && "
-    ".venv/bin/python -m pytest -q"
+    ".venv/bin/python -m pytest -q -n 2 --dist loadgroup"
 )
 
 # Pages another branch of work adds (the CLI reference generated from the parser, the
