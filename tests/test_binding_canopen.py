@@ -429,3 +429,41 @@ def test_replay_decodes_a_canopen_run_by_name(tmp_path):
     check = subprocess.run([sys.executable, "-m", "harness", "replay", str(result.run_dir),
                             "--check"], capture_output=True, text=True, timeout=300)
     assert check.returncode == 2 and "compares sgsrt command frames only" in check.stderr
+
+
+def test_a_nodes_emcy_about_the_harness_heartbeat_is_named_as_such(tmp_path):
+    """EMCY 0x8130 from a node (no vendor byte, or the harness's node id in it): the node
+    heard no heartbeat from the harness. In lockstep the loop is never held back, so it is
+    the node's: named as the harness's heartbeat lost at that node, not a bare EMCY."""
+    result = _run(tmp_path, [FaultSpec("node_emcy", 1.0, device="hub_sensor", value=0x8130)])
+    f = result.summary["faults"][0]
+    assert (f["device"], f["kind"]) == ("hub_sensor", "harness heartbeat lost"), f
+    assert "heard no heartbeat from the harness" in f["message"] and "0x8130" in f["message"]
+    _assert_left_safe(result)
+
+
+def test_the_harness_heartbeat_late_after_a_tick_held_back_is_the_benchs():
+    """On the wall clock, a node's EMCY 0x8130 within the watchdog's time of a tick the loop
+    held back is the bench's (the run stops as the bus being late); long after it, the
+    node's."""
+    from drivers.dbc import load_protocol
+    from harness.bus.rig_interface import HARNESS_HEARTBEAT_LOST, RigInterface
+    from harness.core.runs import load_run
+    from harness.core.session import make_monitor
+
+    run = load_run("slew-rw", {"duration_s": 2.0})
+    bus = can.Bus(interface="virtual", channel=_channel())
+    try:
+        iface = RigInterface(bus, load_protocol(), run.rig, None)
+        monitor = make_monitor(run, iface, realtime=True)
+        report = ("hub_sensor", HARNESS_HEARTBEAT_LOST, "node 4: EMCY 0x8130")
+        monitor._protocol_fault = lambda tick: report
+        monitor.note_not_held(300, 1.0)  # tick 300 woke a second late
+        near = monitor._protocol(310, None, None)
+        monitor.not_held_tick = -(1 << 62)
+        far = monitor._protocol(900, None, None)
+    finally:
+        bus.shutdown()
+    assert (near.device, near.kind) == ("bus", "late"), near
+    assert "held back tick 300" in near.message and "hub_sensor" in near.message
+    assert (far.device, far.kind) == ("hub_sensor", HARNESS_HEARTBEAT_LOST), far

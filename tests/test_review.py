@@ -62,6 +62,34 @@ def test_layout_holds_the_views_the_docs_describe(kind):
         assert p.title in views
 
 
+def _tab(bp: rrb.Blueprint, name: str) -> set[str]:
+    """The titles of the views on one tab of a run's layout."""
+    found: list[rrb.Container] = []
+
+    def walk(node) -> None:
+        if isinstance(node, rrb.Container):
+            if str(node.name) == name:
+                found.append(node)
+            for c in node.contents:
+                walk(c)
+
+    walk(bp.root_container)
+    (tab,) = found
+    return {str(v.name) for v in L.blueprint_views(rrb.Blueprint(tab))}
+
+
+def test_timing_on_the_wire_is_on_the_run_page_when_it_was_measured():
+    run = load_run("slew-rw").resolved()
+    wire, loop = L.PLOTS["wire"].title, L.PLOTS["timing"].title
+    ranges = {"/timing/lateness_ms": [0.0, 1.0]}
+    bp = L.layout_for_run(run, CHANNELS, ranges)  # a lockstep run: nothing on the wire
+    assert loop in _tab(bp, "Run") and wire not in _tab(bp, "Run")
+    assert wire in _tab(bp, "Other signals")
+    ranges["/timing/sync_jitter_ms"] = [0.1, 3.0]  # a real bus's kernel time stamps
+    bp = L.layout_for_run(run, CHANNELS, ranges)
+    assert {loop, wire} <= _tab(bp, "Run") and wire not in _tab(bp, "Other signals")
+
+
 def test_every_built_in_run_gets_a_layout():
     from harness.core.runs import list_runs
 

@@ -27,6 +27,7 @@ SYNC_COB_ID = 0x080
 SYNC_COUNTER_OVERFLOW = 240  # 0x1019: the SYNC carries a counter 1..240
 NMT_COB_ID = 0x000
 EMCY_BASE = 0x080
+EMCY_HEARTBEAT_ERROR = 0x8130  # CiA 301: life guard or heartbeat consumer time-out
 TPDO_BASE = (0x180, 0x280, 0x380, 0x480)
 RPDO_BASE = (0x200, 0x300, 0x400, 0x500)
 SDO_TX_BASE, SDO_RX_BASE = 0x580, 0x600

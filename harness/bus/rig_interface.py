@@ -34,6 +34,9 @@ CAN_ERR_BUSOFF = 0x040  # SocketCAN error class (linux/can/error.h)
 KERNEL_SYNC_BACKLOG = 1000
 """Kernel-sent SYNCs kept for a loop that fell behind (their time stamps)."""
 DUPLICATE_HB_COUNT = 8
+# the kind of a CANopen node's EMCY 0x8130 about the harness's own heartbeat (the harness
+# was late at the node: on the wall clock after a loop held back, the bench's doing)
+HARNESS_HEARTBEAT_LOST = "harness heartbeat lost"
 DUPLICATE_HB_PERIODS = 5.0
 """A node id used twice: this many heartbeats within this many of the node's periods (a
 healthy node needs 7 periods for 8 heartbeats; a late one followed by an on-time one bunches
@@ -573,7 +576,7 @@ class RigInterface:
     def _canopen_service(self, msg: can.Message, tick: int) -> bool:
         """A CANopen service frame of a node (heartbeat, boot-up, EMCY, SDO): True if it is
         one. Boot-up mid-run, a node not operational, and an EMCY are faults."""
-        from drivers.binding.canopen import EMCY_BASE, emcy_meaning
+        from drivers.binding.canopen import EMCY_BASE, EMCY_HEARTBEAT_ERROR, emcy_meaning
         from drivers.binding.canopen_master import heartbeat_state
 
         cid, data = msg.arbitration_id, bytes(msg.data)
@@ -611,8 +614,17 @@ class RigInterface:
             if len(data) >= 3:
                 code, reg = int.from_bytes(data[:2], "little"), data[2]
                 if code != 0:  # 0x0000: error reset
-                    self.protocol_events.append((device, "EMCY", (
-                        f"node {nid}: {emcy_meaning(code, reg)}")))
+                    kind, text = "EMCY", f"node {nid}: {emcy_meaning(code, reg)}"
+                    # a heartbeat consumer's time-out about the harness (the producer's id
+                    # in the first vendor byte, or none given): the harness's heartbeat was
+                    # late at the node, which the monitor tells from a device's fault
+                    if code == EMCY_HEARTBEAT_ERROR and (len(data) < 4 or data[3] in (
+                            0, co.master_id)):
+                        kind = HARNESS_HEARTBEAT_LOST
+                        text += (f"; the node heard no heartbeat from the harness (node "
+                                 f"{co.master_id}) within its consumer time "
+                                 f"({co.consumer_timeout_ms} ms)")
+                    self.protocol_events.append((device, kind, text))
             return True
         return fn in (0x580, 0x600)
 

@@ -22,6 +22,7 @@ rotor in the default rig file):
 | node rebooted (CANopen) | a node's boot-up frame mid-run | 1 |
 | NMT state (CANopen) | a node's heartbeat says it is not operational | its heartbeat period |
 | heartbeat lost (CANopen) | no heartbeat for 3 periods (or the real-time grace) | 3 periods + 1 |
+| harness heartbeat lost (CANopen) | a node's EMCY 0x8130 (after a held-back tick: `bus` late) | 1 |
 | second master | a SYNC, NMT, SDO request, command or heartbeat the harness did not send | 1 |
 | drive disabled | a drive commanded enabled reports otherwise (its CiA 402 state named) | 2 d + 2 |
 | frames lost (wall clock) | frames older than the grace g not come (see below) | 2 (g+6) d |
@@ -75,7 +76,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from drivers.binding.canopen import cia402_state
-from harness.bus.rig_interface import RigInterface
+from harness.bus.rig_interface import HARNESS_HEARTBEAT_LOST, RigInterface
 from harness.core.plausibility import (
     INTEGRATION_FRACTION,
     SIGMAS,
@@ -1090,6 +1091,17 @@ class FaultMonitor:
         if found is None:
             return None
         device, kind, message = found
+        if kind == HARNESS_HEARTBEAT_LOST and self.realtime_grace and \
+                tick - self.not_held_tick <= self._watchdog_ticks + 2 * self.realtime_grace:
+            # the node went safe because the harness's heartbeat came late after the loop
+            # itself was held back (the host or the transport): the bench's, as a drive
+            # its own watchdog disabled (_disabled); the node has left operational, so the
+            # run stops, naming the bench
+            self._note_behind(tick)
+            return self._event(tick, "bus", "late", (
+                f"{device}: {message}, after the loop held back tick {self.not_held_tick} "
+                f"(t = {self.not_held_tick * self.dt_s:.3f} s): the host or the transport "
+                "kept the harness's heartbeat from the node, not the node's fault"))
         return self._event(tick, device, kind, message)
 
     def _event(self, tick: int, device: str, kind: str, message: str) -> FaultEvent:

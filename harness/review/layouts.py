@@ -151,6 +151,13 @@ def main_plots(kind: str, actuators: Iterable[str]) -> tuple[str, ...]:
     return keys
 
 
+def wire_measured(ranges: Mapping[str, Sequence[float]] | None) -> bool:
+    """True if the run measured its timing on the wire (a kernel's or adapter's time
+    stamps): a channel of the wire plot has a recorded range (unmeasured, they are NaN
+    throughout and have none)."""
+    return bool(ranges) and any(c in ranges for c in PLOTS["wire"].channels)
+
+
 def whole_run_axis(end_s: float | None) -> rrb.TimeAxis | None:
     """The time axis of a plot fixed on the whole run, 0 .. where it ended (a faulted run's
     recording ends at the fault, not at the configured duration)."""
@@ -412,6 +419,11 @@ def layout_for_run(run: Mapping[str, Any], channels: Iterable[str] | None = None
     corner = dict(legends or {})
     bands = criterion_bands(run)
     keys = main_plots(kind, data.get("actuators") or ())
+    if "timing" in keys and wire_measured(ranges):
+        # a real bus's timing on the wire beside the loop's: a reviewer of a real-time run
+        # sees whether the bus held the rate without opening another tab
+        at = keys.index("timing") + 1
+        keys = (*keys[:at], "wire", *keys[at:])
     main = [time_plot(PLOTS[k], end, chans, ranges, corner.get(k, "LeftTop"), bands)
             for k in keys]
     if data.get("sequence"):
