@@ -205,28 +205,14 @@ def _merge(parts: dict[str, list[tuple[np.ndarray, np.ndarray]]], entities: list
 
 def _scalar_chunks(rrd: Path, entities: list[str], values: bool
                    ) -> Iterator[tuple[str, np.ndarray, np.ndarray | None]]:
-    """(entity, times s, values or None) of each non-empty chunk of the loop's channels on
-    the ``time`` timeline, in the file's order; each entity's samples checked to be in time
-    order."""
-    from harness.record.reader import iter_chunks, scalar_values
+    """``harness.record.reader.scalar_chunks``, a recording out of time order an
+    ExportError."""
+    from harness.record.reader import OutOfOrder, scalar_chunks
 
-    wanted = set(entities)
-    last: dict[str, float] = {}
-    for chunk in iter_chunks(rrd, content=entities):
-        e = chunk.entity_path
-        if e not in wanted or chunk.is_static or "time" not in chunk.timeline_names:
-            continue
-        batch = chunk.to_record_batch()
-        if "Scalars:scalars" not in batch.schema.names:
-            continue
-        t = batch.column("time").cast("int64").to_numpy(zero_copy_only=False) * 1e-9
-        if not len(t):
-            continue
-        if np.any(np.diff(t) < 0) or t[0] < last.get(e, -math.inf):
-            raise ExportError(f"{rrd}: {e}: samples not in time order (an edited or "
-                              "merged recording)")
-        last[e] = float(t[-1])
-        yield e, t, (scalar_values(batch.column("Scalars:scalars")) if values else None)
+    try:
+        yield from scalar_chunks(rrd, entities, values)
+    except OutOfOrder as exc:
+        raise ExportError(str(exc)) from exc
 
 
 def channel_index(rrd: Path, channels: list[Channel]) -> dict[str, np.ndarray]:

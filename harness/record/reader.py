@@ -218,6 +218,36 @@ class RecordedColumns:
         return v
 
 
+class OutOfOrder(ValueError):
+    """A channel's samples are not in time order (an edited or merged recording)."""
+
+
+def scalar_chunks(rrd: Path, entities: list[str], values: bool = True
+                  ) -> Iterator[tuple[str, np.ndarray, np.ndarray | None]]:
+    """(entity, times s, values or None) of each non-empty chunk of scalar channels on the
+    ``time`` timeline, in the file's order (``values`` False: the times only, the values
+    not decoded). OutOfOrder (a ValueError) when an entity's samples are not in time order
+    (an edited or merged recording): a reader that streams them block by block relies on
+    that order."""
+    wanted = set(entities)
+    last: dict[str, float] = {}
+    for chunk in iter_chunks(rrd, content=list(entities)):
+        e = chunk.entity_path
+        if e not in wanted or chunk.is_static or "time" not in chunk.timeline_names:
+            continue
+        batch = chunk.to_record_batch()
+        if "Scalars:scalars" not in batch.schema.names:
+            continue
+        t = batch.column("time").cast("int64").to_numpy(zero_copy_only=False) * 1e-9
+        if not len(t):
+            continue
+        if np.any(np.diff(t) < 0) or t[0] < last.get(e, -np.inf):
+            raise OutOfOrder(f"{rrd}: {e}: samples not in time order (an edited or merged "
+                             "recording)")
+        last[e] = float(t[-1])
+        yield e, t, (scalar_values(batch.column("Scalars:scalars")) if values else None)
+
+
 def aligned_scalar_blocks(rrd: Path, entities: list[str]
                           ) -> Iterator[tuple[np.ndarray, dict[str, np.ndarray]]]:
     """(time s, {entity: values}) blocks of scalar channels sampled at the same times (the
@@ -248,22 +278,11 @@ def aligned_scalar_blocks(rrd: Path, entities: list[str]
             return None
         return t0, {e: tv[1] for e, tv in out.items()}
 
-    for chunk in iter_chunks(rrd, content=wanted):
-        e = chunk.entity_path
-        if e not in pending or chunk.is_static or "time" not in chunk.timeline_names:
-            continue
-        batch = chunk.to_record_batch()
-        if "Scalars:scalars" not in batch.schema.names:
-            continue
-        t = batch.column("time").cast("int64").to_numpy(zero_copy_only=False) * 1e-9
-        if not len(t):
-            continue
-        if np.any(np.diff(t) < 0) or t[0] < last[e]:
-            raise ValueError(f"{rrd}: {e}: samples not in time order (an edited or merged "
-                             "recording)")
+    for e, t, v in scalar_chunks(rrd, wanted):
+        assert v is not None
         last[e] = float(t[-1])
         rows[e] += len(t)
-        pending[e].append((t, scalar_values(batch.column("Scalars:scalars"))))
+        pending[e].append((t, v))
         upto = min(last.values())
         if upto > -np.inf:
             got = take(upto)
