@@ -356,6 +356,9 @@ class VirtualRig:
         self.safe = True
         self.last_heartbeat_s = 0.0  # rig time
         self.last_heartbeat_wall = time.monotonic()
+        # in its own process on the wall clock: when the frame being handled came (on the
+        # monotonic clock), None between frames (see run_forever)
+        self._arrived: float | None = None
         self.lockstep_process = False  # run_forever(lockstep=True): SYNC-driven, own process
         self.last_sync_wall = time.monotonic()
         self.idle_s = 0.0  # wall time without SYNC beyond the backstop, added to co_now
@@ -474,13 +477,21 @@ class VirtualRig:
             counters.frames_out += 1
         return send_raw
 
+    def wall_now(self) -> float:
+        """The devices' wall-clock time (monotonic): while a frame is handled, when it came.
+        Real devices handle a frame when it arrives; this process may get to it late (a
+        stalled host), and its devices must not time out the heartbeat of a harness whose
+        frames came in time but waited in the socket."""
+        arrived = self._arrived
+        return time.monotonic() if arrived is None else arrived
+
     def co_now(self) -> float:
         """The CANopen nodes' time: the rig's in lockstep, the wall clock in its own
         process (a harness that stops sending SYNC must still time out as a consumer). A
         process in lockstep runs on the rig's time, plus the wall time that passed beyond
         ``LOCKSTEP_BACKSTOP_S`` without a SYNC (kept, so this time never runs backwards)."""
         if self.wall_clock:
-            return time.monotonic()
+            return self.wall_now()
         if self.lockstep_process:
             now = time.monotonic()
             idle = now - self.last_sync_wall - LOCKSTEP_BACKSTOP_S
@@ -540,7 +551,14 @@ class VirtualRig:
         late = not lockstep and (self.answer_latency_s > 0 or self.answer_jitter_s > 0)
         while not stop():
             msg = self.bus.recv(poll_s)
+            self._arrived = None
             if msg is not None:
+                if not lockstep and msg.timestamp > 0:
+                    # how long the frame waited for this process (its receive time stamp, on
+                    # the wall clock), taken back from the monotonic clock
+                    waited = time.time() - msg.timestamp
+                    if 0.0 < waited < wall_timeout_s + 60.0:
+                        self._arrived = time.monotonic() - waited
                 if ((msg.arbitration_id, msg.is_extended_id) == sync_key
                         and not msg.is_error_frame):
                     woke, ran = clock(), cpu()
@@ -567,7 +585,7 @@ class VirtualRig:
             if self.co_devices is not None:
                 self.co_devices.poll(self.co_now())
             if (not self.safe and
-                    time.monotonic() - self.last_heartbeat_wall > wall_timeout_s):
+                    self.wall_now() - self.last_heartbeat_wall > wall_timeout_s):
                 self.make_safe(watchdog=True)
                 # like a CANopen emergency message: every device reports its (now safe)
                 # state once, unprompted, so the trip is seen on the bus without a SYNC
@@ -768,7 +786,7 @@ class VirtualRig:
     def _on_heartbeat(self, data: bytes) -> None:
         armed = self.binding.heartbeat.decode_armed(data)  # type: ignore[union-attr]
         self.last_heartbeat_s = self.time_s
-        self.last_heartbeat_wall = time.monotonic()
+        self.last_heartbeat_wall = self.wall_now()
         self.armed = armed
         self.safe = False
         if not self.armed:

@@ -222,8 +222,16 @@ def test_engineers_test_passes_in_real_time(tmp_path, rig):
     # host's run INCONCLUSIVE; then only the bench's criteria may be what fails. A stall of
     # the shared test host is not a silent device here (realtime_grace_s, as the other
     # real-time tests on this host)
-    result, v = _run(tmp_path, {"rig": rig, "variables": {"angle_deg": 4.0},
-                                "monitor": {"realtime_grace_s": 1.0}}, clock="realtime")
+    for attempt in range(3):
+        result, v = _run(tmp_path / str(attempt), {
+            "rig": rig, "variables": {"angle_deg": 4.0},
+            "monitor": {"realtime_grace_s": 1.0}}, clock="realtime")
+        # the bench's fault before the injected one (a host stall past a CANopen node's
+        # heartbeat consumer time: the node left operational): nothing of the sequence's
+        # was decided; run again
+        faults = result.summary["faults"]
+        if not (faults and faults[0]["device"] == "bus"):
+            break
     steps = _steps(v)
     assert [s.verdict for s in steps.values()] == ["PASS", "PASS", "PASS"], \
         [c.message for c in steps.values()]
@@ -359,3 +367,26 @@ def test_a_steps_own_controller_is_checked_before_the_run(controller, key):
     raw = _base(sequence={"steps": [{"name": "p", "for_s": 1.0, "controller": controller}]})
     with pytest.raises(ConfigError, match=rf"sequence\.steps\[0\] \(p\)\.{key}"):
         run_from_dict(raw)
+
+
+def test_a_stale_devices_telemetry_reads_nan_and_holds_no_condition():
+    """A device whose telemetry is old this tick (silent, late) gives its quantities NaN,
+    never its last value: a wait does not end and a verify does not hold on what the device
+    no longer confirms. What the harness sent is always this tick's."""
+    import math
+    from types import SimpleNamespace
+
+    from harness.sequences.quantities import quantities_for
+    from harness.state import RigCommand, RigState
+
+    q = quantities_for()
+    state = RigState(hub_angle_rad=0.1, wheel_speed_rad_s=150.0)
+    sent = RigCommand(wheel_torque_n_m=0.01)
+    ctx = SimpleNamespace(state=state, sent=sent, reference_rad=0.2)
+    assert q["hub.angle"].read(ctx) == 0.1 and q["wheel.speed"].read(ctx) == 150.0
+    state.stale = ("hub_sensor",)
+    assert math.isnan(q["hub.angle"].read(ctx)) and math.isnan(q["attitude.error"].read(ctx))
+    assert q["wheel.speed"].read(ctx) == 150.0
+    state.stale = ("reaction_wheel",)
+    assert math.isnan(q["wheel.speed"].read(ctx))
+    assert q["wheel.torque_cmd"].read(ctx) == 0.01  # the command, not the telemetry

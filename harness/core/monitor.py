@@ -448,6 +448,12 @@ class FaultMonitor:
         self._behind_since: int | None = None
         self._behind_last = 0
         self.not_held_tick = -(1 << 62)  # the last tick the loop did not hold (wall clock)
+        # the last tick late by half a CANopen node's heartbeat consumer time or more: the
+        # harness's heartbeat (sent every tick) may have come too late at a node
+        co = getattr(interface, "co", None)
+        consumer_s = getattr(co, "consumer_timeout_ms", 0) * 1e-3
+        self._hb_late_s = 0.5 * consumer_s if consumer_s > 0 else math.inf
+        self.hb_late_tick = -(1 << 62)
         self._watchdog_ticks = math.ceil(
             float(rig.data["watchdog"]["heartbeat_timeout_s"]) / dt_s) if rig is not None else 0
         self.bench_stall_max_s = 0.0
@@ -1091,16 +1097,17 @@ class FaultMonitor:
         if found is None:
             return None
         device, kind, message = found
+        held_back = max(self.not_held_tick, self.hb_late_tick)
         if kind == HARNESS_HEARTBEAT_LOST and self.realtime_grace and \
-                tick - self.not_held_tick <= self._watchdog_ticks + 2 * self.realtime_grace:
+                tick - held_back <= self._watchdog_ticks + 2 * self.realtime_grace:
             # the node went safe because the harness's heartbeat came late after the loop
             # itself was held back (the host or the transport): the bench's, as a drive
             # its own watchdog disabled (_disabled); the node has left operational, so the
             # run stops, naming the bench
             self._note_behind(tick)
             return self._event(tick, "bus", "late", (
-                f"{device}: {message}, after the loop held back tick {self.not_held_tick} "
-                f"(t = {self.not_held_tick * self.dt_s:.3f} s): the host or the transport "
+                f"{device}: {message}, after the loop held back tick {held_back} "
+                f"(t = {held_back * self.dt_s:.3f} s): the host or the transport "
                 "kept the harness's heartbeat from the node, not the node's fault"))
         return self._event(tick, device, kind, message)
 
@@ -1274,6 +1281,8 @@ class FaultMonitor:
         silence or loss: those around it are the bench's (``_bench_behind``)."""
         if late_s >= 0.5 * self.realtime_grace * self.dt_s:
             self.not_held_tick = tick
+        if late_s >= self._hb_late_s:
+            self.hb_late_tick = tick
 
     def _end_stall(self, tick: int) -> None:
         """Telemetry came again after a stall of the whole bench: counted and measured

@@ -11,6 +11,7 @@ a condition naming one is refused before the run.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from harness.sequences.conditions import Quantity
@@ -75,9 +76,26 @@ _TABLE: list[tuple[str, str, Any, str, str]] = [
 ]
 
 
+# what the harness sent: always this tick's, whatever the device's telemetry
+_SENT = frozenset({"wheel.torque_cmd", "valves.cmd", "piezo.cmd1", "piezo.cmd2"})
+NAN = math.nan
+
+
+def _fresh(read: Any, device: str) -> Any:
+    """``read``, NaN while ``device``'s telemetry is old (``RigState.stale``: a silent or
+    late device): a condition never holds on a value the device no longer confirms (NaN
+    holds no comparison but ``!=``), so a wait goes on waiting and a verify fails."""
+    def fresh(c: Any) -> float:
+        return NAN if device in c.state.stale else read(c)
+    return fresh
+
+
 def quantities_for(devices: set[str] | frozenset[str] | None = None) -> dict[str, Quantity]:
-    """The names a sequence may read on a rig with ``devices`` (None: every device)."""
-    return {name: Quantity(dim, read, doc) for name, dim, read, doc, device in _TABLE
+    """The names a sequence may read on a rig with ``devices`` (None: every device); a
+    device's telemetry reads NaN while it is stale."""
+    return {name: Quantity(dim, read if not device or name in _SENT else _fresh(read, device),
+                           doc)
+            for name, dim, read, doc, device in _TABLE
             if not device or devices is None or device in devices}
 
 
