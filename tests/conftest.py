@@ -47,9 +47,11 @@ USED_FIXTURES = pytest.StashKey[frozenset]()
 # Session fixtures that cost minutes (the four paper suites, 160 s on a quiet 2-core
 # machine) are built once per process. Under pytest-xdist's `--dist loadgroup` every test
 # that uses one goes to the same worker, so the suites run once, not once per worker
-# (``free_decay_run`` borrows the suites' free decay, so its tests go there too).
+# (``free_decay_run`` borrows the suites' free decay, so its tests go there too). The
+# PostgreSQL tests share CI's one database (each starts by dropping its tables): one
+# worker runs them, one after the other.
 SHARED_FIXTURE_GROUPS = {"paper_suites": "paper_suites", "free_decay_run": "paper_suites",
-                         "sgsrt_wheel_calibration": "calibration"}
+                         "sgsrt_wheel_calibration": "calibration", "pg_url": "postgresql"}
 
 
 @pytest.hookimpl(tryfirst=True)  # before xdist reads the groups
