@@ -13,7 +13,8 @@ so that the limit plan accepts it and the drivers never clamp it:
   With ``signal: prbs``, one period is a maximum-length pseudo-random binary sequence
   instead (crest factor 1; every line of its grid up to its clock excited, falling as
   sinc^2), analysed the same way. With ``signal: random``, band-limited Gaussian noise
-  (seeded: ``seed``) over the whole ``settle_periods + periods`` periods, never repeated, its
+  (seeded: ``seed``) over the ``settle_periods + periods`` periods, never repeated, made one
+  period at a time (``RandomSegments``: memory one period whatever the run's length), its
   peaks clipped at ``RANDOM_CREST_FACTOR`` times its rms; analysed by Welch segments of one
   period (``segment_s`` in its design).
 - ``chirp``: a sine sweep from ``f0_hz`` to ``f1_hz`` (``law: linear`` or ``log``) over
@@ -112,7 +113,8 @@ sigma 0.27 % of the time): the peak that ``amplitude_fraction`` sets then leaves
 third of it, where unclipped noise's peak would grow with the record's length."""
 
 
-def band_limited_noise(n_samples: int, dt_s: float, f0_hz: float, f1_hz: float, seed: int,
+def band_limited_noise(n_samples: int, dt_s: float, f0_hz: float, f1_hz: float,
+                       seed: int | tuple[int, ...],
                        crest_factor: float = RANDOM_CREST_FACTOR) -> np.ndarray:
     """``n_samples`` of Gaussian noise (``numpy.random.default_rng(seed)``) with every DFT
     line outside ``[f0_hz, f1_hz]`` removed, clipped at ``crest_factor`` times its rms, zero
@@ -129,6 +131,43 @@ def band_limited_noise(n_samples: int, dt_s: float, f0_hz: float, f1_hz: float, 
     x = np.clip(x / np.std(x), -crest_factor, crest_factor)
     x -= np.mean(x)
     return x / np.max(np.abs(x))
+
+
+class RandomSegments:
+    """Band-limited random noise as a table of ``segments`` x ``n`` samples, made one segment
+    at a time when a tick reaches it (each ``band_limited_noise`` of ``n`` samples, seeded by
+    ``(seed, k)`` for segment k, times ``scale``): the memory of one segment whatever the
+    record's length, where the whole record's noise would grow with it (a day at 500 Hz:
+    350 MB). The segments are independent, so the noise never repeats; where two meet the
+    signal steps, which the Welch analysis's windows see as any random signal's leakage."""
+
+    def __init__(self, n: int, segments: int, dt_s: float, f0_hz: float, f1_hz: float,
+                 seed: int, scale: float) -> None:
+        self.n, self.segments = n, segments
+        self.dt_s, self.f0_hz, self.f1_hz = dt_s, f0_hz, f1_hz
+        self.seed, self.scale = seed, scale
+        self._k = -1
+        self._segment = np.empty(0)
+
+    def segment(self, k: int) -> np.ndarray:
+        """Segment ``k``'s samples (made again if it is not the one held)."""
+        if k != self._k:
+            self._segment = self.scale * band_limited_noise(
+                self.n, self.dt_s, self.f0_hz, self.f1_hz, (self.seed, k))
+            self._k = k
+        return self._segment
+
+    def __len__(self) -> int:
+        return self.n * self.segments
+
+    def __getitem__(self, i: int) -> float:
+        k, j = divmod(int(i), self.n)
+        return float(self.segment(k)[j])
+
+    def rms(self) -> float:
+        """The rms over every segment, made one after the other (the design's figure)."""
+        total = sum(float(np.sum(self.segment(k) ** 2)) for k in range(self.segments))
+        return math.sqrt(total / len(self))
 
 
 def _command(channel: str, value: float) -> RigCommand:
@@ -248,7 +287,8 @@ class Multisine:
     ``period_samples`` (default: the table's length, repeated; a random signal's table is
     all the periods)."""
 
-    def __init__(self, channel: str, table: np.ndarray, dt_s: float, start_s: float,
+    def __init__(self, channel: str, table: np.ndarray | RandomSegments, dt_s: float,
+                 start_s: float,
                  settle_periods: int, periods: int, report: dict[str, Any],
                  quicklook: QuickLook | None = None,
                  period_samples: int | None = None) -> None:
@@ -369,7 +409,8 @@ def build_multisine(c: dict[str, Any], rig: RigConfig, dt_s: float) -> Multisine
     total = c["settle_periods"] + c["periods"]
     if c["signal"] == "random":
         n = int(round(c["period_s"] / dt_s))
-        shape = band_limited_noise(n * total, dt_s, f0, f1, c["seed"])
+        shape = RandomSegments(n, total, dt_s, f0, f1, c["seed"], 1.0)
+        shape.segment(0)  # a band with no line of the grid is refused here
         lines = np.arange(max(1, math.ceil(f0 * n * dt_s - 1e-9)),
                           math.floor(f1 * n * dt_s + 1e-9) + 1)
         if not len(lines):
@@ -392,7 +433,12 @@ def build_multisine(c: dict[str, Any], rig: RigConfig, dt_s: float) -> Multisine
         shape, lines = schroeder_multisine(n, dt_s, f0, f1)
     peak = c["amplitude_fraction"] * limit
     period_s = n * dt_s
-    rms = float(np.sqrt(np.mean(shape**2)))
+    if isinstance(shape, RandomSegments):
+        rms = shape.rms()
+        shape = RandomSegments(n, total, dt_s, f0, f1, c["seed"], peak)
+    else:
+        rms = float(np.sqrt(np.mean(shape**2)))
+        shape = peak * shape
     measure_start = c["start_s"] + c["settle_periods"] * period_s
     report = {
         "excitation": "multisine", "signal": c["signal"], **extra,
@@ -409,7 +455,7 @@ def build_multisine(c: dict[str, Any], rig: RigConfig, dt_s: float) -> Multisine
     # the quick look's period-by-period DFT needs a periodic signal
     quicklook = None if c["signal"] == "random" else QuickLook(rig, c["input"], n, dt_s,
                                                                 lines)
-    return Multisine(c["input"], peak * shape, dt_s, c["start_s"], c["settle_periods"],
+    return Multisine(c["input"], shape, dt_s, c["start_s"], c["settle_periods"],
                      c["periods"], report, quicklook, period_samples=n)
 
 
