@@ -33,10 +33,10 @@ from rig_models.schema import ConfigError
 CAN_ERR_BUSOFF = 0x040  # SocketCAN error class (linux/can/error.h)
 KERNEL_SYNC_BACKLOG = 1000
 """Kernel-sent SYNCs kept for a loop that fell behind (their time stamps)."""
-DUPLICATE_HB_COUNT = 8
-# the kind of a CANopen node's EMCY 0x8130 about the harness's own heartbeat (the harness
-# was late at the node: on the wall clock after a loop held back, the bench's doing)
 HARNESS_HEARTBEAT_LOST = "harness heartbeat lost"
+"""The kind of a CANopen node's EMCY 0x8130 about the harness's own heartbeat (it came late
+at the node: on the wall clock after a tick the loop held back, the bench's doing)."""
+DUPLICATE_HB_COUNT = 8
 DUPLICATE_HB_PERIODS = 5.0
 """A node id used twice: this many heartbeats within this many of the node's periods (a
 healthy node needs 7 periods for 8 heartbeats; a late one followed by an on-time one bunches
